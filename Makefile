@@ -1,0 +1,29 @@
+# epoet: every target that needs the environment depends on `install`, so each command in the
+# README works on a fresh machine that has only Python 3.11 and make.
+PYTHON ?= python3.11
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: install test train gallery bench tables clean-venv
+
+install: $(STAMP)
+
+# Re-runs pip only when the dependency files change; a second `make install` is a no-op.
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[dev]'
+	touch $(STAMP)
+
+test: install
+	$(PY) -m pytest tests
+
+# The main job (see README): the terrain gallery until training lands.
+gallery: install
+	$(PY) -m epoet.terrain terrain=cppn n=8 out=gallery
+
+bench: install
+	$(PY) bench/env_throughput.py
+
+clean-venv:
+	rm -rf $(VENV)

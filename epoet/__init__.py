@@ -1,0 +1,1 @@
+"""epoet: open-ended locomotion learning."""

@@ -1,0 +1,265 @@
+"""Structured configs: the schema behind conf/, with types checked by OmegaConf and ranges by us.
+
+Hydra's ConfigStore registers each dataclass as the schema of its YAML file, so a typo or a wrong
+type fails at composition. Ranges are checked by `validate`, which builds the dataclasses (running
+their `__post_init__`) before any work starts; every failure is one `ConfigError` sentence.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, is_dataclass
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig, OmegaConf
+
+
+class ConfigError(ValueError):
+    """A config value that cannot work; the message is one sentence naming it."""
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise ConfigError(message)
+
+
+def _positive(obj: Any, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        _check(value > 0, f"{type(obj).__name__}.{name} must be > 0, got {value}.")
+
+
+def _non_negative(obj: Any, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        _check(value >= 0, f"{type(obj).__name__}.{name} must be >= 0, got {value}.")
+
+
+@dataclass
+class RewardConfig:
+    """Weights of the paper's Eq. 1 as implemented by the reference (REFERENCE.md section 2)."""
+
+    target_speed: float = 0.4
+    lateral_speed_penalty: float = 30.0
+    w_velocity: float = 6.0
+    w_heading: float = 10.0
+    w_lateral: float = 10.0
+    c_lateral: float = 0.1
+    c_heading: float = 0.1
+    c_pitch: float = 0.5
+    c_roll: float = 0.5
+    c_actuator: float = 1e-4
+    c_vertical: float = 0.7
+    finish_bonus: float = 500.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "target_speed")
+        _non_negative(self, "lateral_speed_penalty", "w_velocity", "w_heading", "w_lateral",
+                      "c_lateral", "c_heading", "c_pitch", "c_roll", "c_actuator", "c_vertical",
+                      "finish_bonus")
+
+
+@dataclass
+class AgentConfig:
+    """The hexapod and its episode rules (REFERENCE.md sections 1-3)."""
+
+    name: str = "hexapod"
+    timestep: float = 0.02          # one RK4 step per control step: 50 Hz, as the reference
+    max_episode_steps: int = 2000
+    start_x: float = -6.0           # spawn x; the finish line is `finish_x` (see README)
+    finish_x: float = 6.0
+    no_progress_steps: int = 500    # end after this many steps without a new best x
+    settle_steps: int = 20
+    spawn_xy_std: float = 0.1
+    spawn_yaw: float = 0.8          # yaw ~ U(-spawn_yaw, spawn_yaw)
+    spawn_vel_std: float = 0.1
+    spawn_clearance: float = 0.14   # torso height above the highest ground under the robot
+    reward: RewardConfig = field(default_factory=RewardConfig)
+
+    def __post_init__(self) -> None:
+        _check(self.name == "hexapod", f"agent.name must be 'hexapod', got {self.name!r}.")
+        _positive(self, "timestep", "max_episode_steps", "no_progress_steps", "spawn_clearance")
+        _non_negative(self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std")
+        _check(self.finish_x > self.start_x,
+               f"agent.finish_x ({self.finish_x}) must be ahead of agent.start_x ({self.start_x}).")
+
+
+@dataclass
+class CppnConfig:
+    """neat-python genome settings, paper Table 5 (names as in neat-python's config file)."""
+
+    num_inputs: int = 2
+    num_outputs: int = 1
+    num_hidden: int = 2
+    initial_connection: str = "full_nodirect"
+    feed_forward: bool = True
+    activation_default: str = "random"
+    activation_mutate_rate: float = 0.5
+    activation_options: list[str] = field(
+        default_factory=lambda: ["identity", "sin", "sigmoid", "square", "tanh", "gauss"])
+    aggregation_default: str = "sum"
+    aggregation_mutate_rate: float = 0.1
+    aggregation_options: list[str] = field(default_factory=lambda: ["sum"])
+    bias_init_mean: float = 0.0
+    bias_init_stdev: float = 0.1
+    bias_init_type: str = "gaussian"
+    bias_max_value: float = 10.0
+    bias_min_value: float = -10.0
+    bias_mutate_power: float = 0.1
+    bias_mutate_rate: float = 0.75
+    bias_replace_rate: float = 0.1
+    compatibility_disjoint_coefficient: float = 1.0
+    compatibility_weight_coefficient: float = 0.5
+    conn_add_prob: float = 0.1
+    conn_delete_prob: float = 0.075
+    enabled_default: bool = True
+    enabled_mutate_rate: float = 0.01
+    node_add_prob: float = 0.1
+    node_delete_prob: float = 0.075
+    response_init_mean: float = 1.0
+    response_init_stdev: float = 0.0
+    response_init_type: str = "gaussian"
+    response_max_value: float = 10.0
+    response_min_value: float = -10.0
+    response_mutate_power: float = 0.2
+    response_mutate_rate: float = 0.75
+    response_replace_rate: float = 0.1
+    single_structural_mutation: bool = True
+    structural_mutation_surer: str = "default"
+    weight_init_mean: float = 0.0
+    weight_init_stdev: float = 0.25
+    weight_init_type: str = "gaussian"
+    weight_max_value: float = 10.0
+    weight_min_value: float = -10.0
+    weight_mutate_power: float = 0.1
+    weight_mutate_rate: float = 0.75
+    weight_replace_rate: float = 0.1
+
+    def __post_init__(self) -> None:
+        _check(self.num_inputs == 2 and self.num_outputs == 1,
+               "terrain.cppn must map 2 inputs (x, y) to 1 output (height).")
+        _non_negative(self, "num_hidden")
+        known = {"identity", "sin", "sigmoid", "square", "tanh", "gauss", "relu", "abs", "exp",
+                 "log", "inv", "clamped", "cube", "hat", "softplus", "elu", "lelu", "selu"}
+        unknown = sorted(set(self.activation_options) - known)
+        _check(not unknown, f"terrain.cppn.activation_options has unknown activations {unknown}.")
+
+
+@dataclass
+class MutationConfig:
+    """Validity rules for mutated CPPN children (REFERENCE.md section 4, the reference's rules)."""
+
+    min_genome_distance: float = 0.8
+    check_grid: int = 20
+    min_range: float = 0.1          # max of (output - output at the first point) must exceed this
+    min_variance: float = 0.1
+    response_rescale_low: float = 0.25
+    response_rescale_high: float = 16.0
+    output_response: float = 10.0   # the reference sets the output node's response before mutating
+    max_tries: int = 200
+
+    def __post_init__(self) -> None:
+        _positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high")
+        _non_negative(self, "min_genome_distance", "min_range", "min_variance")
+
+
+@dataclass
+class TerrainConfig:
+    """The heightfield: extent, resolution, the bowl part, the CPPN part and the height schedule."""
+
+    kind: str = "bowl"              # bowl | cppn
+    grid: int = 100                 # samples per side
+    size: float = 20.0              # metres per side (square terrain centred at the origin)
+    base: float = 0.5               # hfield base thickness below height 0 (metres)
+    max_height: float = 0.1         # initial maximum height S (metres)
+    max_height_step: float = 0.01   # +S per iteration (paper)
+    max_height_limit: float = 2.2   # cap on S (reference)
+    bowl_weight: float = 0.3        # heightmap = 0.3 bowl + 0.7 CPPN (paper); 1.0 = bowl only
+    bump_grid: int = 20
+    bump_low: float = 0.15
+    bump_high: float = 1.0
+    cppn: CppnConfig = field(default_factory=CppnConfig)
+    mutation: MutationConfig = field(default_factory=MutationConfig)
+
+    def __post_init__(self) -> None:
+        _check(self.kind in ("bowl", "cppn"),
+               f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.")
+        _positive(self, "grid", "size", "base", "bump_grid", "max_height_limit")
+        _non_negative(self, "max_height", "max_height_step")
+        _check(self.grid >= 8, f"terrain.grid must be >= 8 samples, got {self.grid}.")
+        _check(0.0 <= self.bowl_weight <= 1.0,
+               f"terrain.bowl_weight must be in [0, 1], got {self.bowl_weight}.")
+        _check(0.0 < self.bump_low <= self.bump_high,
+               f"terrain.bump_low/bump_high must satisfy 0 < low <= high, got "
+               f"{self.bump_low}/{self.bump_high}.")
+        _check(self.max_height <= self.max_height_limit,
+               f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
+               f"({self.max_height_limit}).")
+
+
+@dataclass
+class Config:
+    """The root config (conf/config.yaml)."""
+
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        _non_negative(self, "seed")
+
+
+@dataclass
+class GalleryConfig:
+    """`python -m epoet.terrain`: a root terrain and its mutated descendants as one PNG grid."""
+
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    seed: int = 0
+    n: int = 8
+    out: str = "gallery"
+
+    def __post_init__(self) -> None:
+        _non_negative(self, "seed")
+        _positive(self, "n")
+
+
+def register_configs() -> None:
+    """Make each dataclass the schema of its YAML file (type checks at composition)."""
+    cs = ConfigStore.instance()
+    cs.store(name="config_schema", node=Config)
+    cs.store(name="gallery_schema", node=GalleryConfig)
+    cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
+    cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
+
+
+def to_object(cfg: DictConfig, schema: type) -> Any:
+    """Build the dataclass tree from a composed config, running every range check."""
+    data = OmegaConf.to_container(cfg, resolve=True)
+    return _build(schema, data)
+
+
+def _build(schema: type, data: Any) -> Any:
+    if not is_dataclass(schema) or not isinstance(data, dict):
+        return data
+    kwargs = {}
+    names = {f.name: f for f in fields(schema)}
+    for key, value in data.items():
+        if key not in names:
+            continue  # keys owned by other schemas (hydra internals); types were checked already
+        ftype = names[key].type
+        sub = _SCHEMAS.get(ftype) if isinstance(ftype, str) else ftype
+        kwargs[key] = _build(sub, value) if sub is not None else value
+    return schema(**kwargs)
+
+
+_SCHEMAS: dict[str, type] = {
+    "RewardConfig": RewardConfig,
+    "AgentConfig": AgentConfig,
+    "CppnConfig": CppnConfig,
+    "MutationConfig": MutationConfig,
+    "TerrainConfig": TerrainConfig,
+}
+
+
+def validate(cfg: DictConfig, schema: type = Config) -> Any:
+    """Range-check a composed config; raises ConfigError with one sentence."""
+    return to_object(cfg, schema)
