@@ -1,0 +1,1 @@
+"""Evolution strategies: the flat numpy policy (`policy`) and the OpenAI-ES optimiser."""
