@@ -1,0 +1,1 @@
+"""The ePOET loop: environment-agent pairs, PATA-EC novelty, reproduction and transfer."""
