@@ -1,0 +1,98 @@
+"""`python -m epoet.terrain terrain=cppn n=8 out=DIR`: a root terrain and its descendants as a PNG.
+
+Writes DIR/gallery.png (a chain: each panel is a mutated child of the previous one, at
+iterations 0, 25, 50, ... so S grows by the schedule) and each terrain's npz in DIR. With
+terrain=bowl there is nothing to mutate: the panels are fresh bowls along the same schedule.
+Bad values end with one line on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+from typing import NoReturn
+
+import hydra
+import numpy as np
+from hydra.errors import HydraException
+from matplotlib.figure import Figure
+from omegaconf import DictConfig
+from omegaconf.errors import OmegaConfBaseException
+
+from epoet.config import ConfigError, GalleryConfig, register_configs, validate
+from epoet.terrain.cppn import CppnMutationError
+from epoet.terrain.generate import make_terrain, mutate_terrain
+from epoet.terrain.terrain import Terrain, plot_terrain
+
+CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+ITERATION_STEP = 25  # iterations between panels: S grows by 25 * max_height_step per panel
+COLUMNS = 4
+
+
+def chain(cfg: GalleryConfig) -> list[Terrain]:
+    """Root terrain, then each panel a child of the previous one, seeds derived from cfg.seed."""
+    seeds = [int(s) for s in np.random.SeedSequence(cfg.seed).generate_state(cfg.n)]
+    terrains = [make_terrain(cfg.terrain, seeds[0], iteration=0)]
+    for k in range(1, cfg.n):
+        if cfg.terrain.kind == "cppn":
+            terrains.append(mutate_terrain(terrains[-1], cfg.terrain, seeds[k],
+                                           iteration=k * ITERATION_STEP))
+        else:
+            terrains.append(make_terrain(cfg.terrain, seeds[k], iteration=k * ITERATION_STEP))
+    return terrains
+
+
+def write_gallery(terrains: list[Terrain], out: Path) -> Path:
+    """One 3D panel per terrain on a shared height axis, so the growing relief is visible."""
+    rows, cols = math.ceil(len(terrains) / COLUMNS), min(len(terrains), COLUMNS)
+    fig = Figure(figsize=(4.2 * cols, 3.8 * rows), dpi=100)
+    zmax = max(t.max_height for t in terrains)
+    for k, terrain in enumerate(terrains):
+        plot_terrain(fig.add_subplot(rows, cols, k + 1, projection="3d"), terrain, zmax=zmax)
+    top = 1.0 - 0.45 / fig.get_figheight()  # room for the two-line titles, whatever the rows
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.03, top=top, wspace=0.05, hspace=0.15)
+    path = out / "gallery.png"
+    fig.savefig(path)
+    return path
+
+
+@hydra.main(config_path=CONF_DIR, config_name="gallery", version_base="1.3")
+def _app(raw: DictConfig) -> None:
+    # Failures are reported here: an exception escaping the task makes Hydra log its own lines.
+    try:
+        cfg = validate(raw, GalleryConfig)
+        out = Path(cfg.out)
+        out.mkdir(parents=True, exist_ok=True)
+        terrains = chain(cfg)
+        for terrain in terrains:
+            terrain.save(out / f"{terrain.id}.npz")
+        png = write_gallery(terrains, out)
+        print(f"wrote {png} and {len(terrains)} terrain files to {out}/")
+    except (ConfigError, CppnMutationError, OSError) as err:
+        _fail(err)
+
+
+def _fail(err: BaseException) -> NoReturn:
+    """Exit 2 with the error's first line, plus its cause's (Hydra wraps OmegaConf's errors)."""
+    text = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    cause = err.__cause__
+    if cause is not None and str(cause).strip():
+        text += f": {str(cause).strip().splitlines()[0]}"
+    print(f"error: {text}", file=sys.stderr)
+    sys.exit(2)
+
+
+def main() -> None:
+    """Run the Hydra app; bad input ends in one line on stderr instead of a traceback."""
+    register_configs()
+    # Make Hydra re-raise composition errors instead of printing its multi-line report.
+    os.environ["HYDRA_FULL_ERROR"] = "1"
+    try:
+        _app()
+    except (HydraException, OmegaConfBaseException) as err:
+        _fail(err)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,39 @@
+"""The random bowl: dm_control's quadruped-escape terrain with a variable level (REFERENCE.md s4).
+
+Regenerated from a new seed every iteration, it keeps the agent on changing ground even while
+the CPPN part of its environment stays the same (paper, Appendix "Generated Environments").
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from epoet.terrain.terrain import normalize
+
+
+def random_bowl(rng: np.random.Generator, grid: int, max_height: float, bump_grid: int = 20,
+                bump_low: float = 0.15, bump_high: float = 1.0) -> np.ndarray:
+    """A (grid, grid) bowl with smooth random bumps, normalised to [0, 1].
+
+    bowl = level - cos(2 pi radius) / 2 on r, c in [-1, 1] with radius clipped to [0.04, 1] and
+    level ~ U(0.5, S + 0.5), S = `max_height` (metres, the current schedule value): a higher S
+    lifts the level, so the multiplicative bumps weigh more against the ring shape. The bumps are
+    a bump_grid x bump_grid field of U(bump_low, bump_high), upsampled by cubic splines.
+    """
+    if grid < 2 or bump_grid < 1:
+        raise ValueError(f"random_bowl needs grid >= 2 and bump_grid >= 1, got {grid} and "
+                         f"{bump_grid}.")
+    if not 0.0 < bump_low <= bump_high:
+        raise ValueError(f"random_bowl needs 0 < bump_low <= bump_high, got {bump_low} and "
+                         f"{bump_high}.")
+    axis = np.linspace(-1.0, 1.0, grid)
+    r, c = np.meshgrid(axis, axis, indexing="ij")
+    radius = np.clip(np.sqrt(r ** 2 + c ** 2), 0.04, 1.0)
+    level = rng.uniform(0.5, max_height + 0.5)
+    bowl = level - np.cos(2.0 * np.pi * radius) / 2.0
+    bumps = rng.uniform(bump_low, bump_high, size=(bump_grid, bump_grid))
+    # Corner-aligned cubic upsampling (what ndimage.zoom does), with the output shape exact.
+    at = np.linspace(0.0, bump_grid - 1.0, grid)
+    rows, cols = np.meshgrid(at, at, indexing="ij")
+    smooth = ndimage.map_coordinates(bumps, [rows, cols], order=3, mode="nearest")
+    return normalize(bowl * smooth)

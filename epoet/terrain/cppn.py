@@ -1,0 +1,248 @@
+"""CPPN part of a terrain: real neat-python 2.0 genomes, evaluated over a grid with numpy.
+
+Conventions (fixed here, used everywhere in the package):
+- Inputs: node -1 is x, node -2 is y, both spanning [-1, 1] across the terrain's extent (corner
+  to corner), so a genome describes the same shape at any grid resolution. Output: node 0.
+- neat-python draws from the global `random` module. Genome creation and mutation run inside
+  `seeded_random(seed)`, which seeds the global generator and restores its previous state
+  afterwards, so every genome is a function of its seed and callers' random streams are
+  untouched. (Not thread-safe: neat's module functions are bound to the one global generator.)
+- Node keys and innovation numbers are drawn from a fresh genome config per operation, started
+  after the parent's largest key/innovation, so a child does not depend on what was created
+  earlier in the process. (New genes get keys above all of the parent's, which is what the
+  parent-child distance needs; unrelated genomes may reuse keys, which would only matter for
+  crossover, and CPPNs are never crossed over: paper appendix "Generated Environments".)
+"""
+from __future__ import annotations
+
+import copy
+import random
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import fields
+
+import neat
+import numpy as np
+from neat.graphs import feed_forward_layers
+
+from epoet.config import CppnConfig, MutationConfig
+
+INPUT_KEYS = (-1, -2)   # x, y
+OUTPUT_KEY = 0
+
+
+class CppnMutationError(RuntimeError):
+    """No valid child CPPN was found within `mutation.max_tries` attempts."""
+
+
+def genome_config(cfg: CppnConfig) -> neat.genome.DefaultGenomeConfig:
+    """neat's genome config built from the schema (no config file), with a fresh tracker.
+
+    Only the [DefaultGenome] section is needed: there is no Population (ePOET replaces NEAT's
+    fitness-driven reproduction with PATA-EC), so species/stagnation/reproduction settings
+    would be unused.
+    """
+    params = {}
+    for f in fields(CppnConfig):
+        value = getattr(cfg, f.name)
+        if isinstance(value, list):
+            params[f.name] = " ".join(value)
+        else:
+            params[f.name] = str(value)
+    gc = neat.DefaultGenome.parse_config(params)
+    gc.innovation_tracker = neat.InnovationTracker()
+    return gc
+
+
+@contextmanager
+def seeded_random(seed: int) -> Iterator[None]:
+    """Run neat-python (which uses the global `random`) deterministically from `seed`."""
+    saved = random.getstate()
+    random.seed(seed)
+    try:
+        yield
+    finally:
+        random.setstate(saved)
+
+
+def new_genome(cfg: CppnConfig, seed: int) -> neat.DefaultGenome:
+    """A root CPPN: neat's initial genome (Table 5: 2 hidden nodes, full_nodirect).
+
+    As in the reference, the output activation is forced to sin; its response stays at neat's
+    initial value (1.0), so roots are smooth and complexity comes from mutation.
+    """
+    gc = genome_config(cfg)
+    genome = neat.DefaultGenome(0)
+    with seeded_random(seed):
+        genome.configure_new(gc)
+    genome.nodes[OUTPUT_KEY].activation = "sin"
+    return genome
+
+
+def grid_inputs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) input arrays of shape (n, n): rows follow y, columns follow x, both over [-1, 1]."""
+    axis = np.linspace(-1.0, 1.0, n)
+    x, y = np.meshgrid(axis, axis, indexing="xy")
+    return x, y
+
+
+def _clip60(z: np.ndarray) -> np.ndarray:
+    return np.clip(z, -60.0, 60.0)
+
+
+# numpy versions of neat.activations, formula for formula (same clipping), so the vectorised
+# evaluation equals FeedForwardNetwork.activate to the last bit or within an ulp of exp/sin.
+_ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "sigmoid": lambda z: 1.0 / (1.0 + np.exp(-_clip60(5.0 * z))),
+    "tanh": lambda z: np.tanh(_clip60(2.5 * z)),
+    "sin": lambda z: np.sin(_clip60(5.0 * z)),
+    "gauss": lambda z: np.exp(-5.0 * np.clip(z, -3.4, 3.4) ** 2),
+    "relu": lambda z: np.where(z > 0.0, z, 0.0),
+    "elu": lambda z: np.where(z > 0.0, z, np.exp(np.minimum(z, 0.0)) - 1),
+    "lelu": lambda z: np.where(z > 0.0, z, 0.005 * z),
+    "selu": lambda z: np.where(
+        z > 0.0, 1.0507009873554804934193349852946 * z,
+        1.0507009873554804934193349852946 * 1.6732632423543772848170429916717
+        * (np.exp(np.minimum(z, 0.0)) - 1)),
+    "softplus": lambda z: 0.2 * np.log(1 + np.exp(_clip60(5.0 * z))),
+    "identity": lambda z: z,
+    "clamped": lambda z: np.clip(z, -1.0, 1.0),
+    "inv": lambda z: np.where(z == 0.0, 0.0, 1.0 / np.where(z == 0.0, 1.0, z)),
+    "log": lambda z: np.log(np.maximum(1e-7, z)),
+    "exp": lambda z: np.exp(_clip60(z)),
+    "abs": np.abs,
+    "hat": lambda z: np.maximum(0.0, 1 - np.abs(z)),
+    "square": lambda z: z ** 2,
+    "cube": lambda z: z ** 3,
+}
+
+
+def _aggregate(name: str, terms: list[np.ndarray], shape: tuple[int, ...]) -> np.ndarray:
+    """neat.aggregations over per-link arrays, accumulated left to right like Python's sum."""
+    if name == "sum":
+        total = np.zeros(shape)
+        for t in terms:
+            total = total + t
+        return total
+    if name == "product":
+        total = np.ones(shape)
+        for t in terms:
+            total = total * t
+        return total
+    if not terms:
+        return np.zeros(shape)
+    if name == "max":
+        return np.max(terms, axis=0)
+    if name == "min":
+        return np.min(terms, axis=0)
+    if name == "mean":
+        return _aggregate("sum", terms, shape) / len(terms)
+    raise ValueError(f"CPPN aggregation {name!r} is not supported by the vectorised evaluator.")
+
+
+def evaluate(genome: neat.DefaultGenome, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The genome's output at every (x, y), exactly as neat's FeedForwardNetwork computes it.
+
+    Same node order (neat.graphs.feed_forward_layers over the enabled connections), same link
+    order (the genome's connection order) and node value
+    activation(bias + response * aggregation(weight_i * input_i)). Overflow gives inf/nan
+    instead of neat's OverflowError; callers treat non-finite output as invalid.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.shape != y.shape:
+        raise ValueError(f"CPPN inputs x {x.shape} and y {y.shape} must have the same shape.")
+    connections = [cg.key for cg in genome.connections.values() if cg.enabled]
+    layers, required = feed_forward_layers(list(INPUT_KEYS), [OUTPUT_KEY], connections)
+    readable = required | set(INPUT_KEYS)
+    values = {INPUT_KEYS[0]: x, INPUT_KEYS[1]: y, OUTPUT_KEY: np.zeros(x.shape)}
+    with np.errstate(all="ignore"):
+        for layer in layers:
+            for node in layer:
+                terms = [values[i] * genome.connections[(i, o)].weight
+                         for i, o in connections if o == node and i in readable]
+                gene = genome.nodes[node]
+                act = _ACTIVATIONS.get(gene.activation)
+                if act is None:
+                    raise ValueError(f"CPPN node {node} uses activation {gene.activation!r}, "
+                                     "which the vectorised evaluator does not support.")
+                s = _aggregate(gene.aggregation, terms, x.shape)
+                values[node] = act(gene.bias + gene.response * s)
+    return values[OUTPUT_KEY]
+
+
+def has_input_output_path(genome: neat.DefaultGenome) -> bool:
+    """Validity rule (a): some input reaches the output through enabled connections."""
+    reached = set(INPUT_KEYS)
+    edges = [cg.key for cg in genome.connections.values() if cg.enabled]
+    grew = True
+    while grew:
+        new = {o for i, o in edges if i in reached and o not in reached}
+        reached |= new
+        grew = bool(new)
+    return OUTPUT_KEY in reached
+
+
+def _fresh_counters(gc: neat.genome.DefaultGenomeConfig, parent: neat.DefaultGenome) -> None:
+    """Start node keys and innovation numbers after the parent's, independent of history."""
+    gc.node_indexer = None  # neat restarts it at max(node keys) + 1
+    last = max((cg.innovation for cg in parent.connections.values()), default=0)
+    gc.innovation_tracker = neat.InnovationTracker(start_number=last)
+
+
+def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationConfig,
+                  seed: int, grid: int) -> neat.DefaultGenome:
+    """A mutated child that passes the reference's validity rules (REFERENCE.md section 4).
+
+    Each attempt copies the parent, forces the output activation to sin and its response to
+    `rules.output_response` (the reference), applies one neat mutation, and accepts it if
+    (a) an input-output path exists, (b) its distance to the parent exceeds
+    `min_genome_distance`, (c) on a check_grid x check_grid grid the output minus its value at
+    the first point has max > min_range and variance > min_variance, and the output is finite
+    on the terrain's own grid (our addition: chained square/inv nodes can overflow).
+    Then, as the reference does, the output response is rescaled when that max lies outside
+    [response_rescale_low, response_rescale_high]; we multiply the response by low/max
+    (or high/max), which equals the reference's assignment when its response was 1.
+    """
+    gc = genome_config(cppn)
+    check_x, check_y = grid_inputs(rules.check_grid)
+    full_x, full_y = grid_inputs(grid)
+    with seeded_random(seed):
+        for _ in range(rules.max_tries):
+            child = copy.deepcopy(parent)
+            child.key = parent.key + 1
+            child.fitness = None
+            output = child.nodes[OUTPUT_KEY]
+            output.activation = "sin"
+            output.response = rules.output_response
+            _fresh_counters(gc, parent)
+            child.mutate(gc)
+            if not has_input_output_path(child):
+                continue
+            if parent.distance(child, gc) <= rules.min_genome_distance:
+                continue
+            out = evaluate(child, check_x, check_y)
+            shifted = out - out.flat[0]
+            peak = float(np.max(shifted))
+            if not (np.all(np.isfinite(out)) and peak > rules.min_range
+                    and float(np.var(shifted)) > rules.min_variance):
+                continue
+            if not np.all(np.isfinite(evaluate(child, full_x, full_y))):
+                continue
+            if peak < rules.response_rescale_low:
+                child.nodes[OUTPUT_KEY].response *= rules.response_rescale_low / peak
+            elif peak > rules.response_rescale_high:
+                child.nodes[OUTPUT_KEY].response *= rules.response_rescale_high / peak
+            return child
+    raise CppnMutationError(
+        f"no valid CPPN child in {rules.max_tries} tries (seed {seed}); relax "
+        "terrain.mutation (min_genome_distance, min_range, min_variance) or raise max_tries.")
+
+
+def fingerprint(genome: neat.DefaultGenome) -> str:
+    """A canonical text of the genome's genes, for content-derived terrain ids."""
+    nodes = [f"n{k}:{g.activation}:{g.aggregation}:{g.bias!r}:{g.response!r}"
+             for k, g in sorted(genome.nodes.items())]
+    conns = [f"c{k[0]},{k[1]}:{g.weight!r}:{g.enabled}"
+             for k, g in sorted(genome.connections.items())]
+    return ";".join(nodes + conns)
