@@ -1,0 +1,123 @@
+"""`epoet/Hexapod-v0`: the hexapod terrain-walking task as a gymnasium.Env."""
+from __future__ import annotations
+
+from dataclasses import asdict
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from epoet.config import AgentConfig, TerrainConfig, validate
+from epoet.envs.model import Ground, action_to_targets, build_model, layout
+from epoet.envs.spawn import spawn
+from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
+from epoet.terrain import Terrain, make_terrain
+
+
+def _configs(agent: Any, terrain: Any) -> tuple[AgentConfig, TerrainConfig]:
+    """Accept dataclasses, dicts or DictConfigs (as gym.make passes kwargs) and range-check them."""
+    return (validate(OmegaConf.merge(OmegaConf.structured(AgentConfig), _plain(agent)), AgentConfig),
+            validate(OmegaConf.merge(OmegaConf.structured(TerrainConfig), _plain(terrain)),
+                     TerrainConfig))
+
+
+def _plain(value: Any) -> dict:
+    if value is None:
+        return {}
+    if isinstance(value, DictConfig):
+        return OmegaConf.to_container(value, resolve=True)
+    if isinstance(value, (AgentConfig, TerrainConfig)):
+        return asdict(value)
+    if isinstance(value, str):  # gym.make("epoet/Hexapod-v0", terrain="cppn")
+        return {"kind": value}
+    return dict(value)
+
+
+class HexapodEnv(gym.Env):
+    """An 18-DoF hexapod walking towards the +x finish line of a heightfield terrain.
+
+    Terrain swaps between episodes without recompiling: pass `options={"terrain": Terrain}` to
+    `reset`, or call `set_terrain`. With no terrain given, the env makes one from its terrain
+    config on the first reset (seeded by that reset's seed); `resample_terrain=True` makes a new
+    one every episode, its maximum height following the config's schedule per episode.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+
+    def __init__(self, agent: Any = None, terrain: Any = None, resample_terrain: bool = False,
+                 render_mode: str | None = None) -> None:
+        self.agent_cfg, self.terrain_cfg = _configs(agent, terrain)
+        self.model = build_model(self.agent_cfg, self.terrain_cfg)
+        self.data = mujoco.MjData(self.model)
+        self.ground = Ground(self.model)
+        self.task = HexapodTask(self.agent_cfg, layout(self.model), self.ground.half_x)
+        self.resample_terrain = resample_terrain
+        self.render_mode = render_mode
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float64)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        self.terrain: Terrain | None = None
+        self.episodes = 0
+        self._state = EpisodeState.zeros(1)
+        self._obs = np.zeros((1, OBS_DIM))
+        self._renderer: mujoco.Renderer | None = None
+
+    def set_terrain(self, terrain: Terrain) -> None:
+        """Swap the heightfield in place (takes effect now; call before `reset`)."""
+        self.ground.set(self.model, terrain.heightmap, terrain.max_height, terrain.size)
+        self.terrain = terrain
+        mujoco.mj_forward(self.model, self.data)
+        if self._renderer is not None:
+            mujoco.mjr_uploadHField(self.model, self._renderer._mjr_context, 0)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        if "terrain" in options:
+            self.set_terrain(options["terrain"])
+        elif self.terrain is None or self.resample_terrain:
+            terrain_seed = int(self.np_random.integers(2**31 - 1))
+            self.set_terrain(make_terrain(self.terrain_cfg, seed=terrain_seed,
+                                          iteration=self.episodes))
+        self.episodes += 1
+        spawn(self.model, self.data, self.ground, self.agent_cfg, self.np_random)
+        qpos, qvel, sensordata = self._gather()
+        self.task.begin(qpos, self._state, slice(None))
+        self.task.observe(qpos, qvel, sensordata, self._obs)
+        return self._obs[0].copy(), self._info(qpos)
+
+    def step(self, action: np.ndarray):
+        action_to_targets(np.asarray(action, dtype=np.float64), out=self.data.ctrl)
+        mujoco.mj_step(self.model, self.data)
+        qpos, qvel, sensordata = self._gather()
+        reward, terminated, truncated, terms = self.task.step(qpos, qvel, sensordata, self._state)
+        self.task.observe(qpos, qvel, sensordata, self._obs)
+        info = self._info(qpos)
+        info["reward_terms"] = {k: float(v[0]) for k, v in terms.items()}
+        return (self._obs[0].copy(), float(reward[0]), bool(terminated[0]), bool(truncated[0]),
+                info)
+
+    def _gather(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        d = self.data
+        return d.qpos[None, :], d.qvel[None, :], d.sensordata[None, :]
+
+    def _info(self, qpos: np.ndarray) -> dict:
+        x, y = qpos[0, 0], qpos[0, 1]
+        return {"x": float(x), "finished": bool(self._state.finished[0]),
+                "roughness": float(self.ground.roughness(x, y)[0]),
+                "steps": int(self._state.steps[0])}
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, 240, 320)
+            mujoco.mjr_uploadHField(self.model, self._renderer._mjr_context, 0)
+        self._renderer.update_scene(self.data, camera="track")
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,143 @@
+"""The hexapod's MuJoCo model on a run-time heightfield, and the index maps the task reads.
+
+The MJCF (assets/hexapod.xml) fixes the robot; the heightfield's resolution, extent and elevation
+come from the terrain config, applied through MjSpec before compiling, so one compiled model serves
+every terrain of a run: `set_heightfield` rewrites `hfield_data` in place (no recompilation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+
+import mujoco
+import numpy as np
+
+from epoet.config import AgentConfig, TerrainConfig
+
+LEGS = ("fl", "fr", "ml", "mr", "rl", "rr")
+"""The one leg order used by joints, actuators, observation, action and contact flags."""
+SEGMENTS = ("coxa", "femur", "tibia")
+JOINTS = tuple(f"{leg}_{seg}" for leg in LEGS for seg in SEGMENTS)
+
+# Position targets per segment (REFERENCE.md section 1): q* = (a/2 + 1/2)(high - low) + low.
+TARGET_LOW = np.tile([-0.6, -1.4, -0.8], len(LEGS))
+TARGET_HIGH = np.tile([0.6, 0.4, 0.8], len(LEGS))
+
+MJCF = resources.files("epoet.envs") / "assets" / "hexapod.xml"
+
+
+class TerrainMismatchError(ValueError):
+    """A terrain that does not fit the model's heightfield (grid, extent or elevation)."""
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where the task's quantities live in qpos/qvel/sensordata (checked against the MJCF)."""
+
+    joint_qpos: slice
+    joint_qvel: slice
+    contact: slice
+    actuator_force: slice
+
+
+def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
+    """Compile the hexapod with a heightfield sized by the terrain config.
+
+    The hfield's elevation is fixed at `max_height_limit`: each terrain's data are scaled by
+    S / limit, so the physical relief is exactly S (the reference scaled by S twice: defect 2).
+    """
+    spec = mujoco.MjSpec.from_file(str(MJCF))
+    spec.option.timestep = agent.timestep
+    hfield = spec.hfields[0]
+    hfield.nrow = hfield.ncol = terrain.grid
+    half = terrain.size / 2
+    hfield.size = [half, half, terrain.max_height_limit, terrain.base]
+    hfield.userdata = [0.0] * (terrain.grid * terrain.grid)
+    half_extent_ok = abs(agent.start_x) < half and abs(agent.finish_x) < half
+    if not half_extent_ok:
+        raise TerrainMismatchError(
+            f"agent.start_x/finish_x ({agent.start_x}, {agent.finish_x}) must lie inside the "
+            f"terrain (|x| < {half} m for terrain.size={terrain.size}).")
+    return spec.compile()
+
+
+def layout(model: mujoco.MjModel) -> Layout:
+    """Index slices of the 18 leg joints, the 6 foot touch sensors and the 18 actuator forces."""
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(1, model.njnt)]
+    assert tuple(names) == JOINTS, f"MJCF joint order {names} differs from {JOINTS}"
+    first = model.sensor_adr[0]
+    return Layout(
+        joint_qpos=slice(7, 7 + len(JOINTS)),
+        joint_qvel=slice(6, 6 + len(JOINTS)),
+        contact=slice(first, first + len(LEGS)),
+        actuator_force=slice(first + len(LEGS), first + len(LEGS) + len(JOINTS)),
+    )
+
+
+def action_to_targets(action: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Map actions in [-1, 1] to joint position targets (works on (18,) or (B, 18))."""
+    out = np.empty_like(action) if out is None else out
+    np.clip(action, -1.0, 1.0, out=out)
+    out *= 0.5
+    out += 0.5
+    out *= TARGET_HIGH - TARGET_LOW
+    out += TARGET_LOW
+    return out
+
+
+class Ground:
+    """Heights of the current terrain in world metres, for spawning and roughness.
+
+    MuJoCo's hfield convention: row r spans y, column c spans x, row 0 at -y and column 0 at -x.
+    """
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.nrow = int(model.hfield_nrow[0])
+        self.ncol = int(model.hfield_ncol[0])
+        self.half_x, self.half_y, self.elevation, self.base = (float(v) for v in model.hfield_size[0])
+        self.heights = np.zeros((self.nrow, self.ncol))  # metres
+        self._padded = np.zeros((self.nrow + 4, self.ncol + 4))
+        self.heightmap = np.zeros((self.nrow, self.ncol))  # terrain units in [0, 1]
+        self.max_height = 0.0
+
+    def set(self, model: mujoco.MjModel, heightmap: np.ndarray, max_height: float,
+            size: float) -> None:
+        """Write a terrain into the model in place; the caller runs mj_forward afterwards."""
+        if abs(size - 2 * self.half_x) > 1e-9:
+            raise TerrainMismatchError(
+                f"terrain is {size} m wide but the model's heightfield is {2 * self.half_x} m "
+                f"(terrain.size).")
+        if heightmap.shape != (self.nrow, self.ncol):
+            raise TerrainMismatchError(
+                f"terrain heightmap is {heightmap.shape} but the model's heightfield is "
+                f"{(self.nrow, self.ncol)}; build the env with the terrain's grid size.")
+        if not 0.0 <= max_height <= self.elevation + 1e-12:
+            raise TerrainMismatchError(
+                f"terrain max_height {max_height} m is outside [0, {self.elevation}] m, the "
+                f"model's heightfield elevation (terrain.max_height_limit).")
+        self.heightmap = np.asarray(heightmap, dtype=np.float64)
+        self.max_height = float(max_height)
+        self.heights = self.heightmap * self.max_height
+        self._padded = np.pad(self.heights, 2, mode="edge")  # 5 x 5 patches at the border
+        model.hfield_data[:] = (self.heightmap * (self.max_height / self.elevation)).ravel()
+
+    def cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest (row, col) of world points, clipped to the grid."""
+        col = np.rint((np.asarray(x) / self.half_x + 1) * 0.5 * (self.ncol - 1)).astype(int)
+        row = np.rint((np.asarray(y) / self.half_y + 1) * 0.5 * (self.nrow - 1)).astype(int)
+        return np.clip(row, 0, self.nrow - 1), np.clip(col, 0, self.ncol - 1)
+
+    def max_around(self, x: float, y: float, radius: float) -> float:
+        """Highest ground within a square of half-width `radius` around (x, y)."""
+        r0, c0 = self.cell(x - radius, y - radius)
+        r1, c1 = self.cell(x + radius, y + radius)
+        return float(self.heights[r0:r1 + 1, c0:c1 + 1].max())
+
+    def roughness(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Variance of the 5 x 5 height patch (metres) under each point: the difficulty measure.
+
+        The reference computes it on hfield data that held heights in [0, S]; heights in metres
+        are the same quantity now that the relief is S, not S^2.
+        """
+        rows, cols = self.cell(np.atleast_1d(x), np.atleast_1d(y))
+        return np.array([self._padded[r:r + 5, c:c + 5].var() for r, c in zip(rows, cols)])

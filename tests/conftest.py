@@ -1,0 +1,26 @@
+"""Shared fixtures: small configs and terrains that exercise the real code paths quickly."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from epoet.config import AgentConfig, TerrainConfig
+from epoet.terrain import Terrain
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture
+def terrain_cfg() -> TerrainConfig:
+    return TerrainConfig(kind="cppn", grid=40, size=20.0, max_height=0.3, bowl_weight=0.3)
+
+
+@pytest.fixture
+def flat() -> Terrain:
+    return Terrain(np.zeros((40, 40)), 0.0, 20.0, "bowl", 0)
+
+
+@pytest.fixture
+def short_agent() -> AgentConfig:
+    return AgentConfig(max_episode_steps=60)

@@ -1,0 +1,207 @@
+"""The hexapod task: gymnasium/TorchRL conformance, reward formulas, contacts, spawn, episode end."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from epoet.config import AgentConfig, ConfigError, TerrainConfig
+from epoet.envs import ENV_ID, HexapodEnv
+from epoet.envs.model import TerrainMismatchError, action_to_targets, layout
+from epoet.envs.task import EpisodeState, HexapodTask, heading_deviation, roll_pitch
+from epoet.terrain import Terrain, make_terrain
+
+
+@pytest.mark.parametrize("kind", ["bowl", "cppn"])
+def test_gymnasium_check_env(kind: str) -> None:
+    env = HexapodEnv(terrain={"kind": kind, "grid": 40})
+    check_env(env, skip_render_check=True)
+
+
+def test_torchrl_check_env_specs() -> None:
+    from torchrl.envs import GymWrapper
+    from torchrl.envs.utils import check_env_specs
+
+    env = GymWrapper(HexapodEnv(terrain={"kind": "bowl", "grid": 40}))
+    check_env_specs(env, seed=0)
+
+
+def test_registered_and_shapes(flat: Terrain) -> None:
+    env = gym.make(ENV_ID, terrain={"kind": "bowl", "grid": 40})
+    obs, info = env.reset(seed=0, options={"terrain": flat})
+    assert obs.shape == (53,) and env.action_space.shape == (18,)
+    assert np.all(env.action_space.low == -1) and np.all(env.action_space.high == 1)
+    assert set(info) >= {"x", "finished", "roughness"}
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert obs.shape == (53,) and np.isfinite(reward)
+    assert set(info["reward_terms"]) == {"velocity", "heading", "lateral", "penalty", "bonus"}
+    assert np.isclose(sum(info["reward_terms"].values()), reward)
+    assert set(np.unique(obs[47:53])) <= {0.0, 1.0}
+
+
+def test_action_maps_to_targets() -> None:
+    lo = action_to_targets(-np.ones(18))
+    hi = action_to_targets(np.ones(18))
+    np.testing.assert_allclose(lo[:3], [-0.6, -1.4, -0.8])
+    np.testing.assert_allclose(hi[:3], [0.6, 0.4, 0.8])
+    np.testing.assert_allclose(action_to_targets(np.zeros(18))[:3], [0.0, -0.5, 0.0])
+
+
+def test_reward_terms_match_reference_formulas() -> None:
+    env = HexapodEnv(terrain={"kind": "bowl", "grid": 40})
+    task = HexapodTask(AgentConfig(), layout(env.model), 10.0)
+    rng = np.random.default_rng(0)
+    qpos = np.zeros((1, 25)); qvel = np.zeros((1, 24)); sensordata = np.zeros((1, 24))
+    yaw, tilt = 0.3, 0.1
+    quat = np.array([np.cos(yaw / 2), np.sin(tilt / 2), 0.0, np.sin(yaw / 2)])
+    qpos[0, :7] = [1.0, 0.2, 0.15, *(quat / np.linalg.norm(quat))]
+    qvel[0, :3] = [0.3, -0.1, 0.05]
+    sensordata[0, 6:] = rng.normal(0, 5, 18)
+    state = EpisodeState.zeros(1)
+    state.prev_heading[:] = 0.5; state.prev_y[:] = -0.3; state.best_x[:] = 0.0
+    reward, terminated, truncated, terms = task.step(qpos, qvel, sensordata, state)
+
+    vx, vy, vz = qvel[0, :3]
+    q = qpos[0, 3:7]
+    dev = 2 * np.arccos(abs(q[0]))
+    roll = np.arctan2(2 * (q[0] * q[1] + q[2] * q[3]), 1 - 2 * (q[1] ** 2 + q[2] ** 2))
+    pitch = np.arcsin(2 * (q[0] * q[2] - q[3] * q[1]))
+    r_vel = (1 / (abs(vx - 0.4) + 1) - 1 / 1.4) / (1 + 30 * vy ** 2)
+    r_pos = 6 * r_vel + 10 * (0.5 - dev) + 10 * (0.3 - 0.2)
+    r_neg = (0.1 * 0.2 ** 2 + 0.1 * dev ** 2 + 0.5 * pitch ** 2 + 0.5 * roll ** 2
+             + 1e-4 * np.mean(sensordata[0, 6:] ** 2) + 0.7 * vz ** 2)
+    assert reward[0] == pytest.approx(r_pos - r_neg, rel=1e-12)
+    assert terms["velocity"][0] == pytest.approx(6 * r_vel)
+    assert terms["penalty"][0] == pytest.approx(-r_neg)
+    assert heading_deviation(q[None])[0] == pytest.approx(dev)
+    assert roll_pitch(q[None])[0][0] == pytest.approx(roll)
+    assert r_vel <= 1 - 1 / 1.4 + 1e-12  # the velocity term's maximum, reached at vx = 0.4
+    assert not terminated[0] and not truncated[0]
+
+
+def test_finish_bonus_paid_once() -> None:
+    env = HexapodEnv(terrain={"kind": "bowl", "grid": 40})
+    task = HexapodTask(AgentConfig(finish_x=6.0), layout(env.model), 10.0)
+    qpos = np.zeros((1, 25)); qpos[0, 3] = 1.0; qpos[0, 2] = 0.1
+    qvel = np.zeros((1, 24)); sd = np.zeros((1, 24))
+    state = EpisodeState.zeros(1)
+    qpos[0, 0] = 5.9
+    assert task.step(qpos, qvel, sd, state)[3]["bonus"][0] == 0.0
+    qpos[0, 0] = 6.1
+    _, terminated, _, terms = task.step(qpos, qvel, sd, state)
+    assert terms["bonus"][0] == 500.0 and terminated[0] and state.finished[0]
+    assert task.step(qpos, qvel, sd, state)[3]["bonus"][0] == 0.0
+
+
+def test_finish_in_env_reports_finished(flat: Terrain) -> None:
+    env = HexapodEnv(terrain={"kind": "bowl", "grid": 40})
+    env.reset(seed=0, options={"terrain": flat})
+    env.data.qpos[0] = env.agent_cfg.finish_x + 0.01  # carried over the line
+    _, reward, terminated, _, info = env.step(np.zeros(18))
+    assert terminated and info["finished"] and info["reward_terms"]["bonus"] == 500.0
+
+
+def _settle(env: HexapodEnv, action: np.ndarray, steps: int) -> np.ndarray:
+    obs = None
+    for _ in range(steps):
+        obs, *_ = env.step(action)
+    return obs
+
+
+def test_contacts_standing_and_lifted_leg(flat: Terrain) -> None:
+    env = HexapodEnv(agent={"spawn_yaw": 0.0, "spawn_vel_std": 0.0},
+                     terrain={"kind": "bowl", "grid": 40})
+    env.reset(seed=0, options={"terrain": flat})
+    stand = np.zeros(18)
+    stand[1::3] = 0.2   # femurs slightly down: body lifted on six feet
+    obs = _settle(env, stand, 60)
+    np.testing.assert_array_equal(obs[47:53], np.ones(6))
+    lifted = stand.copy()
+    lifted[1] = -1.0    # front-left femur fully up
+    obs = _settle(env, lifted, 40)
+    assert obs[47] == 0.0, "the lifted front-left foot must not report contact"
+    assert obs[48:53].sum() >= 4, "the other feet stay on the ground"
+
+
+def test_spawn_above_local_ground_on_rough_terrain(terrain_cfg: TerrainConfig) -> None:
+    cfg = replace(terrain_cfg, max_height=1.5, max_height_step=0.0)
+    env = HexapodEnv(agent={"settle_steps": 0}, terrain=cfg)
+    for seed in range(5):
+        rough = make_terrain(cfg, seed=seed)
+        env.reset(seed=seed, options={"terrain": rough})
+        x, y, z = env.data.qpos[:3]
+        assert z >= env.ground.max_around(x, y, 0.35) + env.agent_cfg.spawn_clearance - 1e-9
+        mujoco.mj_forward(env.model, env.data)
+        assert all(env.data.contact.dist >= -1e-6), "spawned inside the terrain"
+
+
+def test_no_progress_rule_ends_episode(flat: Terrain) -> None:
+    env = HexapodEnv(agent={"no_progress_steps": 15, "spawn_vel_std": 0.0},
+                     terrain={"kind": "bowl", "grid": 40})
+    env.reset(seed=0, options={"terrain": flat})
+    for step in range(1, 300):
+        _, _, terminated, truncated, info = env.step(np.zeros(18))  # standing still
+        if terminated or truncated:
+            break
+    assert truncated and not terminated
+    assert step < 300 and env.unwrapped._state.stalled[0] > 15
+
+
+def test_max_episode_steps_truncates(flat: Terrain) -> None:
+    env = HexapodEnv(agent={"max_episode_steps": 25}, terrain={"kind": "bowl", "grid": 40})
+    env.reset(seed=0, options={"terrain": flat})
+    for step in range(1, 26):
+        *_, terminated, truncated, _ = env.step(np.zeros(18))
+    assert truncated and not terminated and step == 25
+
+
+def test_terrain_swap_without_recompiling(terrain_cfg: TerrainConfig) -> None:
+    env = HexapodEnv(terrain=terrain_cfg)
+    model = env.model
+    a, b = make_terrain(terrain_cfg, seed=1), make_terrain(terrain_cfg, seed=2)
+    env.reset(seed=0, options={"terrain": a})
+    data_a = model.hfield_data.copy()
+    env.reset(seed=0, options={"terrain": b})
+    assert env.model is model and not np.array_equal(model.hfield_data, data_a)
+    # Physical relief is S (not S^2): the highest sample stands max_height above zero.
+    assert env.ground.heights.max() == pytest.approx(b.max_height)
+    assert model.hfield_data.max() * model.hfield_size[0, 2] == pytest.approx(b.max_height)
+
+
+def test_resample_terrain_every_episode(terrain_cfg: TerrainConfig) -> None:
+    env = HexapodEnv(terrain=terrain_cfg, resample_terrain=True)
+    env.reset(seed=0)
+    first = env.terrain
+    env.reset()
+    assert env.terrain.id != first.id
+    assert env.terrain.max_height > first.max_height  # the height schedule advances per episode
+
+
+def test_roughness_is_patch_variance(terrain_cfg: TerrainConfig) -> None:
+    env = HexapodEnv(terrain=terrain_cfg)
+    terrain = make_terrain(terrain_cfg, seed=3)
+    env.set_terrain(terrain)
+    r, c = 20, 10
+    x = (c / (terrain.grid - 1) * 2 - 1) * 10.0
+    y = (r / (terrain.grid - 1) * 2 - 1) * 10.0
+    expected = (terrain.heightmap[r - 2:r + 3, c - 2:c + 3] * terrain.max_height).var()
+    assert env.ground.roughness(x, y)[0] == pytest.approx(expected)
+
+
+def test_bad_input_is_clear(flat: Terrain, terrain_cfg: TerrainConfig) -> None:
+    with pytest.raises(ConfigError, match="terrain.kind"):
+        HexapodEnv(terrain={"kind": "lava"})
+    with pytest.raises(ConfigError, match="terrain.grid"):
+        HexapodEnv(terrain={"grid": -5})
+    with pytest.raises(ConfigError, match="max_episode_steps"):
+        HexapodEnv(agent={"max_episode_steps": 0})
+    env = HexapodEnv(terrain=terrain_cfg)
+    too_big = Terrain(np.zeros((50, 50)), 0.0, 20.0, "bowl", 0)
+    with pytest.raises(TerrainMismatchError, match="heightfield"):
+        env.set_terrain(too_big)
+    with pytest.raises(TerrainMismatchError, match="elevation"):
+        env.set_terrain(Terrain(np.zeros((40, 40)), 5.0, 20.0, "bowl", 0))
