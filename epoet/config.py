@@ -7,10 +7,10 @@ their `__post_init__`) before any work starts; every failure is one `ConfigError
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Any
+from typing import Any, Optional
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import MISSING, DictConfig, OmegaConf
 
 
 class ConfigError(ValueError):
@@ -22,16 +22,28 @@ def _check(ok: bool, message: str) -> None:
         raise ConfigError(message)
 
 
+def _key(obj: Any, name: str) -> str:
+    """The dotted config key a user types for a field, e.g. `terrain.grid`."""
+    prefix = _PREFIX.get(type(obj).__name__, "")
+    return f"{prefix}.{name}" if prefix else name
+
+
 def _positive(obj: Any, *names: str) -> None:
     for name in names:
         value = getattr(obj, name)
-        _check(value > 0, f"{type(obj).__name__}.{name} must be > 0, got {value}.")
+        _check(value > 0, f"{_key(obj, name)} must be > 0, got {value}.")
 
 
 def _non_negative(obj: Any, *names: str) -> None:
     for name in names:
         value = getattr(obj, name)
-        _check(value >= 0, f"{type(obj).__name__}.{name} must be >= 0, got {value}.")
+        _check(value >= 0, f"{_key(obj, name)} must be >= 0, got {value}.")
+
+
+_PREFIX = {"AgentConfig": "agent", "RewardConfig": "agent.reward", "TerrainConfig": "terrain",
+           "CppnConfig": "terrain.cppn", "MutationConfig": "terrain.mutation",
+           "EsConfig": "algo.es", "PoetConfig": "algo", "BudgetConfig": "budget",
+           "WorkersConfig": "workers", "TrackingConfig": "tracking"}
 
 
 @dataclass
@@ -68,6 +80,7 @@ class AgentConfig:
     start_x: float = -6.0           # spawn x; the finish line is `finish_x` (see README)
     finish_x: float = 6.0
     no_progress_steps: int = 500    # end after this many steps without a new best x
+    progress_margin: float = 0.01   # metres beyond the best x that count as progress
     settle_steps: int = 20
     spawn_xy_std: float = 0.1
     spawn_yaw: float = 0.8          # yaw ~ U(-spawn_yaw, spawn_yaw)
@@ -78,7 +91,8 @@ class AgentConfig:
     def __post_init__(self) -> None:
         _check(self.name == "hexapod", f"agent.name must be 'hexapod', got {self.name!r}.")
         _positive(self, "timestep", "max_episode_steps", "no_progress_steps", "spawn_clearance")
-        _non_negative(self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std")
+        _non_negative(self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std",
+                      "progress_margin")
         _check(self.finish_x > self.start_x,
                f"agent.finish_x ({self.finish_x}) must be ahead of agent.start_x ({self.start_x}).")
 
@@ -142,6 +156,10 @@ class CppnConfig:
                  "log", "inv", "clamped", "cube", "hat", "softplus", "elu", "lelu", "selu"}
         unknown = sorted(set(self.activation_options) - known)
         _check(not unknown, f"terrain.cppn.activation_options has unknown activations {unknown}.")
+        # The vectorised CPPN evaluator (epoet/terrain/cppn.py) implements these neat built-ins.
+        unknown = sorted(set(self.aggregation_options) - {"sum", "product", "max", "min", "mean"})
+        _check(not unknown,
+               f"terrain.cppn.aggregation_options has unsupported aggregations {unknown}.")
 
 
 @dataclass
@@ -197,15 +215,125 @@ class TerrainConfig:
 
 
 @dataclass
+class EsConfig:
+    """OpenAI-ES of every pair (paper Table 4, REFERENCE.md section 5)."""
+
+    hidden: list[int] = field(default_factory=lambda: [40, 40])
+    lr: float = 0.01
+    lr_decay: float = 0.9999
+    lr_floor: float = 0.001
+    sigma: float = 0.02
+    sigma_decay: float = 0.999
+    sigma_floor: float = 0.01
+    l2_coeff: float = 0.01
+
+    def __post_init__(self) -> None:
+        _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
+               f"algo.es.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
+        _positive(self, "lr", "lr_decay", "lr_floor", "sigma", "sigma_decay", "sigma_floor")
+        _non_negative(self, "l2_coeff")
+        _check(self.lr_floor <= self.lr and self.sigma_floor <= self.sigma,
+               "algo.es floors must not exceed the initial lr / sigma.")
+
+
+@dataclass
+class PoetConfig:
+    """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig)."""
+
+    name: str = "epoet"
+    es: EsConfig = field(default_factory=EsConfig)
+    iterations_before_transfer: int = 15
+    adjust_interval: int = 5        # reproduction every adjust_interval * 15 = 75 iterations
+    max_num_envs: int = 40
+    num_children: int = 8
+    max_admitted: int = 1
+    mc_lower: float = 500.0
+    mc_upper: float = 3000.0
+    repro_threshold: float = 2000.0
+    novelty_k: int = 5
+
+    def __post_init__(self) -> None:
+        _positive(self, "iterations_before_transfer", "adjust_interval", "max_num_envs",
+                  "num_children", "max_admitted", "novelty_k")
+        _check(self.mc_lower < self.mc_upper,
+               f"algo.mc_lower ({self.mc_lower}) must be below algo.mc_upper ({self.mc_upper}).")
+
+
+@dataclass
+class BudgetConfig:
+    """How much compute, never which algorithm. Paper values are the `paper` budget.
+
+    Score thresholds (minimal criterion, reproduction, solved) are scaled by
+    episode_steps / 2000, the episode length the paper's thresholds were set for.
+    """
+
+    name: str = "laptop"
+    iterations: int = 150           # ES iterations (ePOET / ePOET-SAC)
+    n_pairs: int = 24               # mirrored pairs per ES step (paper: 256 pairs = 512 episodes)
+    episode_steps: int = 400        # paper: 2000
+    eval_episodes: int = 3          # paper: 5
+    frames: int = 100_000           # environment frames for the RL baselines (paper: ~1M)
+    eval_every: int = 10_000        # RL baselines: frames between deterministic evaluations
+
+    def __post_init__(self) -> None:
+        _positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
+                  "eval_every")
+
+    @property
+    def score_scale(self) -> float:
+        return self.episode_steps / PAPER_EPISODE_STEPS
+
+
+PAPER_EPISODE_STEPS = 2000
+
+
+@dataclass
+class WorkersConfig:
+    """Where rollouts run: `local` is a process pool on this machine."""
+
+    backend: str = "local"
+    num: Optional[int] = None       # None: one worker per available core
+    batch: int = 64                 # robots stepped in lockstep per process
+
+    def __post_init__(self) -> None:
+        _check(self.backend in ("local",),
+               f"workers.backend must be 'local', got {self.backend!r}.")
+        _check(self.num is None or self.num > 0, f"workers.num must be > 0, got {self.num}.")
+        _positive(self, "batch")
+
+
+@dataclass
+class TrackingConfig:
+    """MLflow: the store defaults to sqlite:///<project root>/mlflow.db; MLFLOW_TRACKING_URI wins."""
+
+    experiment: str = "epoet"
+    uri: Optional[str] = None
+
+    def __post_init__(self) -> None:
+        _check(bool(self.experiment), "tracking.experiment must not be empty.")
+
+
+@dataclass
 class Config:
     """The root config (conf/config.yaml)."""
 
+    algo: Any = MISSING             # one of ALGO_SCHEMAS, chosen by `algo.name`
     agent: AgentConfig = field(default_factory=AgentConfig)
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    budget: BudgetConfig = field(default_factory=BudgetConfig)
+    workers: WorkersConfig = field(default_factory=WorkersConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
     seed: int = 0
+    checkpoint_every: int = 10      # iterations (ES) between checkpoints
+    resume: Optional[str] = None    # a run folder or checkpoint file to continue
 
     def __post_init__(self) -> None:
         _non_negative(self, "seed")
+        _positive(self, "checkpoint_every")
+        if isinstance(self.algo, PoetConfig):
+            _check(self.terrain.kind == "cppn",
+                   f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "
+                   f"(got terrain={self.terrain.kind}).")
 
 
 @dataclass
@@ -229,6 +357,11 @@ def register_configs() -> None:
     cs.store(name="gallery_schema", node=GalleryConfig)
     cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
+    cs.store(group="budget", name="budget_schema", node=BudgetConfig)
+    cs.store(group="workers", name="workers_schema", node=WorkersConfig)
+    cs.store(group="tracking", name="tracking_schema", node=TrackingConfig)
+    for name, schema in ALGO_SCHEMAS.items():
+        cs.store(group="algo", name=f"{name}_schema", node=schema)
 
 
 def to_object(cfg: DictConfig, schema: type) -> Any:
@@ -245,19 +378,26 @@ def _build(schema: type, data: Any) -> Any:
     for key, value in data.items():
         if key not in names:
             continue  # keys owned by other schemas (hydra internals); types were checked already
-        ftype = names[key].type
-        sub = _SCHEMAS.get(ftype) if isinstance(ftype, str) else ftype
+        if key == "algo" and schema is Config:
+            kwargs[key] = _build(_algo_schema(value), value)
+            continue
+        sub = _SCHEMAS.get(str(names[key].type))
         kwargs[key] = _build(sub, value) if sub is not None else value
     return schema(**kwargs)
 
 
-_SCHEMAS: dict[str, type] = {
-    "RewardConfig": RewardConfig,
-    "AgentConfig": AgentConfig,
-    "CppnConfig": CppnConfig,
-    "MutationConfig": MutationConfig,
-    "TerrainConfig": TerrainConfig,
-}
+def _algo_schema(algo: Any) -> type:
+    name = algo.get("name") if isinstance(algo, dict) else None
+    _check(name in ALGO_SCHEMAS,
+           f"algo must be one of {sorted(ALGO_SCHEMAS)}, got {name!r}.")
+    return ALGO_SCHEMAS[name]
+
+
+ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig}
+
+_SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (
+    RewardConfig, AgentConfig, CppnConfig, MutationConfig, TerrainConfig, EsConfig, PoetConfig,
+    BudgetConfig, WorkersConfig, TrackingConfig)}
 
 
 def validate(cfg: DictConfig, schema: type = Config) -> Any:
