@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery bench tables clean-venv
+.PHONY: install test train gallery bench clean-venv
 
 install: $(STAMP)
 
@@ -16,14 +16,19 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 test: install
-	$(PY) -m pytest tests
+	$(PY) -m pytest -q tests
 
-# The main job (see README): the terrain gallery until training lands.
+# The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
+train: install
+	$(PY) -m epoet
+
 gallery: install
 	$(PY) -m epoet.terrain terrain=cppn n=8 out=gallery
 
 bench: install
 	$(PY) bench/env_throughput.py
+	$(PY) bench/rollout_throughput.py
+	$(PY) bench/es_scaling.py
 
 clean-venv:
 	rm -rf $(VENV)

@@ -8,19 +8,15 @@ Bad values end with one line on stderr and exit status 2.
 from __future__ import annotations
 
 import math
-import os
-import sys
 from pathlib import Path
-from typing import NoReturn
 
 import hydra
 import numpy as np
-from hydra.errors import HydraException
 from matplotlib.figure import Figure
 from omegaconf import DictConfig
-from omegaconf.errors import OmegaConfBaseException
 
-from epoet.config import ConfigError, GalleryConfig, register_configs, validate
+from epoet.cli import fail, run_hydra_app
+from epoet.config import ConfigError, GalleryConfig, validate
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain, plot_terrain
@@ -70,28 +66,11 @@ def _app(raw: DictConfig) -> None:
         png = write_gallery(terrains, out)
         print(f"wrote {png} and {len(terrains)} terrain files to {out}/")
     except (ConfigError, CppnMutationError, OSError) as err:
-        _fail(err)
-
-
-def _fail(err: BaseException) -> NoReturn:
-    """Exit 2 with the error's first line, plus its cause's (Hydra wraps OmegaConf's errors)."""
-    text = (str(err).strip().splitlines() or [type(err).__name__])[0]
-    cause = err.__cause__
-    if cause is not None and str(cause).strip():
-        text += f": {str(cause).strip().splitlines()[0]}"
-    print(f"error: {text}", file=sys.stderr)
-    sys.exit(2)
+        fail(err)
 
 
 def main() -> None:
-    """Run the Hydra app; bad input ends in one line on stderr instead of a traceback."""
-    register_configs()
-    # Make Hydra re-raise composition errors instead of printing its multi-line report.
-    os.environ["HYDRA_FULL_ERROR"] = "1"
-    try:
-        _app()
-    except (HydraException, OmegaConfBaseException) as err:
-        _fail(err)
+    run_hydra_app(_app)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,29 @@
+"""`python -m epoet`: the Hydra entry point (see README for the commands)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from epoet.checkpoint import CheckpointError
+from epoet.cli import fail, run_hydra_app
+from epoet.config import ConfigError
+from epoet.tracking import TrackingError
+
+CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
+def _app(cfg: DictConfig) -> None:
+    from epoet.run import run
+
+    try:
+        run(cfg, Path(HydraConfig.get().runtime.output_dir))
+    except (ConfigError, TrackingError, CheckpointError) as err:
+        fail(err)  # bad input: one line, exit 2, nothing written or overwritten
+
+
+if __name__ == "__main__":
+    run_hydra_app(_app)

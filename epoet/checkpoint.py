@@ -1,0 +1,145 @@
+"""Atomic save/load of a run's whole state, so a killed run resumes where it stopped.
+
+One format for every algorithm: a header (magic, format version, payload length, CRC-32) followed
+by a pickle (protocol 5) of a dict of numpy arrays, plain Python objects and torch state dicts
+(torch tensors pickle natively). The CRC catches bit rot and truncation that pickle alone would
+load silently (a damaged float array still unpickles). Pickle runs code on load: only load
+checkpoints this project wrote.
+
+Layout: a run folder (Hydra's job output directory) holds its checkpoint as `checkpoint.pkl`;
+`find_checkpoint` accepts either the folder or the file.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import struct
+import tempfile
+import zlib
+from pathlib import Path
+from typing import Any
+
+CHECKPOINT_NAME = "checkpoint.pkl"
+FORMAT_VERSION = 1
+_MAGIC = b"EPOETCKP"
+# magic, format version (uint32), payload length (uint64), CRC-32 of the payload (uint32)
+_HEADER = struct.Struct("<8sIQI")
+_CHUNK = 1 << 24  # 16 MiB reads when verifying the CRC: bounded memory for large replay buffers
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be written or read; the message is one sentence naming the path."""
+
+
+class _CrcWriter:
+    """File wrapper that counts bytes and updates a CRC as pickle streams into it.
+
+    Streaming avoids holding a second in-memory copy of a large state (e.g. a SAC replay buffer).
+    """
+
+    def __init__(self, file: Any) -> None:
+        self._file = file
+        self.crc = 0
+        self.length = 0
+
+    def write(self, data: bytes | memoryview) -> int:
+        self.crc = zlib.crc32(data, self.crc)
+        self.length += memoryview(data).nbytes
+        return self._file.write(data)
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Persist the rename itself; without it a crash can lose the new directory entry."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
+    """Write `state` to `path` atomically: readers see the old checkpoint or the new, never half.
+
+    The data goes to a temporary file in the same directory (same filesystem, so `os.replace` is
+    atomic), is fsynced, then renamed over `path`. On any failure the temporary file is removed
+    and the previous checkpoint is untouched.
+    """
+    path = Path(path)
+    if not isinstance(state, dict):
+        raise CheckpointError(f"cannot save checkpoint {path}: state must be a dict, "
+                              f"got {type(state).__name__}.")
+    if path.is_dir():
+        raise CheckpointError(f"cannot save checkpoint {path}: it is a directory.")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = Path(tmp_name)
+    try:
+        os.fchmod(fd, 0o644)  # mkstemp makes 0600; a checkpoint is as readable as other outputs
+        with os.fdopen(fd, "wb") as file:
+            file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, 0, 0))  # placeholder, patched below
+            writer = _CrcWriter(file)
+            pickle.dump(state, writer, protocol=5)
+            file.seek(0)
+            file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, writer.length, writer.crc))
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, Exception):
+            raise CheckpointError(f"cannot save checkpoint {path}: "
+                                  f"{type(exc).__name__}: {exc}.") from exc
+        raise  # KeyboardInterrupt / SystemExit: clean up, then let them through unchanged
+    _fsync_dir(path.parent)
+
+
+def find_checkpoint(path: str | Path) -> Path:
+    """Resolve a run folder or a checkpoint file to the checkpoint file."""
+    path = Path(path)
+    if path.is_dir():
+        candidate = path / CHECKPOINT_NAME
+        if not candidate.is_file():
+            raise CheckpointError(f"no checkpoint in run folder {path}: "
+                                  f"{CHECKPOINT_NAME} does not exist.")
+        return candidate
+    if not path.exists():
+        raise CheckpointError(f"checkpoint {path} does not exist.")
+    return path
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Read a checkpoint written by `save_checkpoint` (given the file or its run folder)."""
+    file_path = find_checkpoint(path)
+    try:
+        with open(file_path, "rb") as file:
+            header = file.read(_HEADER.size)
+            if len(header) < _HEADER.size:
+                raise CheckpointError(f"checkpoint {file_path} is truncated: "
+                                      f"{len(header)} bytes, shorter than its header.")
+            magic, version, length, crc = _HEADER.unpack(header)
+            if magic != _MAGIC:
+                raise CheckpointError(f"{file_path} is not an epoet checkpoint (wrong magic).")
+            if version != FORMAT_VERSION:
+                raise CheckpointError(f"checkpoint {file_path} has format version {version}, "
+                                      f"this code reads version {FORMAT_VERSION}.")
+            size = os.fstat(file.fileno()).st_size - _HEADER.size
+            if size != length:
+                raise CheckpointError(f"checkpoint {file_path} is truncated or padded: "
+                                      f"payload is {size} bytes, header says {length}.")
+            actual = 0
+            while chunk := file.read(_CHUNK):
+                actual = zlib.crc32(chunk, actual)
+            if actual != crc:
+                raise CheckpointError(f"checkpoint {file_path} is corrupt: CRC mismatch.")
+            file.seek(_HEADER.size)
+            state = pickle.load(file)
+    except OSError as exc:
+        raise CheckpointError(f"cannot read checkpoint {file_path}: {exc.strerror}.") from exc
+    except CheckpointError:
+        raise
+    except Exception as exc:  # the CRC matched, so this is a class that no longer unpickles
+        raise CheckpointError(f"cannot unpickle checkpoint {file_path}: "
+                              f"{type(exc).__name__}: {exc}.") from exc
+    if not isinstance(state, dict):
+        raise CheckpointError(f"checkpoint {file_path} does not hold a dict.")
+    return state

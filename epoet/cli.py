@@ -1,0 +1,35 @@
+"""Shared by the command-line entry points: bad input ends in one line on stderr, exit 2."""
+from __future__ import annotations
+
+import os
+import sys
+from typing import Callable, NoReturn
+
+from hydra.errors import HydraException, MissingConfigException
+from omegaconf.errors import OmegaConfBaseException
+
+from epoet.config import register_configs
+
+
+def fail(err: BaseException) -> NoReturn:
+    """Exit 2 with the error's first line, plus its cause's (Hydra wraps OmegaConf's errors)."""
+    text = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    cause = err.__cause__
+    if cause is not None and str(cause).strip():
+        text += f": {str(cause).strip().splitlines()[0]}"
+    if isinstance(err, MissingConfigException) and err.options:
+        # Schemas are registered in the same groups; users choose among the YAML files only.
+        options = sorted(o for o in err.options if not o.endswith("_schema"))
+        text += f" (available: {', '.join(options)})"
+    print(f"error: {text}", file=sys.stderr)
+    sys.exit(2)
+
+
+def run_hydra_app(app: Callable[[], None]) -> None:
+    """Run a @hydra.main app so composition errors become one line instead of Hydra's report."""
+    register_configs()
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # make Hydra re-raise instead of printing its report
+    try:
+        app()
+    except (HydraException, OmegaConfBaseException) as err:
+        fail(err)

@@ -1,0 +1,458 @@
+"""Experiment tracking: the only module that imports mlflow.
+
+Algorithms report through the small `Tracker` protocol; `MlflowTracker` sends it to an MLflow
+store and `MemoryTracker` keeps it in memory for tests. Metrics are buffered and sent with
+`log_batch` because per-point `log_metric` on sqlite (~195 points/s) would dominate a run.
+
+Store: the explicit `tracking_uri`, else env MLFLOW_TRACKING_URI, else
+`sqlite:///<project root>/mlflow.db` as an absolute path, so Hydra's per-job working directories
+never scatter stores. A sweep's parent run id reaches each job through EPOET_PARENT_RUN_ID
+(set by `epoet.sweep.MlflowSweepCallback`).
+"""
+from __future__ import annotations
+
+import copy
+import logging
+import numbers
+import os
+import re
+import sqlite3
+import subprocess
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import closing, contextmanager
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Protocol, runtime_checkable
+
+from mlflow import MlflowClient
+from mlflow.entities import Metric, Param, RunTag
+from mlflow.exceptions import MlflowException
+from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_PARENT_RUN_ID
+from mlflow.utils.validation import (
+    MAX_ENTITY_KEY_LENGTH,
+    MAX_METRICS_PER_BATCH,
+    MAX_PARAM_VAL_LENGTH,
+    MAX_PARAMS_TAGS_PER_BATCH,
+    MAX_TAG_VAL_LENGTH,
+)
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_TRACKING_URI = f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
+PARENT_RUN_ENV = "EPOET_PARENT_RUN_ID"
+RUN_STATUSES = ("FINISHED", "FAILED", "KILLED")
+# The start-up probe must fail in seconds: MLflow's defaults retry for minutes.
+_PROBE_ENV = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": "5"}
+
+log = logging.getLogger(__name__)
+
+
+class TrackingError(ValueError):
+    """A tracking store or call that cannot work; the message is one sentence."""
+
+
+@runtime_checkable
+class Tracker(Protocol):
+    """What algorithms report to; implemented by `MlflowTracker` and `MemoryTracker`."""
+
+    run_id: str | None
+
+    def log_metrics(self, step: int, metrics: Mapping[str, float]) -> None: ...
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None: ...
+
+    def log_dict(self, obj: Any, artifact_file: str) -> None: ...
+
+    def flush(self) -> None: ...
+
+    def close(self, status: str = "FINISHED") -> None: ...
+
+
+# --- helpers shared by both trackers -------------------------------------------------------------
+
+_BAD_KEY_CHARS = re.compile(r"[^A-Za-z0-9_.\- /]")
+
+
+def metric_key(name: str) -> str:
+    """Map a metric or param name to an MLflow-valid key, deterministically.
+
+    MLflow allows alphanumerics, `_ - . /` and spaces (plus `:` off Windows; we drop it so a store
+    stays portable), and the key must be a normalised relative path: no empty, `.` or `..`
+    segments, no leading or trailing slash. "pair/0/return_mean" passes unchanged.
+    """
+    segments = [s for s in _BAD_KEY_CHARS.sub("_", str(name)).split("/") if s]
+    segments = ["_" * len(s) if s in (".", "..") else s for s in segments]
+    key = "/".join(segments)[:MAX_ENTITY_KEY_LENGTH].rstrip("/")
+    if not key:
+        raise TrackingError(f"name {name!r} has no characters MLflow accepts in a key.")
+    return key
+
+
+def _metric_points(step: int,
+                   metrics: Mapping[str, Any]) -> tuple[int, list[tuple[str, float]]]:
+    """Validate one `log_metrics` call; both trackers accept exactly the same input.
+
+    numpy integers count as steps: iteration counters often are.
+    """
+    if isinstance(step, bool) or not isinstance(step, numbers.Integral) or step < 0:
+        raise TrackingError(f"step must be a non-negative int, got {step!r}.")
+    points = []
+    for name, value in metrics.items():
+        key = metric_key(name)
+        try:
+            points.append((key, float(value)))
+        except (TypeError, ValueError) as exc:
+            raise TrackingError(f"metric {name!r} must be a number, got {value!r}.") from exc
+    return int(step), points
+
+
+def _check_status(status: str) -> None:
+    if status not in RUN_STATUSES:
+        raise TrackingError(f"run status must be one of {RUN_STATUSES}, got {status!r}.")
+
+
+def _existing_path(path: str | Path) -> Path:
+    path = Path(path)
+    if not path.exists():
+        raise TrackingError(f"artifact {path} does not exist.")
+    return path
+
+
+def flatten(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Flatten a nested config (e.g. `OmegaConf.to_container(cfg, resolve=True)`) into params.
+
+    Keys are dotted paths; values are str()'d and cut to MLflow's param value limit. Lists stay
+    one param (their str()), which keeps long option lists from flooding the params table.
+    """
+    flat: dict[str, str] = {}
+    for key, value in cfg.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            flat.update(flatten(value, prefix=f"{name}."))
+        else:
+            flat[name] = str(value)[:MAX_PARAM_VAL_LENGTH]
+    return flat
+
+
+def git_commit() -> str:
+    """The project's HEAD commit for the run's tags; "unknown" outside a repository."""
+    try:
+        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT,
+                                capture_output=True, text=True, timeout=10, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return "unknown"
+    commit = result.stdout.strip()
+    return commit if result.returncode == 0 and commit else "unknown"
+
+
+def parent_run_id() -> str | None:
+    """The sweep's parent run id when this job runs inside a Hydra multirun, else None."""
+    return os.environ.get(PARENT_RUN_ENV) or None
+
+
+def resolve_tracking_uri(tracking_uri: str | None = None) -> str:
+    """Explicit URI, else env MLFLOW_TRACKING_URI, else the project's absolute sqlite store."""
+    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+
+
+def _sqlite_path(uri: str) -> Path | None:
+    """The database file of a `sqlite:///` URI (relative paths are relative to the cwd)."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    path = uri[len("sqlite:///"):].split("?", 1)[0]
+    return None if path in ("", ":memory:") else Path(path).absolute()
+
+
+@contextmanager
+def _quick_http() -> Iterator[None]:
+    """Temporarily make MLflow's HTTP client give up fast, unless the user tuned it."""
+    added = {k: v for k, v in _PROBE_ENV.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for key in added:
+            os.environ.pop(key, None)
+
+
+_ROOT_CAUSE = re.compile(r"\[Errno -?\d+\][^\"')\n]*|(?:Read|Connect) timed out")
+
+
+def _reason(exc: BaseException) -> str:
+    """The gist of an exception for a one-line error: its root cause if found, else first line.
+
+    MLflow's HTTP errors bury e.g. "[Errno 111] Connection refused" or "Read timed out" deep in
+    a long message.
+    """
+    text = str(exc).strip()
+    if found := _ROOT_CAUSE.search(text):
+        return found.group(0).strip()
+    lines = text.splitlines()
+    text = lines[0] if lines else type(exc).__name__
+    return text if len(text) <= 300 else text[:297] + "..."
+
+
+def _check_sqlite(uri: str, db: Path) -> None:
+    """Fail fast on a local database MLflow cannot use.
+
+    MLflow would silently create missing directories (a typo in the URI must not start a new
+    store somewhere unexpected) and retries a bad database file for ~100 s before giving up.
+    """
+    problem = None
+    if not db.parent.exists():
+        problem = f"directory {db.parent} does not exist"
+    elif not db.parent.is_dir():
+        problem = f"{db.parent} is not a directory"
+    elif not os.access(db.parent, os.W_OK):
+        problem = f"directory {db.parent} is not writable"
+    elif db.is_dir():
+        problem = f"{db} is a directory, not a database file"
+    elif db.exists():
+        try:
+            with closing(sqlite3.connect(f"{db.as_uri()}?mode=rw", uri=True, timeout=5)) as con:
+                con.execute("PRAGMA schema_version")
+        except sqlite3.Error as exc:
+            problem = f"{db} is not a usable sqlite database ({exc})"
+    if problem:
+        raise TrackingError(f"cannot open MLflow store {uri}: {problem}.")
+
+
+def open_store(tracking_uri: str | None = None) -> MlflowClient:
+    """Connect to the store and prove it answers, so a bad store fails before any training."""
+    uri = resolve_tracking_uri(tracking_uri)
+    db = _sqlite_path(uri)
+    if db is not None:
+        _check_sqlite(uri, db)
+    try:
+        with _quick_http():
+            client = MlflowClient(uri)
+            client.search_experiments(max_results=1)
+    except Exception as exc:  # any failure here means the store is unusable
+        raise TrackingError(f"cannot open MLflow store {uri}: {_reason(exc)}") from exc
+    return client
+
+
+class MemoryTracker:
+    """In-memory tracker for algorithm tests: same validation as MLflow, nothing persisted."""
+
+    def __init__(self, run_id: str = "memory") -> None:
+        self.run_id: str | None = run_id
+        self.metrics: dict[str, list[tuple[int, float]]] = {}
+        self.artifacts: list[tuple[Path, str | None]] = []
+        self.dicts: dict[str, Any] = {}
+        self.flushes = 0
+        self.status: str | None = None  # None while the run is open
+
+    def log_metrics(self, step: int, metrics: Mapping[str, float]) -> None:
+        step, points = _metric_points(step, metrics)
+        for key, value in points:
+            self.metrics.setdefault(key, []).append((step, value))
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        self.artifacts.append((_existing_path(path), artifact_path))
+
+    def log_dict(self, obj: Any, artifact_file: str) -> None:
+        self.dicts[artifact_file] = copy.deepcopy(obj)  # a snapshot, as an uploaded file would be
+
+    def flush(self) -> None:
+        self.flushes += 1
+
+    def close(self, status: str = "FINISHED") -> None:
+        _check_status(status)
+        self.status = status
+
+
+class MlflowTracker:
+    """One MLflow run: buffered metrics, params from the flattened config, tags, artifacts.
+
+    Use as a context manager so an exception closes the run as FAILED (KILLED on Ctrl-C):
+        with MlflowTracker(experiment="epoet") as tracker:
+            tracker.start("ppo-seed1", params=flatten(cfg_dict), parent_run_id=parent_run_id())
+    """
+
+    def __init__(self, tracking_uri: str | None = None, experiment: str = "epoet",
+                 flush_every: int = MAX_METRICS_PER_BATCH, flush_seconds: float = 10.0) -> None:
+        if flush_every < 1 or flush_seconds < 0:
+            raise TrackingError(f"flush_every must be >= 1 and flush_seconds >= 0, got "
+                                f"{flush_every} and {flush_seconds}.")
+        self.tracking_uri = resolve_tracking_uri(tracking_uri)
+        self.experiment = experiment
+        self.flush_every = flush_every
+        self.flush_seconds = flush_seconds
+        self.client = open_store(self.tracking_uri)
+        self.run_id: str | None = None
+        self.experiment_id: str | None = None
+        self._buffer: list[Metric] = []
+        self._last_flush = time.monotonic()
+        self._closed = False
+
+    def __enter__(self) -> MlflowTracker:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if self.run_id is None or self._closed:
+            return
+        if exc_type is None:
+            self.close("FINISHED")
+        else:
+            self.close("KILLED" if issubclass(exc_type, KeyboardInterrupt) else "FAILED")
+
+    def _experiment_id(self) -> str:
+        """Get or create the experiment; local stores keep artifacts next to the database."""
+        exp = self.client.get_experiment_by_name(self.experiment)
+        if exp is None:
+            db = _sqlite_path(self.tracking_uri)
+            # MLflow's default artifact root is ./mlruns of whatever cwd (a Hydra job folder)
+            # first creates the experiment; pin it beside the database instead.
+            location = None
+            if db is not None:
+                slug = re.sub(r"[^A-Za-z0-9_.-]", "_", self.experiment)
+                location = (db.parent / "mlartifacts" / slug).as_uri()
+            try:
+                return self.client.create_experiment(self.experiment, artifact_location=location)
+            except MlflowException:
+                exp = self.client.get_experiment_by_name(self.experiment)  # a parallel job won
+                if exp is None:
+                    raise
+        if exp.lifecycle_stage != "active":
+            raise TrackingError(f"MLflow experiment {self.experiment!r} is deleted; restore it "
+                                "or choose another experiment name.")
+        return exp.experiment_id
+
+    def start(self, run_name: str | None = None, params: Mapping[str, str] | None = None,
+              tags: Mapping[str, str] | None = None, parent_run_id: str | None = None,
+              resume_run_id: str | None = None) -> str:
+        """Create a run (or continue `resume_run_id`) and log its params and tags; returns its id.
+
+        The git commit is tagged unless `tags` sets it. On resume, params already in the run
+        keep their first value (MLflow refuses to change a param); new keys are added.
+        """
+        if self.run_id is not None:
+            raise TrackingError(f"this tracker already started run {self.run_id}.")
+        all_tags = {MLFLOW_GIT_COMMIT: git_commit(), **(tags or {})}
+        if parent_run_id:
+            all_tags[MLFLOW_PARENT_RUN_ID] = parent_run_id
+        all_tags = {k: str(v)[:MAX_TAG_VAL_LENGTH] for k, v in all_tags.items()}
+        params = {metric_key(k): str(v)[:MAX_PARAM_VAL_LENGTH] for k, v in (params or {}).items()}
+        try:
+            if resume_run_id:
+                params = self._resume(resume_run_id, run_name, params)
+            else:
+                run = self.client.create_run(self._experiment_id(), run_name=run_name,
+                                             tags=all_tags)
+                self.run_id, self.experiment_id = run.info.run_id, run.info.experiment_id
+                all_tags = {}  # already written by create_run
+            self._log_params_and_tags(params, all_tags)
+        except MlflowException as exc:
+            raise TrackingError(f"cannot start MLflow run in {self.tracking_uri}: "
+                                f"{_reason(exc)}") from exc
+        return self.run_id
+
+    def _resume(self, run_id: str, run_name: str | None,
+                params: dict[str, str]) -> dict[str, str]:
+        """Reopen `run_id`; return the params it does not have yet."""
+        try:
+            run = self.client.get_run(run_id)
+        except MlflowException as exc:
+            raise TrackingError(f"cannot resume MLflow run {run_id}: it is not in "
+                                f"{self.tracking_uri}.") from exc
+        self.run_id, self.experiment_id = run_id, run.info.experiment_id
+        self.client.update_run(run_id, status="RUNNING", name=run_name)
+        old = run.data.params
+        changed = sorted(k for k, v in params.items() if k in old and old[k] != v)
+        if changed:
+            log.warning("resumed run %s keeps its original values of changed params %s",
+                        run_id, changed)
+        return {k: v for k, v in params.items() if k not in old}
+
+    def _log_params_and_tags(self, params: dict[str, str], tags: dict[str, str]) -> None:
+        items = [Param(k, v) for k, v in params.items()]
+        for i in range(0, len(items), MAX_PARAMS_TAGS_PER_BATCH):
+            self.client.log_batch(self.run_id, params=items[i:i + MAX_PARAMS_TAGS_PER_BATCH])
+        run_tags = [RunTag(k, v) for k, v in tags.items()]
+        for i in range(0, len(run_tags), MAX_PARAMS_TAGS_PER_BATCH):
+            self.client.log_batch(self.run_id, tags=run_tags[i:i + MAX_PARAMS_TAGS_PER_BATCH])
+
+    def child_runs(self) -> dict[str, str]:
+        """Run id -> status of this run's children (a sweep's jobs)."""
+        if self.run_id is None:
+            raise TrackingError("the MLflow run has not been started.")
+        children: dict[str, str] = {}
+        token = None
+        while True:
+            page = self.client.search_runs(
+                [self.experiment_id], f"tags.`{MLFLOW_PARENT_RUN_ID}` = '{self.run_id}'",
+                max_results=1000, page_token=token)
+            children.update((run.info.run_id, run.info.status) for run in page)
+            token = page.token
+            if not token:
+                return children
+
+    def _require_open(self) -> str:
+        if self.run_id is None or self._closed:
+            raise TrackingError("the MLflow run is not open: call start() first and not after "
+                                "close().")
+        return self.run_id
+
+    def log_metrics(self, step: int, metrics: Mapping[str, float]) -> None:
+        """Buffer one step's metrics; sent every `flush_every` points or `flush_seconds`.
+
+        The time check runs here (no background thread), so at most one call's worth of points
+        waits beyond `flush_seconds`.
+        """
+        self._require_open()
+        now_ms = int(time.time() * 1000)
+        step, points = _metric_points(step, metrics)
+        self._buffer.extend(Metric(key, value, now_ms, step) for key, value in points)
+        if (len(self._buffer) >= self.flush_every
+                or time.monotonic() - self._last_flush >= self.flush_seconds):
+            self.flush()
+
+    def flush(self) -> None:
+        """Send buffered metrics in chunks of MLflow's per-call limit (1000)."""
+        run_id = self._require_open()
+        self._last_flush = time.monotonic()
+        while self._buffer:
+            chunk = self._buffer[:MAX_METRICS_PER_BATCH]
+            try:
+                self.client.log_batch(run_id, metrics=chunk)
+            except MlflowException as exc:  # keep unsent points so a later flush can retry
+                raise TrackingError(f"cannot send metrics to {self.tracking_uri}: "
+                                    f"{_reason(exc)}") from exc
+            del self._buffer[:len(chunk)]
+
+    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        """Upload a file, or a directory's contents, under `artifact_path`."""
+        run_id = self._require_open()
+        path = _existing_path(path)
+        try:
+            if path.is_dir():
+                self.client.log_artifacts(run_id, str(path), artifact_path)
+            else:
+                self.client.log_artifact(run_id, str(path), artifact_path)
+        except (MlflowException, OSError) as exc:
+            raise TrackingError(f"cannot upload artifact {path}: {_reason(exc)}") from exc
+
+    def log_dict(self, obj: Any, artifact_file: str) -> None:
+        """Upload `obj` as JSON or YAML (by the file's extension), e.g. the resolved config."""
+        run_id = self._require_open()
+        try:
+            self.client.log_dict(run_id, obj, artifact_file)
+        except (MlflowException, OSError, TypeError) as exc:
+            raise TrackingError(f"cannot upload {artifact_file}: {_reason(exc)}") from exc
+
+    def close(self, status: str = "FINISHED") -> None:
+        """Flush and terminate the run; closing twice is a no-op."""
+        _check_status(status)
+        if self.run_id is None or self._closed:
+            return
+        try:
+            self.flush()
+        finally:  # the status is recorded even if the last metrics could not be sent
+            self._closed = True
+            try:
+                self.client.set_terminated(self.run_id, status)
+            except MlflowException as exc:
+                raise TrackingError(f"cannot close MLflow run {self.run_id}: "
+                                    f"{_reason(exc)}") from exc

@@ -1,0 +1,107 @@
+"""Checkpoints: exact round trip, atomic replacement, and one-sentence errors for bad files."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from epoet.checkpoint import (
+    CHECKPOINT_NAME,
+    CheckpointError,
+    find_checkpoint,
+    load_checkpoint,
+    save_checkpoint,
+)
+
+
+class _Unpicklable:
+    """Fails while being pickled, i.e. in the middle of writing the checkpoint."""
+
+    def __reduce__(self):
+        raise RuntimeError("boom")
+
+
+def _state() -> dict:
+    rng = np.random.default_rng(7)
+    rng.normal(size=3)  # advance so the saved state is not the seed's initial state
+    net = torch.nn.Linear(4, 2)
+    return {
+        "iteration": 12,
+        "theta": np.arange(10, dtype=np.float32),
+        "pairs": {"0": {"scores": np.ones((2, 3)), "name": "flat"}, "1": [1, 2.5, None]},
+        "rng": rng.bit_generator.state,
+        "policy": net.state_dict(),
+    }
+
+
+def test_round_trip_restores_arrays_nested_dicts_rng_and_torch(tmp_path):
+    state = _state()
+    path = tmp_path / "run" / CHECKPOINT_NAME
+    save_checkpoint(path, state)
+    loaded = load_checkpoint(path)
+
+    assert loaded["iteration"] == 12
+    np.testing.assert_array_equal(loaded["theta"], state["theta"])
+    assert loaded["theta"].dtype == np.float32
+    np.testing.assert_array_equal(loaded["pairs"]["0"]["scores"], np.ones((2, 3)))
+    assert loaded["pairs"]["1"] == [1, 2.5, None]
+    for key, tensor in state["policy"].items():
+        assert torch.equal(loaded["policy"][key], tensor)
+    # The restored generator continues exactly where the saved one would.
+    original, restored = np.random.default_rng(), np.random.default_rng()
+    original.bit_generator.state = state["rng"]
+    restored.bit_generator.state = loaded["rng"]
+    np.testing.assert_array_equal(original.normal(size=5), restored.normal(size=5))
+
+
+def test_failed_write_keeps_previous_checkpoint_and_leaves_no_temp_file(tmp_path):
+    path = tmp_path / CHECKPOINT_NAME
+    save_checkpoint(path, {"iteration": 1})
+    before = path.read_bytes()
+
+    with pytest.raises(CheckpointError, match="cannot save checkpoint.*boom"):
+        save_checkpoint(path, {"iteration": 2, "bad": _Unpicklable()})
+
+    assert path.read_bytes() == before
+    assert load_checkpoint(path) == {"iteration": 1}
+    assert [p.name for p in tmp_path.iterdir()] == [CHECKPOINT_NAME]
+
+
+def test_overwrite_replaces_content(tmp_path):
+    path = tmp_path / CHECKPOINT_NAME
+    save_checkpoint(path, {"iteration": 1})
+    save_checkpoint(path, {"iteration": 2})
+    assert load_checkpoint(path) == {"iteration": 2}
+
+
+def test_run_folder_resolves_to_its_checkpoint(tmp_path):
+    save_checkpoint(tmp_path / CHECKPOINT_NAME, {"iteration": 3})
+    assert find_checkpoint(tmp_path) == tmp_path / CHECKPOINT_NAME
+    assert load_checkpoint(tmp_path) == {"iteration": 3}
+
+
+def test_missing_file_and_empty_run_folder_are_named(tmp_path):
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_checkpoint(tmp_path / "nope.pkl")
+    with pytest.raises(CheckpointError, match=f"no checkpoint in run folder {tmp_path}"):
+        load_checkpoint(tmp_path)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda b: b[: len(b) // 2], "truncated"),
+    (lambda b: b[:10], "shorter than its header"),
+    (lambda b: b[:-1] + bytes([b[-1] ^ 0xFF]), "CRC mismatch"),
+    (lambda b: b"NOTEPOET" + b[8:], "not an epoet checkpoint"),
+    (lambda b: b[:8] + (99).to_bytes(4, "little") + b[12:], "format version 99"),
+])
+def test_damaged_files_raise_checkpoint_error(tmp_path, damage, message):
+    path = tmp_path / CHECKPOINT_NAME
+    save_checkpoint(path, {"theta": np.arange(1000.0)})
+    path.write_bytes(damage(path.read_bytes()))
+    with pytest.raises(CheckpointError, match=message):
+        load_checkpoint(path)
+
+
+def test_state_must_be_a_dict(tmp_path):
+    with pytest.raises(CheckpointError, match="state must be a dict"):
+        save_checkpoint(tmp_path / CHECKPOINT_NAME, [1, 2])  # type: ignore[arg-type]
