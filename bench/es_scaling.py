@@ -1,0 +1,68 @@
+"""ES-step throughput with a 2-worker process pool over the in-process (1-worker) backend.
+
+One ES step = the episodes of a mirrored population (theta +- sigma * eps) on one terrain, as the
+ePOET loop runs it. Both backends evaluate the same population with the same seeds (the returns
+must match exactly); each is timed best-of-`repeats`, interleaved, so a burst of load from other
+processes hurts neither side more. Pool start-up is reported separately (paid once per run). The
+last line is `scaling_2w = X`; the machine has 2 cores, so 2.0 is the ceiling.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from epoet.config import AgentConfig, TerrainConfig
+from epoet.es.policy import init_params
+from epoet.es.rollout import DEFAULT_BATCH
+from epoet.es.workers import Evaluator, make_evaluator
+from epoet.terrain import make_terrain
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--pairs", type=int, default=32)
+    parser.add_argument("--max-steps", type=int, default=200)
+    parser.add_argument("--batch", type=int, default=DEFAULT_BATCH)
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args()
+
+    agent = AgentConfig(max_episode_steps=args.max_steps)
+    terrain_cfg = TerrainConfig(kind="cppn")
+    terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
+    rng = np.random.default_rng(0)
+    theta = init_params(0)
+    noise_seeds = rng.integers(0, 2**62, args.pairs)
+    spawn_seeds = rng.integers(0, 2**62, args.pairs)
+
+    def es_step(evaluator: Evaluator) -> tuple[float, np.ndarray]:
+        start = time.perf_counter()
+        plus, minus = evaluator.es_returns(terrain, theta, noise_seeds, 0.02, spawn_seeds)
+        return time.perf_counter() - start, np.concatenate([plus, minus])
+
+    start = time.perf_counter()
+    pool = make_evaluator(agent, terrain_cfg, workers=2, batch=args.batch)
+    startup = time.perf_counter() - start
+    serial = make_evaluator(agent, terrain_cfg, workers=1, batch=args.batch)
+    with pool, serial:
+        one = two = np.inf
+        for _ in range(args.repeats):
+            seconds, returns_1 = es_step(serial)
+            one = min(one, seconds)
+            seconds, returns_2 = es_step(pool)
+            two = min(two, seconds)
+            assert np.array_equal(returns_1, returns_2), "1 and 2 workers disagree"
+
+    episodes = 2 * args.pairs
+    print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())} "
+          f"on {os.cpu_count()} cores")
+    print(f"pool start-up: {startup:.2f} s")
+    print(f"1 worker:  {episodes / one:.1f} episodes/s ({one:.2f} s per ES step)")
+    print(f"2 workers: {episodes / two:.1f} episodes/s ({two:.2f} s per ES step)")
+    print(f"scaling_2w = {one / two:.2f}")
+
+
+if __name__ == "__main__":
+    main()

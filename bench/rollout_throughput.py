@@ -1,0 +1,84 @@
+"""Steps/s of the batched rollout engine over raw `mj_step` on the same model, terrain and states.
+
+The engine runs a mirrored ES population (policy, observation, reward, spawning and early stopping
+included) and is timed end to end. The raw baseline then replays exactly the same episodes in one
+MjData: the same spawn (reset + settling steps) and each episode's recorded actions as position
+targets, timing only the spawn and the `ctrl` write + `mj_step` loop. Both sides thus simulate the
+same physics steps, the steps actually simulated (settling included; idle slots are not stepped),
+and the ratio is the engine's whole overhead. Both are measured in this one run, interleaved, best
+of `repeats` (the machine is noisy, only the ratio means something). The last line is
+`rollout/raw = X`.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import mujoco
+import numpy as np
+
+from epoet.config import AgentConfig, TerrainConfig
+from epoet.envs.model import action_to_targets
+from epoet.envs.spawn import spawn
+from epoet.es.optimizer import mirrored_population
+from epoet.es.policy import init_params
+from epoet.es.rollout import DEFAULT_BATCH, RolloutEngine
+from epoet.terrain import make_terrain
+
+
+def raw_seconds(engine: RolloutEngine, seeds: np.ndarray, actions: np.ndarray,
+                episode: np.ndarray) -> float:
+    """Time of spawning each episode and replaying its recorded actions with bare mj_step."""
+    model, data = engine.model, mujoco.MjData(engine.model)
+    targets = action_to_targets(actions)
+    total = 0.0
+    for e, seed in enumerate(seeds):
+        rows = list(targets[episode == e])
+        start = time.perf_counter()
+        spawn(model, data, engine.ground, engine.agent, np.random.default_rng(int(seed)))
+        for row in rows:
+            np.copyto(data.ctrl, row)
+            mujoco.mj_step(model, data)
+        total += time.perf_counter() - start
+    return total
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--pairs", type=int, default=32, help="mirrored pairs (2x episodes)")
+    parser.add_argument("--batch", type=int, default=DEFAULT_BATCH)
+    parser.add_argument("--max-steps", type=int, default=400)
+    parser.add_argument("--terrain", default="cppn", choices=["bowl", "cppn"])
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args()
+
+    agent = AgentConfig(max_episode_steps=args.max_steps)
+    terrain_cfg = TerrainConfig(kind=args.terrain)
+    terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
+    engine = RolloutEngine(agent, terrain_cfg, batch=args.batch)
+    rng = np.random.default_rng(0)
+    params = mirrored_population(init_params(0), rng.integers(0, 2**62, args.pairs), 0.02)
+    seeds = np.tile(rng.integers(0, 2**62, args.pairs), 2)
+
+    # Same episodes with recording (untimed), for the actions the raw replay needs.
+    recorded = engine.run(terrain, params, seeds, record=True)
+    actions, episode = recorded.transitions["action"], recorded.transitions["episode"]
+    steps = int(recorded.lengths.sum()) + len(seeds) * agent.settle_steps
+    # Interleaved repeats, best of each: load from other processes only ever slows a side down.
+    rollout = raw = np.inf
+    for _ in range(args.repeats):
+        start = time.perf_counter()
+        episodes = engine.run(terrain, params, seeds)
+        rollout = min(rollout, time.perf_counter() - start)
+        assert np.array_equal(episodes.returns, recorded.returns), "rollouts are not deterministic"
+        raw = min(raw, raw_seconds(engine, seeds, actions, episode))
+
+    print(f"episodes: {len(seeds)}, physics steps: {steps}, lengths {recorded.lengths.min()}.."
+          f"{recorded.lengths.max()}")
+    print(f"raw mj_step: {steps / raw:,.0f} steps/s")
+    print(f"rollout:     {steps / rollout:,.0f} steps/s")
+    print(f"rollout/raw = {raw / rollout:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""The batched rollout engine and the evaluation backends, on real MuJoCo physics."""
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from epoet.config import AgentConfig, TerrainConfig
+from epoet.envs import HexapodEnv
+from epoet.envs.model import TerrainMismatchError
+from epoet.es.optimizer import mirrored_population
+from epoet.es.policy import forward, init_params
+from epoet.es.rollout import RolloutEngine
+from epoet.es.workers import make_evaluator
+from epoet.terrain import Terrain, make_terrain
+
+TERRAIN_CFG = TerrainConfig(kind="cppn", grid=40, max_height=0.3)
+# Episodes end at different times: stalls after 8 steps without progress, 40 steps at most.
+AGENT = AgentConfig(max_episode_steps=40, no_progress_steps=8)
+# Spawned 0.05 m before the finish line, about a third of the robots start past it.
+NEAR_FINISH = AgentConfig(max_episode_steps=40, start_x=5.95, finish_x=6.0)
+
+
+@pytest.fixture(scope="module")
+def terrain() -> Terrain:
+    return make_terrain(TERRAIN_CFG, seed=1, iteration=10)
+
+
+def population(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """n different policies (std 0.3 makes them act differently) and n spawn seeds."""
+    params = np.stack([init_params(seed * 1000 + i, std=0.3) for i in range(n)])
+    return params, np.arange(n) + 100 * seed
+
+
+def test_engine_reproduces_the_gym_env_episode_for_episode(terrain):
+    params, seeds = population(4)
+    # batch 2 < 4 episodes: slots are refilled as episodes end.
+    episodes = RolloutEngine(AGENT, TERRAIN_CFG, batch=2).run(terrain, params, seeds)
+    env = HexapodEnv(agent=AGENT, terrain=TERRAIN_CFG)
+    for e in range(len(seeds)):
+        obs, _ = env.reset(seed=int(seeds[e]), options={"terrain": terrain})
+        total, steps, done, info = 0.0, 0, False, {}
+        while not done:
+            obs, reward, terminated, truncated, info = env.step(forward(params[e], obs))
+            total, steps, done = total + reward, steps + 1, terminated or truncated
+        assert episodes.returns[e] == pytest.approx(total, abs=1e-9)
+        assert episodes.lengths[e] == steps
+        assert episodes.finished[e] == info["finished"]
+    assert len(set(episodes.lengths.tolist())) > 1  # the refill path was exercised
+
+
+def test_results_do_not_depend_on_batch_size(terrain):
+    params, seeds = population(6, seed=4)
+    runs = [RolloutEngine(AGENT, TERRAIN_CFG, batch=b).run(terrain, params, seeds, record=True)
+            for b in (1, 4, 8)]
+    assert len(set(runs[0].lengths.tolist())) > 3  # slots free up at different steps
+    for other in runs[1:]:
+        np.testing.assert_array_equal(other.returns, runs[0].returns)
+        np.testing.assert_array_equal(other.lengths, runs[0].lengths)
+        for key, value in runs[0].transitions.items():
+            np.testing.assert_array_equal(other.transitions[key], value)
+
+
+def test_finished_episodes_stop_while_others_run_on(terrain):
+    params, seeds = population(8, seed=2)
+    engine = RolloutEngine(NEAR_FINISH, TERRAIN_CFG, batch=8)
+    episodes = engine.run(terrain, params, seeds)
+    finished = episodes.finished
+    assert finished.any() and not finished.all()
+    assert episodes.lengths[finished].max() < episodes.lengths[~finished].min()
+    assert (episodes.returns[finished] > 400).all()  # the finish bonus of 500
+    # With 8 slots for 8 episodes each MjData ran exactly one episode: its clock shows that a
+    # finished episode's physics stopped (settling steps + its own length), not the longest one.
+    dt, settle = NEAR_FINISH.timestep, NEAR_FINISH.settle_steps
+    clocks = np.array([d.time for d in engine._datas])
+    np.testing.assert_allclose(clocks, (settle + episodes.lengths) * dt)
+
+
+def test_recorded_transitions_add_up_to_the_returns(terrain):
+    params, seeds = population(5, seed=3)
+    episodes = RolloutEngine(AGENT, TERRAIN_CFG, batch=3).run(terrain, params, seeds,
+                                                              record=True)
+    t = episodes.transitions
+    assert len(t["reward"]) == episodes.lengths.sum()
+    for e in range(len(seeds)):
+        mine = t["episode"] == e
+        assert t["reward"][mine].sum() == pytest.approx(episodes.returns[e], abs=1e-9)
+        np.testing.assert_array_equal(t["obs"][mine][1:], t["next_obs"][mine][:-1])
+        np.testing.assert_array_equal(t["action"][mine][0], forward(params[e], t["obs"][mine][0]))
+        assert not t["terminated"][mine][:-1].any()
+
+
+def test_one_and_two_workers_give_identical_results(terrain):
+    theta = init_params(7)
+    noise_seeds, spawn_seeds = np.array([11, 12, 13]), np.array([21, 22, 23])
+    thetas, eval_seeds = np.stack([theta, -theta]), np.array([5, 6])
+    with make_evaluator(AGENT, TERRAIN_CFG, workers=1, batch=2) as one, \
+            make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=2) as two:
+        plus, minus = one.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+        for got, want in zip(two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds),
+                             (plus, minus)):
+            np.testing.assert_array_equal(got, want)
+        ev1 = one.evaluate(terrain, thetas, eval_seeds, record=True)
+        ev2 = two.evaluate(terrain, thetas, eval_seeds, record=True)
+        assert ev1.returns.shape == (2, 2)
+        np.testing.assert_array_equal(ev2.returns, ev1.returns)
+        for key, value in ev1.transitions.items():
+            np.testing.assert_array_equal(ev2.transitions[key], value)
+        # A worker's exception reaches the caller with its type, and the pool carries on.
+        wrong_grid = make_terrain(TerrainConfig(grid=20), seed=0)
+        with pytest.raises(TerrainMismatchError):
+            two.es_returns(wrong_grid, theta, noise_seeds, 0.05, spawn_seeds)
+        again = two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+        np.testing.assert_array_equal(again[0], plus)
+        # A worker that dies (killed here) is an error in the parent, not a hang.
+        os.kill(next(iter(two._pool._processes)), signal.SIGKILL)
+        with pytest.raises(RuntimeError, match="died"):
+            two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+    # The mirrored population is the one `mirrored_population` builds, pairs sharing a start.
+    direct = RolloutEngine(AGENT, TERRAIN_CFG, batch=6).run(
+        terrain, mirrored_population(theta, noise_seeds, 0.05), np.tile(spawn_seeds, 2))
+    np.testing.assert_array_equal(direct.returns, np.concatenate([plus, minus]))
+    with pytest.raises(RuntimeError, match="closed"):
+        two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+
+
+def test_bad_input_is_refused_in_one_sentence(terrain):
+    engine = RolloutEngine(AGENT, TERRAIN_CFG, batch=2)
+    params, seeds = population(3)
+    with pytest.raises(ValueError, match="episode_seeds must have shape"):
+        engine.run(terrain, params, seeds[:2])
+    with pytest.raises(ValueError, match="params must have shape"):
+        engine.run(terrain, params[:, :-1], seeds)
+    with pytest.raises(ValueError, match="integers >= 0"):
+        engine.run(terrain, params, seeds - 1)
+    with make_evaluator(AGENT, TERRAIN_CFG, workers=1) as evaluator:
+        with pytest.raises(ValueError, match="one seed per noise seed"):
+            evaluator.es_returns(terrain, params[0], np.arange(3), 0.02, np.arange(2))
+        with pytest.raises(ValueError, match="spawn_seeds must have shape"):
+            evaluator.evaluate(terrain, params, np.zeros((2, 4), dtype=int))
+    for workers in (0, "ray"):
+        with pytest.raises(ValueError, match="workers must be"):
+            make_evaluator(AGENT, TERRAIN_CFG, workers=workers)
