@@ -1,0 +1,70 @@
+"""`algo=epoet`: run the ePOET loop for the budget's iterations, tracked and resumable."""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from epoet.config import Config
+from epoet.es.policy import LAYER_SIZES
+from epoet.es.workers import make_evaluator
+from epoet.poet.loop import EPOET
+from epoet.run import save_run_state
+from epoet.tracking import Tracker
+
+
+def layer_sizes(cfg: Config) -> tuple[int, ...]:
+    return (LAYER_SIZES[0], *cfg.algo.es.hidden, LAYER_SIZES[-1])
+
+
+def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
+    """Iterate until `budget.iterations`, checkpointing every `checkpoint_every` iterations."""
+    budget = cfg.budget
+    agent = replace(cfg.agent, max_episode_steps=budget.episode_steps)
+    sizes = layer_sizes(cfg)
+    workers = cfg.workers.num if cfg.workers.num is not None else "local"
+    with make_evaluator(agent, cfg.terrain, workers, cfg.workers.batch, sizes) as evaluator:
+        poet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
+                     eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
+                     layer_sizes=sizes)
+        if resume is not None:
+            poet.load_state_dict(resume["poet"])
+            print(f"[epoet] resumed at iteration {poet.iteration}", flush=True)
+        started = time.perf_counter()
+        while poet.iteration < budget.iterations:
+            metrics = poet.iterate()
+            tracker.log_metrics(poet.iteration - 1, metrics)
+            _progress(poet, metrics, budget.iterations, time.perf_counter() - started)
+            if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
+                save_run_state(run_dir, tracker, {"poet": poet.state_dict()})
+        _log_pool(poet, run_dir, tracker, sizes)
+    return poet
+
+
+def _progress(poet: EPOET, metrics: dict[str, float], total: int, elapsed: float) -> None:
+    extra = "".join(f" {k}={int(metrics[k])}" for k in ("admitted", "transfers") if k in metrics)
+    print(f"[epoet] it {poet.iteration}/{total} pairs={len(poet.active)} "
+          f"archived={len(poet.archived)} best={metrics['best_score']:.1f} "
+          f"annecs={poet.annecs} steps/s={metrics['steps_per_second']:,.0f} "
+          f"elapsed={elapsed:.0f}s{extra}", flush=True)
+
+
+def _log_pool(poet: EPOET, run_dir: Path, tracker: Tracker, sizes: tuple[int, ...]) -> None:
+    """Artifacts: each environment's terrain (npz + PNG) and each agent's final parameters."""
+    terrains, policies = run_dir / "terrains", run_dir / "policies"
+    terrains.mkdir(exist_ok=True)
+    policies.mkdir(exist_ok=True)
+    for status, pairs in (("active", poet.active), ("archived", poet.archived)):
+        for pair in pairs:
+            name = f"env{pair.env.index}"
+            terrain = poet.terrain(pair.env)
+            terrain.save(terrains / f"{name}.npz")
+            terrain.to_png(terrains / f"{name}.png")
+            np.savez(policies / f"{name}.npz", theta=pair.theta, layer_sizes=np.array(sizes),
+                     score=pair.score, status=status, generation=pair.env.generation,
+                     parent=-1 if pair.env.parent is None else pair.env.parent)
+    tracker.log_artifact(terrains, "terrains")
+    tracker.log_artifact(policies, "policies")

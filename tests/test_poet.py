@@ -1,0 +1,199 @@
+"""The ePOET loop on the real rollout engine: reproduction, archive, transfer, tracking, resume."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import mlflow
+import numpy as np
+import pytest
+
+from epoet.checkpoint import load_checkpoint
+from epoet.config import AgentConfig, PoetConfig, TerrainConfig
+from epoet.es.workers import SerialEvaluator
+from epoet.poet.loop import EPOET
+from epoet.run import run
+
+ROOT = Path(__file__).resolve().parent.parent
+SIZES = (53, 8, 18)
+SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
+
+
+def make_poet(terrain_cfg: TerrainConfig, **algo) -> EPOET:
+    agent = AgentConfig(max_episode_steps=20, settle_steps=2)
+    evaluator = SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES)
+    return EPOET(PoetConfig(**algo), terrain_cfg, evaluator, seed=3, n_pairs=2, eval_episodes=1,
+                 score_scale=1.0, layer_sizes=SIZES)
+
+
+OPEN = dict(repro_threshold=-1e9, mc_lower=-1e9, mc_upper=1e9)  # every child passes
+
+
+def test_reproduction_admits_at_most_one_child(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=4, **OPEN)
+    poet.iterate()
+    assert poet.reproduce() == 1
+    child = poet.active[-1]
+    assert len(poet.active) == 2 and child.env.index == 1
+    assert child.env.generation == 1 and child.env.parent == 0
+    assert child.env.genome is not poet.active[0].env.genome
+
+
+def test_reproduction_requires_minimal_criterion(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=-1e9, mc_lower=1e8,
+                     mc_upper=1e9)
+    poet.iterate()
+    assert poet.reproduce() == 0 and len(poet.active) == 1
+
+
+def test_reproduction_requires_threshold(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=1e9, mc_lower=-1e9,
+                     mc_upper=1e9)
+    poet.iterate()
+    assert poet.reproduce() == 0
+
+
+def test_oldest_pair_is_archived(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=2, max_num_envs=1, **OPEN)
+    poet.iterate()
+    poet.reproduce()
+    assert [p.env.index for p in poet.active] == [1]
+    assert [p.env.index for p in poet.archived] == [0]
+    metrics = poet.iterate()
+    assert metrics["archived_envs"] == 1 and metrics["active_envs"] == 1
+
+
+def test_transfer_replaces_a_beaten_agent(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
+    poet.iterate()
+    poet.reproduce()
+    target = poet.active[1]
+    target.scores[:] = [-1e9]          # any other agent beats this incumbent
+    target.es.tell(*_fake_step(target))  # move its optimiser away from the initial state
+    before = target.theta.copy()
+    assert poet.transfer() >= 1
+    assert not np.array_equal(target.theta, before)
+    assert target.es.state_dict()["t"] == 0  # Adam state reset on acceptance
+
+
+def _fake_step(pair):
+    seeds = pair.es.sample_seeds()
+    return seeds, np.arange(len(seeds), dtype=float), -np.arange(len(seeds), dtype=float)
+
+
+def test_annecs_counts_solved_children(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
+    poet.iterate()
+    poet.reproduce()
+    poet.iterate()  # every score clears the (open) threshold: the child is solved
+    assert poet.annecs == 1
+
+
+def _runs(uri: str) -> list:
+    client = mlflow.MlflowClient(uri)
+    exp = client.get_experiment_by_name("epoet")
+    return [] if exp is None else client.search_runs([exp.experiment_id])
+
+
+def test_smoke_run_is_tracked(compose, mlflow_uri: str, tmp_path: Path) -> None:
+    poet = run(compose(SMOKE), tmp_path / "run")
+    (r,) = _runs(mlflow_uri)
+    assert r.info.status == "FINISHED"
+    for key in ("pair0/return_mean", "pair0/return_max", "pair0/score", "pair0/lr",
+                "pair0/sigma", "best_score", "active_envs", "archived_envs", "annecs",
+                "env_steps", "wall_time"):
+        assert key in r.data.metrics, key
+    history = mlflow.MlflowClient(mlflow_uri).get_metric_history(r.info.run_id, "best_score")
+    assert [m.step for m in history] == [0, 1, 2]
+    assert r.data.tags["algo"] == "epoet" and r.data.tags["seed"] == "0"
+    assert r.data.tags["budget"] == "smoke" and "mlflow.source.git.commit" in r.data.tags
+    assert r.data.params["algo.iterations_before_transfer"] == "15"
+    client = mlflow.MlflowClient(mlflow_uri)
+    names = {a.path for a in client.list_artifacts(r.info.run_id)}
+    assert {"config.yaml", "terrains", "policies"} <= names
+    terrains = {a.path for a in client.list_artifacts(r.info.run_id, "terrains")}
+    assert {"terrains/env0.npz", "terrains/env0.png"} <= terrains
+    policy = np.load(tmp_path / "run" / "policies" / "env0.npz")
+    np.testing.assert_array_equal(policy["theta"], poet.active[0].theta)
+
+
+def _state(run_dir: Path) -> dict:
+    return load_checkpoint(run_dir / "checkpoint.pkl")["poet"]
+
+
+def _assert_same(a: dict, b: dict) -> None:
+    assert a["iteration"] == b["iteration"] and a["env_steps"] == b["env_steps"]
+    assert len(a["active"]) == len(b["active"]) and len(a["archived"]) == len(b["archived"])
+    for pa, pb in zip(a["active"] + a["archived"], b["active"] + b["archived"]):
+        assert pa["scores"] == pb["scores"]
+        for key, value in pa["es"].items():
+            if isinstance(value, np.ndarray):
+                np.testing.assert_array_equal(value, pb["es"][key])
+            else:
+                assert value == pb["es"][key], key
+
+
+def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
+                                                tmp_path: Path) -> None:
+    # Small intervals so reproduction (t=2, 4) and transfers happen on both sides of the cut.
+    algo = ["algo.iterations_before_transfer=1", "algo.adjust_interval=2", "algo.num_children=2",
+            "algo.repro_threshold=-100000", "algo.mc_lower=-100000", "algo.mc_upper=100000",
+            "checkpoint_every=1"]
+    run(compose(SMOKE + algo + ["budget.iterations=5"]), tmp_path / "straight")
+    run(compose(SMOKE + algo + ["budget.iterations=3"]), tmp_path / "killed")
+    run(compose(SMOKE + algo + ["budget.iterations=5", f"resume={tmp_path / 'killed'}"]),
+        tmp_path / "resumed")
+    straight, resumed = _state(tmp_path / "straight"), _state(tmp_path / "resumed")
+    assert len(straight["active"]) > 1, "reproduction should have happened"
+    _assert_same(straight, resumed)
+    runs = {r.info.run_id: r for r in _runs(mlflow_uri)}
+    assert len(runs) == 2  # the resumed run continued the killed one
+    killed_id = load_checkpoint(tmp_path / "resumed" / "checkpoint.pkl")["run_id"]
+    history = mlflow.MlflowClient(mlflow_uri).get_metric_history(killed_id, "best_score")
+    assert sorted(m.step for m in history) == [0, 1, 2, 3, 4]
+
+
+def _cli(args: list[str], uri: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
+    return subprocess.run([sys.executable, "-m", "epoet", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_multirun_has_one_parent_and_two_children(mlflow_uri: str, tmp_path: Path) -> None:
+    out = _cli(["-m", *SMOKE, "budget.iterations=1", "seed=1,2",
+                f"hydra.sweep.dir={tmp_path / 'sweep'}"], mlflow_uri, tmp_path)
+    assert out.returncode == 0, out.stderr
+    runs = _runs(mlflow_uri)
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    children = [r for r in runs if "mlflow.parentRunId" in r.data.tags]
+    assert len(parents) == 1 and len(children) == 2
+    assert {c.data.tags["mlflow.parentRunId"] for c in children} == {parents[0].info.run_id}
+    assert sorted(c.data.tags["seed"] for c in children) == ["1", "2"]
+
+
+def test_bad_input_fails_clearly_and_destroys_nothing(compose, mlflow_uri: str,
+                                                      tmp_path: Path) -> None:
+    run(compose(SMOKE + ["budget.iterations=1"]), tmp_path / "good")
+    checkpoint = tmp_path / "good" / "checkpoint.pkl"
+    saved = checkpoint.read_bytes()
+    corrupt = tmp_path / "corrupt.pkl"
+    corrupt.write_bytes(saved[: len(saved) // 2])
+    cases = {
+        "algo=unknown": "algo/unknown",
+        "budget.n_pairs=-1": "budget.n_pairs must be > 0",
+        "terrain=bowl": "needs terrain=cppn",
+        f"resume={tmp_path / 'missing'}": "does not exist",
+        f"resume={corrupt}": str(corrupt),
+    }
+    for override, message in cases.items():
+        out = _cli([*SMOKE, override, f"hydra.run.dir={tmp_path / 'bad'}"], mlflow_uri,
+                   tmp_path)
+        assert out.returncode != 0, override
+        assert message in out.stderr, (override, out.stderr)
+        assert len(out.stderr.strip().splitlines()) <= 3, out.stderr
+    assert checkpoint.read_bytes() == saved
+    assert corrupt.read_bytes() == saved[: len(saved) // 2]
+    assert len(_runs(mlflow_uri)) == 1
