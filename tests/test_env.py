@@ -205,3 +205,6 @@ def test_bad_input_is_clear(flat: Terrain, terrain_cfg: TerrainConfig) -> None:
         env.set_terrain(too_big)
     with pytest.raises(TerrainMismatchError, match="elevation"):
         env.set_terrain(Terrain(np.zeros((40, 40)), 5.0, 20.0, "bowl", 0))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="NaN"):
+        env.step(np.full(18, np.nan))

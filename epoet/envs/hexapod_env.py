@@ -88,7 +88,12 @@ class HexapodEnv(gym.Env):
         return self._obs[0].copy(), self._info(qpos)
 
     def step(self, action: np.ndarray):
-        action_to_targets(np.asarray(action, dtype=np.float64), out=self.data.ctrl)
+        action = np.asarray(action, dtype=np.float64)
+        if not np.isfinite(action).all():
+            # MuJoCo would silently reset the simulation on a NaN control; a diverged policy
+            # must be visible instead.
+            raise ValueError(f"action contains NaN or inf: {action}")
+        action_to_targets(action, out=self.data.ctrl)
         mujoco.mj_step(self.model, self.data)
         qpos, qvel, sensordata = self._gather()
         reward, terminated, truncated, terms = self.task.step(qpos, qvel, sensordata, self._state)
