@@ -17,7 +17,10 @@ import struct
 import tempfile
 import zlib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
+    from epoet.tracking import Tracker
 
 CHECKPOINT_NAME = "checkpoint.pkl"
 FORMAT_VERSION = 1
@@ -143,3 +146,11 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     if not isinstance(state, dict):
         raise CheckpointError(f"checkpoint {file_path} does not hold a dict.")
     return state
+
+
+def save_run_state(run_dir: Path, tracker: "Tracker", algo: str, state: dict[str, Any]) -> Path:
+    """Checkpoint a runner's state with its algorithm and the MLflow run id it continues."""
+    path = Path(run_dir) / CHECKPOINT_NAME
+    tracker.flush()  # metrics up to the checkpoint are in the store before it exists
+    save_checkpoint(path, {"run_id": tracker.run_id, "algo": algo, **state})
+    return path

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.checkpoint import CHECKPOINT_NAME, find_checkpoint, load_checkpoint, save_checkpoint
+from epoet.checkpoint import CheckpointError, find_checkpoint, load_checkpoint
 from epoet.config import Config, validate
 from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
 
@@ -20,6 +20,9 @@ from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
 #   train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict | None) -> Any
 RUNNERS: dict[str, str] = {
     "epoet": "epoet.poet.runner:train",
+    "ppo": "epoet.rl.ppo:train",
+    "sac": "epoet.rl.sac:train",
+    "vmpo": "epoet.rl.vmpo_runner:train",
 }
 
 Runner = Callable[[Config, Tracker, Path, "dict[str, Any] | None"], Any]
@@ -33,7 +36,13 @@ def runner_for(name: str) -> Runner:
 def run(raw: DictConfig, run_dir: Path) -> Any:
     """Train the configured algorithm; returns the runner's final state."""
     cfg: Config = validate(raw)
-    resume = load_checkpoint(find_checkpoint(cfg.resume)) if cfg.resume else None
+    resume = None
+    if cfg.resume:
+        path = find_checkpoint(cfg.resume)
+        resume = load_checkpoint(path)
+        if resume.get("algo") != cfg.algo.name:
+            raise CheckpointError(f"checkpoint {path} is from algo={resume.get('algo')}, so it "
+                                  f"cannot resume algo={cfg.algo.name}.")
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,
@@ -48,10 +57,3 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
               f"run_id={tracker.run_id} dir={run_dir}", flush=True)
         return runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
 
-
-def save_run_state(run_dir: Path, tracker: Tracker, state: dict[str, Any]) -> Path:
-    """Checkpoint a runner's state (atomically) together with the MLflow run id to continue."""
-    path = run_dir / CHECKPOINT_NAME
-    tracker.flush()  # metrics up to the checkpoint are in the store before it exists
-    save_checkpoint(path, {"run_id": tracker.run_id, **state})
-    return path

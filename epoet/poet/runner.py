@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
+from epoet.checkpoint import save_run_state
 from epoet.config import Config
 from epoet.es.policy import LAYER_SIZES
 from epoet.es.workers import make_evaluator
 from epoet.poet.loop import EPOET
-from epoet.run import save_run_state
 from epoet.tracking import Tracker
 
 
@@ -39,7 +39,7 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
             tracker.log_metrics(poet.iteration - 1, metrics)
             _progress(poet, metrics, budget.iterations, time.perf_counter() - started)
             if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
-                save_run_state(run_dir, tracker, {"poet": poet.state_dict()})
+                save_run_state(run_dir, tracker, "epoet", {"poet": poet.state_dict()})
         _log_pool(poet, run_dir, tracker, sizes)
     return poet
 
