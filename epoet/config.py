@@ -324,7 +324,7 @@ class Config:
     workers: WorkersConfig = field(default_factory=WorkersConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     seed: int = 0
-    checkpoint_every: int = 10      # iterations (ES) between checkpoints
+    checkpoint_every: int = 10      # ES iterations, or collector batches (baselines), per checkpoint
     resume: Optional[str] = None    # a run folder or checkpoint file to continue
 
     def __post_init__(self) -> None:
@@ -403,3 +403,122 @@ _SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (
 def validate(cfg: DictConfig, schema: type = Config) -> Any:
     """Range-check a composed config; raises ConfigError with one sentence."""
     return to_object(cfg, schema)
+
+
+# --- RL baselines ---------------------------------------------------------------------------------
+# PPO, SAC and VMPO (paper Tables 2-3, REFERENCE.md section 8); the YAML files are
+# conf/algo/{ppo,sac,vmpo}.yaml and the runners live in epoet/rl/. Sizes are per collector batch of
+# `frames_per_batch` frames; budget.frames is the total. A budget smaller than one batch shrinks the
+# batch and keeps the ratios (epochs per batch, SAC updates and random frames per collected frame):
+# see `batch_plan` in epoet/rl/common.py.
+
+RL_ACTIVATIONS = ("tanh", "relu", "elu")
+
+
+@dataclass
+class RlConfig:
+    """What the three baselines share: the networks, the optimiser and the collector batch."""
+
+    name: str = MISSING
+    hidden: list[int] = field(default_factory=lambda: [64, 64])
+    activation: str = "tanh"
+    lr: float = 3e-4                # one Adam over all parameters (Table 2: policy = value lr)
+    gamma: float = 0.99
+    frames_per_batch: int = 2000    # the paper's trajectory_length
+    obs_norm: bool = True           # running observation normalisation (PPO and VMPO in the paper)
+
+    def __post_init__(self) -> None:
+        _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
+               f"algo.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
+        _check(self.activation in RL_ACTIVATIONS,
+               f"algo.activation must be one of {list(RL_ACTIVATIONS)}, got {self.activation!r}.")
+        _positive(self, "lr", "frames_per_batch")
+        _check(0.0 < self.gamma <= 1.0, f"algo.gamma must be in (0, 1], got {self.gamma}.")
+
+
+@dataclass
+class OnPolicyConfig(RlConfig):
+    """PPO and VMPO: GAE on each batch, then `epochs` passes of shuffled minibatches."""
+
+    gae_lambda: float = 0.95        # Table 2 calls it "tau"
+    epochs: int = 10
+    minibatch: int = 64
+    critic_coeff: float = 0.5
+    max_grad_norm: Optional[float] = 0.5  # not in the paper; None disables clipping
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(0.0 <= self.gae_lambda <= 1.0,
+               f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.")
+        _positive(self, "epochs", "minibatch", "critic_coeff")
+        _check(self.max_grad_norm is None or self.max_grad_norm > 0,
+               f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.")
+
+
+@dataclass
+class PpoConfig(OnPolicyConfig):
+    """PPO with the clipped objective (paper Table 2)."""
+
+    name: str = "ppo"
+    clip: float = 0.2
+    entropy_coeff: float = 0.005
+    normalize_advantage: bool = True  # not in the paper; the common PPO implementation detail
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(self, "clip")
+        _non_negative(self, "entropy_coeff")
+
+
+@dataclass
+class VmpoConfig(OnPolicyConfig):
+    """V-MPO (Song et al. 2019; REFERENCE.md section 8); see epoet/rl/vmpo.py."""
+
+    name: str = "vmpo"
+    minibatch: int = 128
+    top_fraction: float = 0.5
+    eta_init: float = 1.0
+    eps_eta: float = 0.02
+    alpha_init: float = 0.1
+    eps_alpha: float = 0.01
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(0.0 < self.top_fraction <= 1.0,
+               f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.")
+        _positive(self, "eta_init", "eps_eta", "alpha_init", "eps_alpha")
+
+
+@dataclass
+class SacConfig(RlConfig):
+    """SAC with twin Q networks and automatic entropy tuning (paper Table 3)."""
+
+    name: str = "sac"
+    hidden: list[int] = field(default_factory=lambda: [256, 256])
+    activation: str = "relu"
+    obs_norm: bool = False
+    batch_size: int = 256
+    tau: float = 0.005              # soft target update rate
+    alpha_init: float = 1.0
+    target_entropy: Optional[float] = None  # None: -(action dimensions), the usual heuristic
+    reward_scale: float = 5.0
+    updates_per_batch: int = 1000   # 1000 gradient updates per 2000 collected frames
+    init_random_frames: int = 2000  # Table 3 pretrain_epoch 1: one batch of uniform actions
+    buffer_size: int = 1_000_000
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(self, "batch_size", "alpha_init", "reward_scale", "updates_per_batch",
+                  "buffer_size")
+        _non_negative(self, "init_random_frames")
+        _check(0.0 < self.tau <= 1.0, f"algo.tau must be in (0, 1], got {self.tau}.")
+        _check(self.buffer_size >= self.batch_size,
+               f"algo.buffer_size ({self.buffer_size}) must hold at least one batch "
+               f"(algo.batch_size={self.batch_size}).")
+
+
+ALGO_SCHEMAS.update({"ppo": PpoConfig, "sac": SacConfig, "vmpo": VmpoConfig})
+_SCHEMAS.update({cls.__name__: cls for cls in (PpoConfig, SacConfig, VmpoConfig)})
+_PREFIX.update({cls.__name__: "algo" for cls in (RlConfig, OnPolicyConfig, PpoConfig, SacConfig,
+                                                 VmpoConfig)})
+# --- end RL baselines -----------------------------------------------------------------------------
