@@ -29,6 +29,7 @@ bench: install
 	$(PY) bench/env_throughput.py
 	$(PY) bench/rollout_throughput.py
 	$(PY) bench/es_scaling.py
+	$(PY) bench/sac_updates.py
 
 clean-venv:
 	rm -rf $(VENV)
