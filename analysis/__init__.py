@@ -1,0 +1,6 @@
+"""Tables and figures of the paper, regenerated from the MLflow store alone.
+
+Everything here reads MLflow (runs, metrics, artifacts) and never Hydra's output folders, so a
+figure can be remade from the store on any machine. Each module is a command, e.g.
+`python -m analysis.curves` (run from the project root).
+"""

@@ -1,0 +1,253 @@
+"""Learning curves in the style of the paper's Figure 2, read from the MLflow store.
+
+    python -m analysis.curves [--experiment epoet] [--out figures] [--run RUN_ID ...]
+
+Writes to `--out`:
+- `epoet_curves.png` / `.csv`: each ePOET run's mean ES training return per iteration, one curve
+  per environment-agent pair (metric `pair<N>/return_mean`, step = iteration), one panel per run.
+  The paper labels pairs "ePOET_gen<generation>"; the generation is not logged per pair, so
+  curves are labelled `pair<N>`.
+- `baseline_curves.png` / `.csv`: each PPO/SAC/VMPO run's evaluation return
+  (`eval/return_mean`, step = frames), one panel per algorithm.
+
+By default the runs are the FINISHED runs of the experiment that carry an `algo` tag (a sweep's
+parent run has none and is skipped); `--run` picks runs by id instead, whatever their status.
+The CSV files hold exactly the plotted points, so the figures can be redrawn or tabulated
+elsewhere. The store is epoet's (`sqlite:///<project root>/mlflow.db`); MLFLOW_TRACKING_URI
+overrides it.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # figures are files; never need a display
+
+import matplotlib.pyplot as plt  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+from mlflow import MlflowClient  # noqa: E402
+from mlflow.entities import Run  # noqa: E402
+from mlflow.exceptions import MlflowException  # noqa: E402
+
+from epoet.tracking import TrackingError, open_store, resolve_tracking_uri  # noqa: E402
+
+EPOET_ALGOS = ("epoet",)
+BASELINE_ALGOS = ("ppo", "sac", "vmpo")
+PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
+EVAL_KEY = "eval/return_mean"
+EPOET_COLUMNS = ["run_id", "algo", "seed", "pair", "iteration", "return_mean"]
+BASELINE_COLUMNS = ["run_id", "algo", "seed", "frames", "return_mean"]
+ALGO_COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "vmpo": "tab:green"}
+
+
+class CurvesError(ValueError):
+    """Input the command cannot use (no store, no runs, unknown run id); one sentence."""
+
+
+def connect(tracking_uri: str | None = None) -> tuple[MlflowClient, str]:
+    """Open an existing store; a missing sqlite file is an error, not a new empty store.
+
+    MLflow would silently create the database, and an analysis must never write to the store.
+    """
+    uri = resolve_tracking_uri(tracking_uri)
+    if uri.startswith("sqlite:///"):
+        db = Path(uri[len("sqlite:///"):].split("?", 1)[0])
+        if not db.is_file():
+            raise CurvesError(f"there is no MLflow store at {db.absolute()}: train a run first "
+                              "or point MLFLOW_TRACKING_URI at a store.")
+    return open_store(uri), uri
+
+
+def select_runs(client: MlflowClient, uri: str, experiment: str,
+                run_ids: Sequence[str] = ()) -> list[Run]:
+    """The runs to plot: the given ids, else the experiment's finished runs with an algo tag."""
+    if run_ids:
+        runs = []
+        for run_id in run_ids:
+            try:
+                runs.append(client.get_run(run_id))
+            except MlflowException as exc:
+                raise CurvesError(f"run {run_id} is not in the MLflow store {uri}.") from exc
+        for run in runs:
+            algo = run.data.tags.get("algo")
+            if algo not in EPOET_ALGOS + BASELINE_ALGOS:
+                raise CurvesError(f"run {run.info.run_id} has algo tag {algo!r}, so it has no "
+                                  f"learning curve (expected one of "
+                                  f"{', '.join(EPOET_ALGOS + BASELINE_ALGOS)}).")
+        return runs
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        raise CurvesError(f"the MLflow store {uri} has no experiment named {experiment!r}.")
+    runs, token = [], None
+    while True:
+        page = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'",
+                                  max_results=1000, order_by=["attributes.start_time ASC"],
+                                  page_token=token)
+        runs.extend(r for r in page if "algo" in r.data.tags)  # sweep parents have no algo
+        token = page.token
+        if not token:
+            return runs
+
+
+def history(client: MlflowClient, run_id: str, key: str) -> list[tuple[int, float]]:
+    """(step, value) of a metric, one point per step: the last logged value wins.
+
+    A resumed run re-logs the steps between its last checkpoint and the kill; the later values
+    are the ones that led to the final state.
+    """
+    points = sorted(client.get_metric_history(run_id, key), key=lambda m: (m.step, m.timestamp))
+    return sorted({m.step: m.value for m in points}.items())
+
+
+def _seed(run: Run) -> str:
+    return run.data.tags.get("seed", "")
+
+
+def epoet_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
+    """Rows of EPOET_COLUMNS for every pair of every ePOET run, pairs in index order."""
+    rows = []
+    for run in runs:
+        pairs = sorted(int(m.group(1)) for key in run.data.metrics
+                       if (m := PAIR_KEY.match(key)))
+        for pair in pairs:
+            for step, value in history(client, run.info.run_id, f"pair{pair}/return_mean"):
+                rows.append((run.info.run_id, run.data.tags["algo"], _seed(run), pair, step,
+                             value))
+    return pd.DataFrame(rows, columns=EPOET_COLUMNS)
+
+
+def baseline_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
+    """Rows of BASELINE_COLUMNS: each baseline run's evaluation return against frames."""
+    rows = []
+    for run in runs:
+        for step, value in history(client, run.info.run_id, EVAL_KEY):
+            rows.append((run.info.run_id, run.data.tags["algo"], _seed(run), step, value))
+    return pd.DataFrame(rows, columns=BASELINE_COLUMNS)
+
+
+def _grid(n: int, ncols: int = 3) -> tuple[plt.Figure, list[plt.Axes]]:
+    cols = min(n, ncols)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.5 * cols, 3.4 * rows), squeeze=False)
+    flat = list(axes.flat)
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
+def plot_epoet(table: pd.DataFrame, runs: Sequence[Run], path: Path) -> None:
+    """One panel per run (title: name, seed, budget), one curve per environment-agent pair."""
+    order = [r for r in runs if r.info.run_id in set(table.run_id)]
+    fig, axes = _grid(len(order))
+    for ax, run in zip(axes, order):
+        rows = table[table.run_id == run.info.run_id]
+        for pair, curve in rows.groupby("pair", sort=True):
+            ax.plot(curve.iteration, curve.return_mean, label=f"pair{pair}", linewidth=1.2)
+        ax.set_title(f"{run.info.run_name} (seed {_seed(run) or '?'}, "
+                     f"{run.data.tags.get('budget', '?')})", fontsize=10)
+        ax.set_xlabel("iteration")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_ylabel("mean training return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="x-small", ncol=1 + rows.pair.nunique() // 12)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_baselines(table: pd.DataFrame, path: Path) -> None:
+    """One panel per algorithm, one curve per run (labelled by seed), coloured by algorithm."""
+    algos = [a for a in BASELINE_ALGOS if a in set(table.algo)]
+    fig, axes = _grid(len(algos))
+    for ax, algo in zip(axes, algos):
+        rows = table[table.algo == algo]
+        for run_id, curve in rows.groupby("run_id", sort=False):
+            ax.plot(curve.frames, curve.return_mean, color=ALGO_COLOURS[algo], alpha=0.8,
+                    marker="." if len(curve) < 20 else None,
+                    label=f"seed {curve.seed.iloc[0]} ({run_id[:8]})")
+        ax.set_title(algo.upper(), fontsize=10)
+        ax.set_xlabel("frames")
+        ax.set_ylabel("evaluation return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="x-small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path,
+                 source: str) -> list[Path]:
+    """Write both figures and their CSV files; skip (and say so) a figure without runs.
+
+    Raises CurvesError when neither figure has anything to plot.
+    """
+    epoet_runs = [r for r in runs if r.data.tags.get("algo") in EPOET_ALGOS]
+    baseline_runs = [r for r in runs if r.data.tags.get("algo") in BASELINE_ALGOS]
+    tables = {"epoet_curves": (epoet_table(client, epoet_runs), epoet_runs, "ePOET",
+                               "pair<N>/return_mean"),
+              "baseline_curves": (baseline_table(client, baseline_runs), baseline_runs,
+                                  "PPO/SAC/VMPO", EVAL_KEY)}
+    if all(table.empty for table, *_ in tables.values()):
+        raise CurvesError(f"{source} has no ePOET runs with pair<N>/return_mean and no "
+                          f"PPO/SAC/VMPO runs with {EVAL_KEY} to plot.")
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, (table, selected, label, key) in tables.items():
+        if table.empty:
+            print(f"skipped {out / name}.png: {source} has no {label} runs with {key}")
+            continue
+        for run in selected:
+            if run.info.run_id not in set(table.run_id):
+                print(f"left out run {run.info.run_id} ({run.info.run_name}): no {key} metric")
+        csv, png = out / f"{name}.csv", out / f"{name}.png"
+        table.to_csv(csv, index=False)
+        if name == "epoet_curves":
+            plot_epoet(table, selected, png)
+        else:
+            plot_baselines(table, png)
+        print(f"wrote {png} and {csv} ({table.run_id.nunique()} runs, {len(table)} points)")
+        written += [png, csv]
+    return written
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.curves",
+        description="Learning curves (paper Figure 2 style) of ePOET and baseline runs from "
+                    "the MLflow store (MLFLOW_TRACKING_URI overrides the project's mlflow.db).")
+    parser.add_argument("--experiment", default="epoet",
+                        help="MLflow experiment whose FINISHED runs are plotted (default: epoet)")
+    parser.add_argument("--out", type=Path, default=Path("figures"),
+                        help="folder for the PNG and CSV files (default: figures)")
+    parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
+                        help="plot these runs (any status, any experiment) instead")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """CLI entry; bad input gives one sentence on stderr and exit code 2."""
+    args = parse_args(argv)
+    try:
+        client, uri = connect()
+        runs = select_runs(client, uri, args.experiment, args.run)
+        source = (f"the selected runs in {uri}" if args.run
+                  else f"experiment {args.experiment!r} in {uri}")
+        write_curves(client, runs, args.out, source)
+    except (CurvesError, TrackingError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except MlflowException as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        print(f"error: cannot read the MLflow store: {first}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
