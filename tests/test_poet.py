@@ -197,3 +197,11 @@ def test_bad_input_fails_clearly_and_destroys_nothing(compose, mlflow_uri: str,
     assert checkpoint.read_bytes() == saved
     assert corrupt.read_bytes() == saved[: len(saved) // 2]
     assert len(_runs(mlflow_uri)) == 1
+
+
+def test_unreachable_tracking_store_fails_in_one_line(tmp_path: Path) -> None:
+    out = _cli([*SMOKE, f"hydra.run.dir={tmp_path / 'run'}"], "http://127.0.0.1:9", tmp_path)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "http://127.0.0.1:9" in lines[0], out.stderr
+    assert not (tmp_path / "run" / "checkpoint.pkl").exists()
