@@ -79,7 +79,7 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
     try:
         os.fchmod(fd, 0o644)  # mkstemp makes 0600; a checkpoint is as readable as other outputs
         with os.fdopen(fd, "wb") as file:
-            file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, 0, 0))  # placeholder, patched below
+            file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, 0, 0))  # length and CRC patched below
             writer = _CrcWriter(file)
             pickle.dump(state, writer, protocol=5)
             file.seek(0)
