@@ -293,7 +293,7 @@ class WorkersConfig:
 
     backend: str = "local"
     num: Optional[int] = None       # None: one worker per available core
-    batch: int = 16                 # robots per process (16 fits the cache: bench/rollout_throughput.py)
+    batch: int = 16                 # robots per process (fits the cache: bench/rollout_throughput)
 
     def __post_init__(self) -> None:
         _check(self.backend in ("local",),

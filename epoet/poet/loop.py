@@ -66,13 +66,13 @@ class EPOET:
         self._admit(root, theta)
 
     # --- keyed randomness -------------------------------------------------------------------
-    def _seed(self, purpose: int, env: int, iteration: int, extra: int = 0) -> int:
-        seq = np.random.SeedSequence([self.seed, purpose, env, iteration, extra])
-        return int(seq.generate_state(1, np.uint64)[0] >> np.uint64(1))
-
     def _seeds(self, n: int, purpose: int, env: int, iteration: int, extra: int = 0) -> np.ndarray:
+        """n non-negative int64 seeds, a function of the run seed and the key alone."""
         seq = np.random.SeedSequence([self.seed, purpose, env, iteration, extra])
         return (seq.generate_state(n, np.uint64) >> np.uint64(1)).astype(np.int64)
+
+    def _seed(self, purpose: int, env: int, iteration: int, extra: int = 0) -> int:
+        return int(self._seeds(1, purpose, env, iteration, extra)[0])
 
     # --- environments -------------------------------------------------------------------------
     def terrain(self, env: Environment, iteration: int | None = None) -> Terrain:
@@ -82,8 +82,9 @@ class EPOET:
         if key not in self._terrains:
             if len(self._terrains) > 4 * (len(self.active) + len(self.archived)) + 16:
                 self._terrains.clear()  # bounded cache: only the current iteration is reused
-            self._terrains[key] = make_terrain(self.terrain_cfg, seed=self._seed(_BOWL, env.index, t),
-                                               iteration=t, genome=env.genome)
+            bowl_seed = self._seed(_BOWL, env.index, t)
+            self._terrains[key] = make_terrain(self.terrain_cfg, seed=bowl_seed, iteration=t,
+                                               genome=env.genome)
         return self._terrains[key]
 
     def _new_es(self, theta: np.ndarray, seed: int) -> OpenAIES:
@@ -113,14 +114,15 @@ class EPOET:
             metrics.update(self._es_step(pair))
         if len(self.active) > 1 and t % self.cfg.iterations_before_transfer == 0:
             metrics["transfers"] = float(self.transfer())
+        elapsed = time.perf_counter() - start
         metrics.update({
             "best_score": max(p.score for p in self.active),
             "active_envs": float(len(self.active)),
             "archived_envs": float(len(self.archived)),
             "annecs": float(self.annecs),
             "env_steps": float(self.env_steps),
-            "steps_per_second": (self.env_steps - steps0) / (time.perf_counter() - start),
-            "wall_time": time.perf_counter() - start,
+            "steps_per_second": (self.env_steps - steps0) / elapsed,
+            "wall_time": elapsed,
         })
         self.iteration += 1
         return metrics
