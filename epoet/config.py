@@ -269,7 +269,7 @@ class BudgetConfig:
 
     name: str = "laptop"
     iterations: int = 150           # ES iterations (ePOET / ePOET-SAC)
-    n_pairs: int = 24               # mirrored pairs per ES step (paper: 256 pairs = 512 episodes)
+    n_pairs: int = 48               # mirrored pairs per ES step (paper: 256 pairs = 512 episodes)
     episode_steps: int = 400        # paper: 2000
     eval_episodes: int = 3          # paper: 5
     frames: int = 100_000           # environment frames for the RL baselines (paper: ~1M)
