@@ -40,6 +40,8 @@ def test_reproduction_admits_at_most_one_child(terrain_cfg: TerrainConfig) -> No
     assert len(poet.active) == 2 and child.env.index == 1
     assert child.env.generation == 1 and child.env.parent == 0
     assert child.env.genome is not poet.active[0].env.genome
+    terrain = poet.terrain(child.env)
+    assert terrain.generation == 1 and terrain.parent_id == "env0"
 
 
 def test_reproduction_requires_minimal_criterion(terrain_cfg: TerrainConfig) -> None:

@@ -82,10 +82,14 @@ class EPOET:
         if key not in self._terrains:
             if len(self._terrains) > 4 * (len(self.active) + len(self.archived)) + 16:
                 self._terrains.clear()  # bounded cache: only the current iteration is reused
-            bowl_seed = self._seed(_BOWL, env.index, t)
-            self._terrains[key] = make_terrain(self.terrain_cfg, seed=bowl_seed, iteration=t,
-                                               genome=env.genome)
+            self._terrains[key] = self._make_terrain(env, self._seed(_BOWL, env.index, t), t)
         return self._terrains[key]
+
+    def _make_terrain(self, env: Environment, bowl_seed: int, iteration: int) -> Terrain:
+        """Heightmap of `env` with its lineage in the terrain's provenance (saved artifacts)."""
+        parent = None if env.parent is None else f"env{env.parent}"
+        return make_terrain(self.terrain_cfg, seed=bowl_seed, iteration=iteration,
+                            genome=env.genome, generation=env.generation, parent_id=parent)
 
     def _new_es(self, theta: np.ndarray, seed: int) -> OpenAIES:
         c = self.cfg.es
@@ -245,8 +249,8 @@ class EPOET:
         return admitted
 
     def _child_terrain(self, child: Environment, slot: int) -> Terrain:
-        return make_terrain(self.terrain_cfg, seed=self._seed(_BOWL, 10_000 + slot, self.iteration),
-                            iteration=self.iteration, genome=child.genome)
+        return self._make_terrain(child, self._seed(_BOWL, 10_000 + slot, self.iteration),
+                                  self.iteration)
 
     def _pata_ec(self, terrain: Terrain, agents: np.ndarray, key: int) -> np.ndarray:
         scores = self._evaluate(terrain, agents, _PATA, key)
