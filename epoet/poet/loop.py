@@ -214,7 +214,7 @@ class EPOET:
         if not parents:
             return 0
         rng = np.random.default_rng(self._seed(_CHILD, 0, t, 1_000_000))
-        passing: list[tuple[Environment, Pair]] = []
+        passing: list[tuple[Environment, Terrain]] = []  # with the terrain the MC judged
         for c in range(self.cfg.num_children):
             parent = parents[int(rng.integers(len(parents)))]
             tc = self.terrain_cfg
@@ -225,23 +225,23 @@ class EPOET:
                 continue  # this parent yielded no valid child in max_tries; propose the next
             child = Environment(index=-1, genome=genome, generation=parent.env.generation + 1,
                                 parent=parent.env.index, created_at=t)
+            terrain = self._child_terrain(child, c)
             # Minimal criterion: the parent's agent neither fails nor already masters the child.
-            score = float(self._evaluate(self._child_terrain(child, c), parent.theta[None], _MC,
-                                         parent.env.index, extra=c)[0])
+            score = float(self._evaluate(terrain, parent.theta[None], _MC, parent.env.index,
+                                         extra=c)[0])
             if lim.mc_lower <= score <= lim.mc_upper:
-                passing.append((child, parent))
+                passing.append((child, terrain))
         if not passing:
             return 0
         agents = np.stack([p.theta for p in self.active + self.archived])
         existing = np.stack([self._pata_ec(self.terrain(p.env), agents, p.env.index)
                              for p in self.active + self.archived])
-        candidates = np.stack([self._pata_ec(self._child_terrain(c, i), agents, 10_000 + i)
-                               for i, (c, _) in enumerate(passing)])
+        candidates = np.stack([self._pata_ec(terrain, agents, 10_000 + i)
+                               for i, (_, terrain) in enumerate(passing)])
         order, _ = rank_by_novelty(candidates, existing, k=self.cfg.novelty_k)
         admitted = 0
         for i in order[: self.cfg.max_admitted]:
-            child, _ = passing[i]
-            terrain = self._child_terrain(child, i)
+            child, terrain = passing[i]
             child.index = self.next_index
             self._admit(child, self._best_agent_for(terrain, child.index))
             self._terrains[(child.index, t)] = terrain
