@@ -11,6 +11,7 @@ Layout: a run folder (Hydra's job output directory) holds its checkpoint as `che
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import struct
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
+    from epoet.config import Config
     from epoet.tracking import Tracker
 
 CHECKPOINT_NAME = "checkpoint.pkl"
@@ -148,9 +150,11 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return state
 
 
-def save_run_state(run_dir: Path, tracker: "Tracker", algo: str, state: dict[str, Any]) -> Path:
-    """Checkpoint a runner's state with its algorithm and the MLflow run id it continues."""
+def save_run_state(run_dir: Path, tracker: "Tracker", cfg: "Config",
+                   state: dict[str, Any]) -> Path:
+    """Checkpoint a runner's state with its config and the MLflow run id it continues."""
     path = Path(run_dir) / CHECKPOINT_NAME
     tracker.flush()  # metrics up to the checkpoint are in the store before it exists
-    save_checkpoint(path, {"run_id": tracker.run_id, "algo": algo, **state})
+    save_checkpoint(path, {"run_id": tracker.run_id, "algo": cfg.algo.name,
+                           "config": dataclasses.asdict(cfg), **state})
     return path

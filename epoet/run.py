@@ -6,6 +6,7 @@ fails here, in one sentence, before any long work starts.
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from pathlib import Path
 from typing import Any, Callable
@@ -25,7 +26,19 @@ RUNNERS: dict[str, str] = {
     "vmpo": "epoet.rl.vmpo_runner:train",
 }
 
+# What a resume may change: where and how it runs, and how long it goes on.
+RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations")
+
 Runner = Callable[[Config, Tracker, Path, "dict[str, Any] | None"], Any]
+
+
+def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """`key (old -> new)` for every setting that differs, except the RESUMABLE ones."""
+    old, new = flatten(saved), flatten(current)
+    keys = sorted(k for k in old.keys() | new.keys()
+                  if old.get(k) != new.get(k)
+                  and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE))
+    return [f"{k} ({old.get(k)} -> {new.get(k)})" for k in keys]
 
 
 def runner_for(name: str) -> Runner:
@@ -43,12 +56,19 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         if resume.get("algo") != cfg.algo.name:
             raise CheckpointError(f"checkpoint {path} is from algo={resume.get('algo')}, so it "
                                   f"cannot resume algo={cfg.algo.name}.")
+        changed = config_changes(resume["config"], dataclasses.asdict(cfg))
+        if changed:
+            raise CheckpointError(
+                f"checkpoint {path} was made with a different config ({', '.join(changed)}); "
+                f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change).")
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,
             "seed": str(cfg.seed), "budget": cfg.budget.name}
     with MlflowTracker(cfg.tracking.uri, cfg.tracking.experiment) as tracker:
-        tracker.start(run_name=f"{cfg.algo.name}-s{cfg.seed}", params=flatten(resolved),
+        # `resume` is where a run continues, not a setting of the run: it is not a param.
+        params = flatten({k: v for k, v in resolved.items() if k != "resume"})
+        tracker.start(run_name=f"{cfg.algo.name}-s{cfg.seed}", params=params,
                       tags=tags, parent_run_id=parent_run_id(),
                       resume_run_id=resume["run_id"] if resume else None)
         if resume is None:

@@ -183,19 +183,20 @@ def test_bad_input_fails_clearly_and_destroys_nothing(compose, mlflow_uri: str,
     saved = checkpoint.read_bytes()
     corrupt = tmp_path / "corrupt.pkl"
     corrupt.write_bytes(saved[: len(saved) // 2])
-    cases = {
-        "algo=unknown": "algo/unknown",
-        "budget.n_pairs=-1": "budget.n_pairs must be > 0",
-        "terrain=bowl": "needs terrain=cppn",
-        f"resume={tmp_path / 'missing'}": "does not exist",
-        f"resume={corrupt}": str(corrupt),
-    }
-    for override, message in cases.items():
-        out = _cli([*SMOKE, override, f"hydra.run.dir={tmp_path / 'bad'}"], mlflow_uri,
-                   tmp_path)
-        assert out.returncode != 0, override
-        assert message in out.stderr, (override, out.stderr)
-        assert len(out.stderr.strip().splitlines()) <= 3, out.stderr
+    cases = [
+        (["algo=unknown"], "algo/unknown"),
+        (["budget.n_pairs=-1"], "budget.n_pairs must be > 0"),
+        (["terrain=bowl"], "needs terrain=cppn"),
+        ([f"resume={tmp_path / 'missing'}"], "does not exist"),
+        ([f"resume={corrupt}"], str(corrupt)),
+        ([f"resume={tmp_path / 'good'}", "budget.iterations=2", "seed=1"], "seed (0 -> 1)"),
+    ]
+    for overrides, message in cases:
+        out = _cli([*SMOKE, "budget.iterations=1", *overrides,
+                    f"hydra.run.dir={tmp_path / 'bad'}"], mlflow_uri, tmp_path)
+        assert out.returncode == 2, overrides
+        assert message in out.stderr, (overrides, out.stderr)
+        assert len(out.stderr.strip().splitlines()) == 1, out.stderr
     assert checkpoint.read_bytes() == saved
     assert corrupt.read_bytes() == saved[: len(saved) // 2]
     assert len(_runs(mlflow_uri)) == 1
