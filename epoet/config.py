@@ -230,8 +230,11 @@ class EsConfig:
     def __post_init__(self) -> None:
         _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
                f"algo.es.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
-        _positive(self, "lr", "lr_decay", "lr_floor", "sigma", "sigma_decay", "sigma_floor")
+        _positive(self, "lr", "lr_floor", "sigma", "sigma_floor")
         _non_negative(self, "l2_coeff")
+        for name in ("lr_decay", "sigma_decay"):
+            value = getattr(self, name)
+            _check(0.0 < value <= 1.0, f"algo.es.{name} must be in (0, 1], got {value}.")
         _check(self.lr_floor <= self.lr and self.sigma_floor <= self.sigma,
                "algo.es floors must not exceed the initial lr / sigma.")
 
@@ -328,8 +331,16 @@ class Config:
     resume: Optional[str] = None    # a run folder or checkpoint file to continue
 
     def __post_init__(self) -> None:
-        _non_negative(self, "seed")
+        _check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
         _positive(self, "checkpoint_every")
+        # One source of truth for the episode length: the budget (it also scales thresholds).
+        _check(self.agent.max_episode_steps == self.budget.episode_steps,
+               f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
+               f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.")
+        if isinstance(self.algo, SacConfig):
+            _check(self.budget.frames >= self.algo.batch_size,
+                   f"budget.frames ({self.budget.frames}) must be at least algo.batch_size "
+                   f"({self.algo.batch_size}), or SAC never updates.")
         if isinstance(self.algo, PoetConfig):
             _check(self.terrain.kind == "cppn",
                    f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "

@@ -143,13 +143,12 @@ class _FinishedReader(BaseInfoDictReader):
 def make_env(cfg: Config, *, obs_norm: bool, seed: int) -> TransformedEnv:
     """The hexapod task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode.
 
-    Episodes last at most budget.episode_steps. Adds `episode_reward` (RewardSum) and
+    Episodes last at most agent.max_episode_steps (= budget.episode_steps). Adds `episode_reward` (RewardSum) and
     `step_count` (StepCounter) for episode statistics and, with `obs_norm`, `observation_norm`.
     GymWrapper around the env object (not GymEnv on the registered id) keeps gymnasium's checker
     wrappers out of the per-step path.
     """
-    agent = dataclasses.replace(cfg.agent, max_episode_steps=cfg.budget.episode_steps)
-    base = GymWrapper(HexapodEnv(agent=agent, terrain=cfg.terrain, resample_terrain=True))
+    base = GymWrapper(HexapodEnv(agent=cfg.agent, terrain=cfg.terrain, resample_terrain=True))
     base.set_info_dict_reader(_FinishedReader())
     transforms: list = [DoubleToFloat()]
     if obs_norm:
@@ -545,7 +544,7 @@ def train_loop(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, A
                        f"finish={state.last_eval['finish_rate']:.2f}")
 
     def checkpoint() -> None:
-        save_run_state(run_dir, tracker, cfg.algo.name, {
+        save_run_state(run_dir, tracker, cfg, {
             "loop": dataclasses.asdict(state), "agent": agent.state_dict(),
             "obs_norm": None if obs_stats is None else obs_stats.state_dict(),
             "rng": _rng_state(env),
