@@ -26,7 +26,7 @@ from epoet.poet.pairs import Environment, Pair
 from epoet.terrain import CppnMutationError, Terrain, make_terrain, mutate_genome, new_genome
 
 # Purposes of keyed seeds.
-_ES, _EVAL, _TRANSFER, _PROPOSAL, _CHILD, _MC, _PATA, _BOWL, _AGENT = range(9)
+_ES, _EVAL, _TRANSFER, _PROPOSAL, _CHILD, _MC, _PATA, _BOWL, _AGENT, _OPT, _ADMIT = range(11)
 
 
 @dataclass
@@ -98,7 +98,7 @@ class EPOET:
                         sigma_floor=c.sigma_floor, l2_coeff=c.l2_coeff)
 
     def _admit(self, env: Environment, theta: np.ndarray) -> Pair:
-        pair = Pair(env=env, es=self._new_es(theta, self._seed(_ES, env.index, env.created_at)))
+        pair = Pair(env=env, es=self._new_es(theta, self._seed(_OPT, env.index, env.created_at)))
         self.active.append(pair)
         self.next_index = max(self.next_index, env.index + 1)
         if len(self.active) > self.cfg.max_num_envs:
@@ -139,15 +139,17 @@ class EPOET:
         r_pos, r_neg = self._es_returns(terrain, pair.theta, noise_seeds, pair.es.sigma, spawn)
         stats = pair.es.tell(noise_seeds, r_pos, r_neg)
         score = float(self._evaluate(terrain, pair.theta[None], _EVAL, idx)[0])
-        pair.scores.append(score)
-        if score >= self.limits.repro_threshold:
-            pair.env.solved = True
+        self._record(pair, score)
         returns = np.concatenate([r_pos, r_neg])
         prefix = f"pair{idx}"
         return {f"{prefix}/return_mean": float(returns.mean()),
                 f"{prefix}/return_max": float(returns.max()),
                 f"{prefix}/score": score, f"{prefix}/lr": stats["lr"],
                 f"{prefix}/sigma": stats["sigma"]}
+
+    def _record(self, pair: Pair, score: float) -> None:
+        pair.scores.append(score)
+        pair.env.solved |= score >= self.limits.repro_threshold
 
     def _es_returns(self, terrain: Terrain, theta: np.ndarray, noise_seeds: np.ndarray,
                     sigma: float, spawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -164,12 +166,13 @@ class EPOET:
         self.env_steps += int(episodes.lengths.sum())
         return episodes.returns.mean(axis=1)
 
-    def _fine_tune(self, target: Pair, terrain: Terrain, theta: np.ndarray,
+    def _fine_tune(self, target: Pair, terrain: Terrain, theta: np.ndarray, purpose: int,
                    extra: int) -> np.ndarray:
-        """One ES step of `theta` on the target's environment, leaving the target's ES untouched."""
+        """One ES step of `theta` on `terrain` with the target's optimiser settings, leaving
+        the target's ES untouched."""
         idx, t = target.env.index, self.iteration
-        noise_seeds = self._seeds(self.n_pairs, _PROPOSAL, idx, t, extra)
-        spawn = self._seeds(self.n_pairs, _PROPOSAL, idx, t, extra + 1_000_000)
+        noise_seeds = self._seeds(self.n_pairs, purpose, idx, t, extra)
+        spawn = self._seeds(self.n_pairs, purpose, idx, t, extra + 1_000_000)
         r_pos, r_neg = self._es_returns(terrain, theta, noise_seeds, target.es.sigma, spawn)
         return target.es.propose(noise_seeds, r_pos, r_neg, theta=theta)
 
@@ -194,14 +197,15 @@ class EPOET:
                     continue
                 if score > best_score:
                     best_score, best_theta = float(score), thetas[j]
-                proposal = self._fine_tune(target, terrain, thetas[j], extra=j)
+                proposal = self._fine_tune(target, terrain, thetas[j], _PROPOSAL, extra=j)
                 p_score = float(self._evaluate(terrain, proposal[None], _TRANSFER,
                                                target.env.index, extra=1 + j)[0])
                 if p_score > best_score:
                     best_score, best_theta = p_score, proposal
             if best_theta is not None:
                 target.es.reset(best_theta)
-                target.scores.append(best_score)
+                target.scores.pop()  # the new agent's score stands for this iteration
+                self._record(target, best_score)
                 accepted += 1
         self.transfers += accepted
         return accepted
@@ -263,7 +267,7 @@ class EPOET:
         best = int(np.argmax(direct))
         best_score, best_theta = float(direct[best]), thetas[best]
         for j, pair in enumerate(self.active):
-            tuned = self._fine_tune(pair, terrain, thetas[j], extra=j)
+            tuned = self._fine_tune(pair, terrain, thetas[j], _ADMIT, extra=j)
             score = float(self._evaluate(terrain, tuned[None], _TRANSFER, key, extra=1 + j)[0])
             if score > best_score:
                 best_score, best_theta = score, tuned

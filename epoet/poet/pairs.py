@@ -41,8 +41,3 @@ class Pair:
     def score(self) -> float:
         """Latest evaluation score (-inf before the first evaluation)."""
         return self.scores[-1] if self.scores else -np.inf
-
-    @property
-    def best_score(self) -> float:
-        """Best evaluation score so far: the bar a transferred agent must clear."""
-        return max(self.scores) if self.scores else -np.inf

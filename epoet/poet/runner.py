@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -23,10 +22,9 @@ def layer_sizes(cfg: Config) -> tuple[int, ...]:
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
     """Iterate until `budget.iterations`, checkpointing every `checkpoint_every` iterations."""
     budget = cfg.budget
-    agent = replace(cfg.agent, max_episode_steps=budget.episode_steps)
     sizes = layer_sizes(cfg)
     workers = cfg.workers.num if cfg.workers.num is not None else "local"
-    with make_evaluator(agent, cfg.terrain, workers, cfg.workers.batch, sizes) as evaluator:
+    with make_evaluator(cfg.agent, cfg.terrain, workers, cfg.workers.batch, sizes) as evaluator:
         poet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                      eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
                      layer_sizes=sizes)
@@ -39,7 +37,7 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
             tracker.log_metrics(poet.iteration - 1, metrics)
             _progress(poet, metrics, budget.iterations, time.perf_counter() - started)
             if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
-                save_run_state(run_dir, tracker, "epoet", {"poet": poet.state_dict()})
+                save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
         _log_pool(poet, run_dir, tracker, sizes)
     return poet
 
@@ -60,7 +58,7 @@ def _log_pool(poet: EPOET, run_dir: Path, tracker: Tracker, sizes: tuple[int, ..
     for status, pairs in (("active", poet.active), ("archived", poet.archived)):
         for pair in pairs:
             name = f"env{pair.env.index}"
-            terrain = poet.terrain(pair.env)
+            terrain = poet.terrain(pair.env, poet.iteration - 1)  # the last one trained on
             terrain.save(terrains / f"{name}.npz")
             terrain.to_png(terrains / f"{name}.png")
             np.savez(policies / f"{name}.npz", theta=pair.theta, layer_sizes=np.array(sizes),
