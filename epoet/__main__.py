@@ -1,13 +1,14 @@
 """`python -m epoet`: the Hydra entry point (see README for the commands)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from epoet.checkpoint import CheckpointError
+from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.cli import fail, run_hydra_app
 from epoet.config import ConfigError
 from epoet.tracking import TrackingError
@@ -19,10 +20,16 @@ CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 def _app(cfg: DictConfig) -> None:
     from epoet.run import run
 
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        run(cfg, Path(HydraConfig.get().runtime.output_dir))
+        run(cfg, run_dir)
     except (ConfigError, TrackingError, CheckpointError) as err:
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
+    except KeyboardInterrupt:
+        hint = (f"; continue with resume={run_dir}" if (run_dir / CHECKPOINT_NAME).exists()
+                else "")
+        print(f"epoet: interrupted{hint}", file=sys.stderr)
+        sys.exit(130)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ import itertools
 import math
 import multiprocessing as mp
 import os
+import signal
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, wait
@@ -218,6 +219,8 @@ _queue: Queue | None = None           # episode indices of the current call, sha
 def _init_worker(agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
                  layer_sizes: tuple[int, ...], queue: Queue) -> None:
     global _engine, _queue
+    # Ctrl-C is the parent's to handle (it stops the pool); workers print no tracebacks.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
     _queue = queue
 
@@ -288,6 +291,15 @@ class PoolEvaluator(_Backend):
                          float(terrain.size))
         return merge_episodes(self._submit_all(_work, call, relief, population, record, slots),
                               n)
+
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is not None and self._pool is not None:
+            # Interrupted or failed mid-call: stop the workers now rather than letting them
+            # finish an ES step nobody will read (ProcessPoolExecutor has no public terminate
+            # before Python 3.14).
+            for process in list(self._pool._processes.values()):
+                process.terminate()
+        self.close()
 
     def close(self) -> None:
         """Stop the worker processes (idempotent)."""
