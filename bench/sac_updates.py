@@ -19,19 +19,16 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
 from torch import nn
 
-from epoet.config import register_configs, validate
+from epoet.config import compose, validate
 from epoet.rl.common import batch_plan, make_env, set_threads
 from epoet.rl.sac import SacAgent
 
-CONF = Path(__file__).resolve().parent.parent / "conf"
 OBS_DIM, ACT_DIM, BUFFER = 53, 18, 10_000
 
 
@@ -112,12 +109,10 @@ class PlainSac:
 def make_ours(threads: int | None) -> tuple[SacAgent, int]:
     """The runner's SAC agent from the `algo=sac` config; torch threads set as the runner does
     (`workers.num`, default: the cores this process may use). Returns it and the thread count."""
-    register_configs()
     overrides = ["algo=sac", f"budget.frames={BUFFER}"]
     if threads is not None:
         overrides.append(f"workers.num={threads}")
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = validate(compose("config", overrides=overrides))
+    cfg = validate(compose(overrides))
     threads = set_threads(cfg)
     env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=0)
     agent = SacAgent(cfg.algo, env, batch_plan(cfg))

@@ -10,13 +10,10 @@ from omegaconf import DictConfig
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.cli import fail, run_hydra_app
-from epoet.config import ConfigError
+from epoet.config import CONF_DIR, ConfigError
 from epoet.tracking import TrackingError
 
-CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
-
-
-@hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def _app(cfg: DictConfig) -> None:
     from epoet.run import run
 

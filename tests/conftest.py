@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import compose as compose_config
 from epoet.terrain import Terrain
 
 torch.set_num_threads(1)
@@ -26,22 +27,10 @@ def short_agent() -> AgentConfig:
     return AgentConfig(max_episode_steps=60)
 
 
-CONF_DIR = str(__import__("pathlib").Path(__file__).resolve().parent.parent / "conf")
-
-
 @pytest.fixture
 def compose():
     """Compose the real Hydra config (as `python -m epoet` would) from overrides."""
-    from hydra import compose as hydra_compose, initialize_config_dir
-
-    from epoet.config import register_configs
-
-    register_configs()
-
-    def _compose(overrides: list[str]):
-        with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-            return hydra_compose(config_name="config", overrides=overrides)
-    return _compose
+    return compose_config
 
 
 @pytest.fixture

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from mlflow import MlflowClient
 from omegaconf import DictConfig
@@ -19,13 +18,13 @@ from torchrl.envs.utils import set_exploration_type
 
 import epoet.rl.common as common
 from epoet.checkpoint import CheckpointError, load_checkpoint
-from epoet.config import ConfigError, register_configs, validate
+from epoet.config import ConfigError, validate
+from epoet.config import compose as compose_config
 from epoet.rl import sac
 from epoet.rl.common import RunningObsNorm, load_policy, make_env, obs_norm_of
 from epoet.run import run
 from epoet.tracking import MemoryTracker
 
-CONF = Path(__file__).resolve().parent.parent / "conf"
 # 30-step episodes, 60-frame batches, 4 batches, evaluations every 2 batches
 TINY = ["budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
         "budget.frames=240", "budget.eval_every=120", "budget.eval_episodes=1",
@@ -42,12 +41,6 @@ ALGO_METRICS = {
     "sac": ["train/loss_actor", "train/loss_qvalue", "train/alpha", "train/entropy"],
     "vmpo": ["train/loss_policy", "train/eta", "train/alpha", "train/kl", "train/entropy"],
 }
-
-
-def compose_cfg(*overrides: str) -> DictConfig:
-    register_configs()
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose("config", overrides=list(overrides))
 
 
 @pytest.fixture
@@ -71,7 +64,7 @@ def deterministic_rollout(raw: DictConfig, actor, checkpoint: dict, steps: int =
 
 @pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
 def test_smoke_run_logs_to_mlflow_and_exports_a_rebuildable_policy(algo, store, tmp_path):
-    raw = compose_cfg(f"algo={algo}", *TINY, *SIZES[algo])
+    raw = compose_config([f"algo={algo}", *TINY, *SIZES[algo]])
     result = run(raw, tmp_path / "run")
 
     assert result.frames == 240 and result.batches == 4
@@ -105,7 +98,7 @@ class Killed(Exception):
 @pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
 def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_path, monkeypatch):
     overrides = [f"algo={algo}", *TINY, *SIZES[algo]]
-    straight = run(compose_cfg(*overrides), tmp_path / "straight")
+    straight = run(compose_config(overrides), tmp_path / "straight")
 
     # kill the second run while it learns from batch 3 (its last checkpoint is after batch 2)
     agent_type = type(straight.agent)
@@ -119,10 +112,11 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
 
     monkeypatch.setattr(agent_type, "learn", dying_learn)
     with pytest.raises(Killed):
-        run(compose_cfg(*overrides), tmp_path / "killed")
+        run(compose_config(overrides), tmp_path / "killed")
     monkeypatch.setattr(agent_type, "learn", learn)
     assert load_checkpoint(tmp_path / "killed")["loop"]["batches"] == 2
-    resumed = run(compose_cfg(*overrides, f"resume={tmp_path / 'killed'}"), tmp_path / "killed")
+    resumed = run(compose_config([*overrides, f"resume={tmp_path / 'killed'}"]),
+                  tmp_path / "killed")
 
     assert resumed.frames == straight.frames == 240
     ours, theirs = resumed.agent.loss.state_dict(), straight.agent.loss.state_dict()
@@ -148,13 +142,13 @@ def test_sac_learns_on_flat_terrain(tmp_path):
     and a small initial temperature make the signal -- walking forward, keeping straight -- quick
     to learn; seeds 1, 2, 3 gave final returns 15.5, 23.9, 13.0 against initial -1.0, 1.0, 0.8.
     """
-    raw = compose_cfg(
+    raw = compose_config([
         "algo=sac", "budget=smoke", "workers.num=1", "terrain.grid=40", "seed=1",
         "terrain.max_height=0", "terrain.max_height_step=0", "agent.spawn_yaw=0",
         "budget.episode_steps=50", "budget.frames=6000", "budget.eval_every=6000",
         "budget.eval_episodes=5", "algo.frames_per_batch=500", "algo.updates_per_batch=500",
         "algo.init_random_frames=500", "algo.hidden=[64,64]", "algo.batch_size=128",
-        "algo.gamma=0.9", "algo.alpha_init=0.05")
+        "algo.gamma=0.9", "algo.alpha_init=0.05"])
     tracker = MemoryTracker()
     sac.train(validate(raw), tracker, tmp_path, None)
     (_, before), (_, after) = tracker.metrics["eval/return_mean"]
@@ -171,31 +165,31 @@ def test_sac_learns_on_flat_terrain(tmp_path):
 ])
 def test_bad_config_fails_at_start_up(overrides, message, store, tmp_path):
     with pytest.raises(ConfigError) as err:
-        run(compose_cfg(*overrides), tmp_path / "run")
+        run(compose_config(overrides), tmp_path / "run")
     assert message in str(err.value)
     assert not (tmp_path / "run").exists()  # nothing started
 
 
 def test_unknown_option_fails_at_composition():
     with pytest.raises(ConfigCompositionException, match="algo.clipp"):
-        compose_cfg("algo=ppo", "algo.clipp=0.1")
+        compose_config(["algo=ppo", "algo.clipp=0.1"])
 
 
 def test_resume_from_another_algorithm_is_refused(store, tmp_path):
-    run(compose_cfg("algo=vmpo", *TINY, *SIZES["vmpo"], "budget.frames=60"), tmp_path / "a")
+    run(compose_config(["algo=vmpo", *TINY, *SIZES["vmpo"], "budget.frames=60"]), tmp_path / "a")
     with pytest.raises(CheckpointError, match="cannot resume algo=ppo"):
-        run(compose_cfg("algo=ppo", *TINY, f"resume={tmp_path / 'a'}"), tmp_path / "b")
+        run(compose_config(["algo=ppo", *TINY, f"resume={tmp_path / 'a'}"]), tmp_path / "b")
     # Refused before the tracker reopened it: the vmpo run stays FINISHED.
     (vmpo,) = store.search_runs([store.get_experiment_by_name("epoet").experiment_id])
     assert vmpo.info.status == "FINISHED"
 
 
 def test_budget_scales_the_batch_and_keeps_the_ratios():
-    cfg = validate(compose_cfg("algo=sac", "budget=smoke"))  # 400 frames < 2000 per batch
+    cfg = validate(compose_config(["algo=sac", "budget=smoke"]))  # 400 frames < 2000 per batch
     plan = common.batch_plan(cfg)
     assert (plan.frames_per_batch, plan.batches) == (400, 1)
     assert plan.scaled(cfg.algo.updates_per_batch) == 200  # 1000 per 2000 frames
-    cfg = validate(compose_cfg("algo=ppo", "budget=laptop"))
+    cfg = validate(compose_config(["algo=ppo", "budget=laptop"]))
     plan = common.batch_plan(cfg)
     assert (plan.frames_per_batch, plan.batches, plan.scale) == (2000, 50, 1.0)
 
@@ -228,7 +222,7 @@ def test_running_obs_norm_matches_the_data_and_survives_tiny_spreads():
 def test_training_env_draws_a_new_terrain_per_episode_on_the_height_schedule(terrain, limit):
     """Baselines train on bowls by default; terrain=cppn gives a fresh random CPPN terrain per
     episode. Either way the maximum height S grows by max_height_step per episode."""
-    raw = compose_cfg("algo=ppo", *TINY, f"terrain={terrain}", "terrain.max_height_step=0.3")
+    raw = compose_config(["algo=ppo", *TINY, f"terrain={terrain}", "terrain.max_height_step=0.3"])
     env = make_env(validate(raw), obs_norm=True, seed=0)
     seen = []
     for _ in range(4):

@@ -16,12 +16,11 @@ from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
 from epoet.cli import fail, run_hydra_app
-from epoet.config import ConfigError, GalleryConfig, validate
+from epoet.config import CONF_DIR, ConfigError, GalleryConfig, validate
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain, plot_terrain
 
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 ITERATION_STEP = 25  # iterations between panels: S grows by 25 * max_height_step per panel
 COLUMNS = 4
 
@@ -53,7 +52,7 @@ def write_gallery(terrains: list[Terrain], out: Path) -> Path:
     return path
 
 
-@hydra.main(config_path=CONF_DIR, config_name="gallery", version_base="1.3")
+@hydra.main(config_path=str(CONF_DIR), config_name="gallery", version_base="1.3")
 def _app(raw: DictConfig) -> None:
     # Failures are reported here: an exception escaping the task makes Hydra log its own lines.
     try:
