@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import random
 import time
 from dataclasses import dataclass
@@ -67,6 +66,7 @@ from tqdm import tqdm
 from epoet.checkpoint import save_run_state
 from epoet.config import Config, OnPolicyConfig
 from epoet.envs import HexapodEnv
+from epoet.es.workers import default_workers
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -115,7 +115,7 @@ def batch_plan(cfg: Config) -> BatchPlan:
 
 def set_threads(cfg: Config) -> int:
     """torch threads = workers.num, else the cores this process may use; returns the count."""
-    threads = cfg.workers.num or len(os.sched_getaffinity(0))
+    threads = cfg.workers.num or default_workers()
     torch.set_num_threads(threads)
     return threads
 
@@ -143,8 +143,9 @@ class _FinishedReader(BaseInfoDictReader):
 def make_env(cfg: Config, *, obs_norm: bool, seed: int) -> TransformedEnv:
     """The hexapod task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode.
 
-    Episodes last at most agent.max_episode_steps (= budget.episode_steps). Adds `episode_reward` (RewardSum) and
-    `step_count` (StepCounter) for episode statistics and, with `obs_norm`, `observation_norm`.
+    Episodes last at most agent.max_episode_steps (= budget.episode_steps). Adds
+    `episode_reward` (RewardSum) and `step_count` (StepCounter) for episode statistics and, with
+    `obs_norm`, `observation_norm`.
     GymWrapper around the env object (not GymEnv on the registered id) keeps gymnasium's checker
     wrappers out of the per-step path.
     """
@@ -532,6 +533,13 @@ def train_loop(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, A
         _set_rng_state(env, resume["rng"])
         collector.reset()
 
+    def eval_if_due() -> None:
+        if state.frames < state.next_eval:
+            return
+        run_eval()
+        while state.next_eval <= state.frames:
+            state.next_eval += cfg.budget.eval_every
+
     def run_eval() -> None:
         if obs_stats is not None:  # the evaluation env normalises as the training env
             obs_norm_of(eval_env).load_state_dict(obs_norm_of(env).state_dict())
@@ -553,9 +561,7 @@ def train_loop(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, A
     progress = tqdm(total=plan.total_frames, initial=state.frames, unit="frame",
                     desc=cfg.algo.name, disable=None, dynamic_ncols=True)
     try:
-        if state.frames >= state.next_eval:
-            run_eval()
-            state.next_eval = state.frames + cfg.budget.eval_every
+        eval_if_due()
         batches = iter(collector)
         while state.batches < plan.batches:
             start = time.perf_counter()
@@ -579,10 +585,7 @@ def train_loop(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, A
                             "wall_time": state.wall_time, "train/episodes": state.episodes})
             tracker.log_metrics(state.frames, metrics)
             progress.update(batch.numel())
-            if state.frames >= state.next_eval:
-                run_eval()
-                while state.next_eval <= state.frames:
-                    state.next_eval += cfg.budget.eval_every
+            eval_if_due()
             if state.batches % cfg.checkpoint_every == 0 and state.batches < plan.batches:
                 checkpoint()
                 collector.reset()  # see the module docstring: checkpoints end the episode
