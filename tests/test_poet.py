@@ -13,8 +13,8 @@ import pytest
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import AgentConfig, PoetConfig, TerrainConfig
-from epoet.es.workers import SerialEvaluator
-from epoet.poet.loop import EPOET
+from epoet.es.workers import SerialEvaluator, make_evaluator
+from epoet.poet.loop import EPOET, Key
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -22,10 +22,10 @@ SIZES = (53, 8, 18)
 SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
 
 
-def make_poet(terrain_cfg: TerrainConfig, **algo) -> EPOET:
+def make_poet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> EPOET:
     agent = AgentConfig(max_episode_steps=20, settle_steps=2)
     evaluator = SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES)
-    return EPOET(PoetConfig(**algo), terrain_cfg, evaluator, seed=3, n_pairs=2, eval_episodes=1,
+    return EPOET(PoetConfig(**algo), terrain_cfg, evaluator, seed=seed, n_pairs=2, eval_episodes=1,
                  score_scale=1.0, layer_sizes=SIZES)
 
 
@@ -208,3 +208,65 @@ def test_unreachable_tracking_store_fails_in_one_line(tmp_path: Path) -> None:
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "http://127.0.0.1:9" in lines[0], out.stderr
     assert not (tmp_path / "run" / "checkpoint.pkl").exists()
+
+
+def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
+    poet.iterate()
+    poet.reproduce()
+    for pair in poet.active:
+        pair.scores[:] = [-1e9]        # every direct transfer clears the bar
+    before = [p.theta.copy() for p in poet.active]
+    assert poet.transfer() == len(poet.active)
+    for pair in poet.active:
+        # A proposal is a fine-tuned agent: it equals none of the agents as they were.
+        assert not any(np.array_equal(pair.theta, theta) for theta in before)
+
+
+def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
+        terrain_cfg: TerrainConfig) -> None:
+    # Learn the child's scores on the real engine (they do not depend on the thresholds) ...
+    probe = make_poet(terrain_cfg, num_children=1, **OPEN)
+    probe.iterate()
+    (child, parent), = probe._propose_children(probe.active)
+    mc_score = float(probe._scores([probe._eval_request(child.terrain, parent.theta[None],
+                                                        Key.MC, 1, child.slot)])[0][0])
+    best_score, _ = probe._best_agent_for(child)
+    assert best_score != mc_score
+    # ... then set the window so that the parent's agent passes and the best agent does not.
+    middle = (mc_score + best_score) / 2
+    window = (mc_score - 1.0, middle) if best_score > mc_score else (middle, mc_score + 1.0)
+    poet = make_poet(terrain_cfg, num_children=1, repro_threshold=-1e9, mc_lower=window[0],
+                     mc_upper=window[1])
+    poet.iterate()
+    assert len(poet._minimal_criterion(poet._propose_children(poet.active))) == 1
+    assert poet.reproduce() == 0 and len(poet.active) == 1
+
+
+def test_admission_fine_tunes_with_a_fresh_optimiser(terrain_cfg: TerrainConfig) -> None:
+    poet = make_poet(terrain_cfg, seed=4, num_children=1, **OPEN)
+    poet.iterate()
+    (child, _), = poet._propose_children(poet.active)
+    score, theta = poet._best_agent_for(child)
+    assert not np.array_equal(theta, poet.active[0].theta), "seed 4: a fine-tuned agent wins"
+    es = poet.active[0].es  # the incumbent's optimiser state must not matter
+    es.m[:], es.v[:], es.t, es.lr, es.sigma = 1.0, 1.0, 50, 0.5, 0.3
+    again, theta_again = poet._best_agent_for(child)
+    assert again == score
+    np.testing.assert_array_equal(theta_again, theta)
+
+
+def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> None:
+    def final_state(workers: int) -> dict:
+        agent = AgentConfig(max_episode_steps=20, settle_steps=2)
+        with make_evaluator(agent, terrain_cfg, workers, batch=3, layer_sizes=SIZES) as ev:
+            poet = EPOET(PoetConfig(num_children=2, **OPEN), terrain_cfg, ev, seed=5,
+                         n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES,
+                         transfer_interval=1, reproduce_interval=1)
+            for _ in range(3):
+                poet.iterate()
+            return poet.state_dict()
+
+    one, two = final_state(1), final_state(2)
+    assert len(one["active"]) == 3 and one["transfers"] > 0
+    _assert_same(one, two)

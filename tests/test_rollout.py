@@ -13,7 +13,7 @@ from epoet.envs.model import TerrainMismatchError
 from epoet.es.optimizer import mirrored_population
 from epoet.es.policy import forward, init_params
 from epoet.es.rollout import RolloutEngine
-from epoet.es.workers import make_evaluator
+from epoet.es.workers import Agents, Mirrored, Request, make_evaluator
 from epoet.terrain import Terrain, make_terrain
 
 TERRAIN_CFG = TerrainConfig(kind="cppn", grid=40, max_height=0.3)
@@ -124,6 +124,31 @@ def test_one_and_two_workers_give_identical_results(terrain):
     np.testing.assert_array_equal(direct.returns, np.concatenate([plus, minus]))
     with pytest.raises(RuntimeError, match="closed"):
         two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+
+
+def test_one_call_of_many_requests_equals_one_call_each(terrain):
+    """An iteration's work goes out as one call over several terrains; results are those of
+    separate calls, in request order, for any worker count."""
+    other = make_terrain(TERRAIN_CFG, seed=2, iteration=30)
+    theta = init_params(3)
+    requests = [Request(terrain, Mirrored.of(theta, np.array([1, 2, 3]), 0.05,
+                                             np.array([4, 5, 6]))),
+                Request(other, Agents.of(np.stack([theta, -theta]), np.array([7, 8, 9]))),
+                Request(terrain, Agents.of(theta[None], np.array([10])))]
+    with make_evaluator(AGENT, TERRAIN_CFG, workers=1, batch=2) as one, \
+            make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=4) as two:
+        separate = [one.run([r], record=True)[0] for r in requests]
+        for evaluator in (one, two):
+            together = evaluator.run(requests, record=True)
+            assert [e.returns.shape for e in together] == [(6,), (2, 3), (1, 1)]
+            for got, want in zip(together, separate):
+                np.testing.assert_array_equal(got.returns, want.returns)
+                np.testing.assert_array_equal(got.lengths, want.lengths)
+                for key, value in want.transitions.items():
+                    np.testing.assert_array_equal(got.transitions[key], value)
+        # Each request ran on its own terrain: the second one's agents do differently here.
+        elsewhere = one.run([Request(terrain, requests[1].population)])[0]
+        assert not np.array_equal(elsewhere.returns, separate[1].returns)
 
 
 def test_bad_input_is_refused_in_one_sentence(terrain):

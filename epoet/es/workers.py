@@ -1,15 +1,18 @@
 """Evaluation backends: the same episodes run in-process (workers=1) or over a local process pool.
 
-What crosses process boundaries is small: per call, each worker gets the terrain and a population
-*description* once (theta, sigma and integer noise seeds for an ES step; the K agents' parameter
-vectors for an evaluation), and episode indices one at a time from a shared queue; it rebuilds
-theta +- sigma * noise(seed) itself and sends back returns (and transitions if asked for).
-Parameter vectors per sample never travel.
+A call runs a list of requests, each a population of episodes on one terrain: every pair's ES
+episodes of an iteration go out as one call, then every evaluation as another, so no worker waits
+at a per-pair barrier. What crosses process boundaries is small: per call, each worker gets every
+request's terrain and population *description* once (theta, sigma and integer noise seeds for an
+ES step; the K agents' parameter vectors for an evaluation), and (request, episode) indices one at
+a time from a shared queue; it rebuilds theta +- sigma * noise(seed) itself and sends back returns
+(and transitions if asked for). Parameter vectors per sample never travel.
 
 Load balancing is per episode: every worker runs one `RolloutEngine` whose free slots pull the next
-episode index from the shared queue, so a worker that drew short episodes simply takes more.
-An episode's result is a function of its parameters, spawn seed and terrain only, hence identical
-for any worker count, batch size or scheduling.
+episode from the shared queue, in request order; when the next episode belongs to the next
+request, the worker finishes the episodes it holds and moves on to that request's terrain
+without waiting for the other workers. An episode's result is a function of its parameters, spawn
+seed and terrain only, hence identical for any worker count, batch size or scheduling.
 
 Processes start with "forkserver" (fork after torch/OpenMP threads exist can deadlock); each
 builds its engine once in the pool initializer. A worker exception is re-raised in the parent (the
@@ -24,7 +27,7 @@ import multiprocessing as mp
 import os
 import signal
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -52,6 +55,9 @@ class _Relief(NamedTuple):
 class Population(Protocol):
     """A numbered set of episodes whose parameters are rebuilt on demand from a compact form."""
 
+    num_params: int
+    shape: tuple[int, ...]      # how the episodes' results are arranged for the caller
+
     def __len__(self) -> int: ...
 
     def job(self, e: int) -> tuple[np.ndarray, int]:
@@ -68,6 +74,32 @@ class Mirrored:
     sigma: float
     noise_seeds: np.ndarray
     spawn_seeds: np.ndarray
+
+    @classmethod
+    def of(cls, theta: np.ndarray, noise_seeds: np.ndarray, sigma: float,
+           spawn_seeds: np.ndarray) -> "Mirrored":
+        """The checked population of one ES step around `theta`."""
+        theta = np.asarray(theta, dtype=np.float64)
+        noise = check_seeds(noise_seeds, "noise_seeds")
+        spawn = check_seeds(spawn_seeds, "spawn_seeds")
+        if theta.ndim != 1 or not theta.size:
+            raise ValueError(f"theta must be a non-empty 1-D vector, got shape {theta.shape}.")
+        if noise.ndim != 1 or not len(noise):
+            raise ValueError(f"noise_seeds must be a non-empty 1-D array, got {noise.shape}.")
+        if spawn.shape != noise.shape:
+            raise ValueError(f"spawn_seeds must have one seed per noise seed {noise.shape}, got "
+                             f"{spawn.shape}.")
+        if not sigma > 0:
+            raise ValueError(f"sigma must be > 0, got {sigma}.")
+        return cls(theta, float(sigma), noise, spawn)
+
+    @property
+    def num_params(self) -> int:
+        return self.theta.size
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (len(self),)
 
     def __len__(self) -> int:
         return 2 * len(self.noise_seeds)
@@ -86,6 +118,30 @@ class Agents:
     thetas: np.ndarray       # (K, P)
     spawn_seeds: np.ndarray  # (K, n)
 
+    @classmethod
+    def of(cls, thetas: np.ndarray, spawn_seeds: np.ndarray) -> "Agents":
+        """K agents' episodes: `spawn_seeds` (n,) gives all the same starts, (K, n) each its own."""
+        thetas = np.asarray(thetas, dtype=np.float64)
+        seeds = check_seeds(spawn_seeds, "spawn_seeds")
+        if thetas.ndim != 2 or not thetas.size:
+            raise ValueError(f"thetas must have shape (K, P) with K, P >= 1, got "
+                             f"{thetas.shape}.")
+        k = len(thetas)
+        if seeds.ndim == 1:
+            seeds = np.broadcast_to(seeds, (k, len(seeds)))
+        if seeds.ndim != 2 or seeds.shape[0] != k or not seeds.shape[1]:
+            raise ValueError(f"spawn_seeds must have shape (n,) or ({k}, n) with n >= 1, got "
+                             f"{np.shape(spawn_seeds)}.")
+        return cls(thetas, np.ascontiguousarray(seeds))
+
+    @property
+    def num_params(self) -> int:
+        return self.thetas.shape[1]
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.spawn_seeds.shape
+
     def __len__(self) -> int:
         return self.spawn_seeds.size
 
@@ -93,10 +149,19 @@ class Agents:
         return self.thetas[e // self.spawn_seeds.shape[1]], int(self.spawn_seeds.flat[e])
 
 
+class Request(NamedTuple):
+    """A population of episodes on one terrain: the unit of work a call is made of."""
+
+    terrain: TerrainLike
+    population: Population
+
+
 class Evaluator(Protocol):
-    """Runs populations of episodes on one terrain per call (see `make_evaluator`)."""
+    """Runs populations of episodes, one terrain each, many per call (see `make_evaluator`)."""
 
     workers: int
+
+    def run(self, requests: Sequence[Request], *, record: bool = False) -> list[Episodes]: ...
 
     def es_episodes(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
                     sigma: float, spawn_seeds: np.ndarray, *, record: bool = False
@@ -119,7 +184,7 @@ T = TypeVar("T")
 
 
 class _Backend(ABC):
-    """Input checks and population building shared by both backends; `_run` runs the episodes."""
+    """The public calls shared by both backends; `_run` runs the episodes."""
 
     workers: int
 
@@ -127,25 +192,34 @@ class _Backend(ABC):
         self.num_params = num_params(layer_sizes)
 
     @abstractmethod
-    def _run(self, terrain: TerrainLike, population: Population, record: bool) -> Episodes:
-        """All episodes of `population` on `terrain`, rows in population order."""
+    def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
+        """All episodes of every request, one flat `Episodes` per request in population order."""
+
+    def run(self, requests: Sequence[Request], *, record: bool = False) -> list[Episodes]:
+        """Every request's episodes in one call; results shaped as each `population.shape`.
+
+        Transitions (when recorded) stay flat per request, their `episode` the flat index.
+        """
+        requests = [Request(*r) for r in requests]
+        for r in requests:
+            if r.population.num_params != self.num_params:
+                raise ValueError(f"populations must have {self.num_params} parameters per "
+                                 f"agent, got {r.population.num_params}.")
+            if not len(r.population):
+                raise ValueError("every request needs at least one episode.")
+        if not requests:
+            return []
+        flat = self._run(requests, record)
+        return [Episodes(e.returns.reshape(r.population.shape),
+                         e.lengths.reshape(r.population.shape),
+                         e.finished.reshape(r.population.shape), e.transitions)
+                for r, e in zip(requests, flat)]
 
     def es_episodes(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
                     sigma: float, spawn_seeds: np.ndarray, *, record: bool = False) -> Episodes:
         """The 2n episodes of a mirrored ES population, rows in `mirrored_population` order."""
-        theta = np.asarray(theta, dtype=np.float64)
-        noise = check_seeds(noise_seeds, "noise_seeds")
-        spawn = check_seeds(spawn_seeds, "spawn_seeds")
-        if theta.shape != (self.num_params,):
-            raise ValueError(f"theta must have shape ({self.num_params},), got {theta.shape}.")
-        if noise.ndim != 1 or not len(noise):
-            raise ValueError(f"noise_seeds must be a non-empty 1-D array, got {noise.shape}.")
-        if spawn.shape != noise.shape:
-            raise ValueError(f"spawn_seeds must have one seed per noise seed {noise.shape}, got "
-                             f"{spawn.shape}.")
-        if not sigma > 0:
-            raise ValueError(f"sigma must be > 0, got {sigma}.")
-        return self._run(terrain, Mirrored(theta, float(sigma), noise, spawn), record)
+        population = Mirrored.of(theta, noise_seeds, sigma, spawn_seeds)
+        return self.run([Request(terrain, population)], record=record)[0]
 
     def es_returns(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
                    sigma: float, spawn_seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -159,21 +233,7 @@ class _Backend(ABC):
 
         `spawn_seeds` (n,) gives every agent the same starts; (K, n) gives each its own.
         """
-        thetas = np.asarray(thetas, dtype=np.float64)
-        seeds = check_seeds(spawn_seeds, "spawn_seeds")
-        if thetas.ndim != 2 or thetas.shape[1] != self.num_params or not len(thetas):
-            raise ValueError(f"thetas must have shape (K, {self.num_params}) with K >= 1, got "
-                             f"{thetas.shape}.")
-        k = len(thetas)
-        if seeds.ndim == 1:
-            seeds = np.broadcast_to(seeds, (k, len(seeds)))
-        if seeds.ndim != 2 or seeds.shape[0] != k or not seeds.shape[1]:
-            raise ValueError(f"spawn_seeds must have shape (n,) or ({k}, n) with n >= 1, got "
-                             f"{np.shape(spawn_seeds)}.")
-        episodes = self._run(terrain, Agents(thetas, np.ascontiguousarray(seeds)), record)
-        shape = seeds.shape
-        return Episodes(episodes.returns.reshape(shape), episodes.lengths.reshape(shape),
-                        episodes.finished.reshape(shape), episodes.transitions)
+        return self.run([Request(terrain, Agents.of(thetas, spawn_seeds))], record=record)[0]
 
     def __enter__(self) -> "_Backend":
         return self
@@ -195,19 +255,15 @@ class SerialEvaluator(_Backend):
         super().__init__(layer_sizes)
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
-    def _run(self, terrain: TerrainLike, population: Population, record: bool) -> Episodes:
-        n = len(population)
-        return merge_episodes([_run_population(self.engine, terrain, population, range(n),
-                                               record, n)], n)
-
-
-def _run_population(engine: RolloutEngine, terrain: TerrainLike, population: Population,
-                    indices: Iterable[int], record: bool, slots: int
-                    ) -> tuple[np.ndarray, Episodes]:
-    """Episodes `indices` of `population` on `terrain`: (indices run, their results)."""
-    engine.set_terrain(terrain)
-    jobs = ((e, *population.job(e)) for e in indices)
-    return engine.run_jobs(jobs, record=record, slots=slots)
+    def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
+        results = []
+        for terrain, population in requests:
+            n = len(population)
+            self.engine.set_terrain(terrain)
+            jobs = ((e, *population.job(e)) for e in range(n))
+            results.append(merge_episodes([self.engine.run_jobs(jobs, record=record, slots=n)],
+                                          n))
+        return results
 
 
 # ---------------------------------------------------------------- process pool
@@ -225,20 +281,39 @@ def _init_worker(agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
     _queue = queue
 
 
-def _indices(call: int) -> Iterator[int]:
-    """This call's episode indices from the shared queue, up to one end marker (None)."""
+def _items(call: int) -> Iterator[tuple[int, int]]:
+    """This call's (request, episode) items from the shared queue, up to one end marker."""
     while True:
-        tag, index = _queue.get()
+        tag, request, index = _queue.get()
         if tag != call:
             continue  # left over from an earlier call that failed part-way
-        if index is None:
+        if request is None:
             return
-        yield index
+        yield request, index
 
 
-def _work(call: int, terrain: TerrainLike, population: Population, record: bool, slots: int
-          ) -> tuple[np.ndarray, Episodes]:
-    return _run_population(_engine, terrain, population, _indices(call), record, slots)
+def _work(call: int, reliefs: Sequence[_Relief], populations: Sequence[Population],
+          record: bool, slots: Sequence[int]) -> list[tuple[int, np.ndarray, Episodes]]:
+    """Run queue items until the end marker: (request, episode indices, results) per stretch.
+
+    Items arrive in request order. The job stream of one request ends at the first item of the
+    next, which is kept and starts the next stretch once the engine's slots have drained.
+    """
+    items = _items(call)
+    item = next(items, None)
+    parts = []
+    while item is not None:
+        request = item[0]
+
+        def jobs() -> Iterator[tuple[int, np.ndarray, int]]:
+            nonlocal item
+            while item is not None and item[0] == request:
+                yield (item[1], *populations[request].job(item[1]))
+                item = next(items, None)
+
+        _engine.set_terrain(reliefs[request])
+        parts.append((request, *_engine.run_jobs(jobs(), record=record, slots=slots[request])))
+    return parts
 
 
 class PoolEvaluator(_Backend):
@@ -277,20 +352,26 @@ class PoolEvaluator(_Backend):
             raise RuntimeError("a rollout worker process died (see its traceback above); the "
                                "evaluator is closed.") from err
 
-    def _run(self, terrain: TerrainLike, population: Population, record: bool) -> Episodes:
+    def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
         if self._pool is None:
             raise RuntimeError("this evaluator is closed.")
-        call, n = next(self._calls), len(population)
-        for e in range(n):
-            self._queue.put((call, e))
+        call = next(self._calls)
+        sizes = [len(r.population) for r in requests]
+        for request, n in enumerate(sizes):
+            for e in range(n):
+                self._queue.put((call, request, e))
         for _ in range(self.workers):
-            self._queue.put((call, None))
-        # A worker holds at most its fair share of slots at first, so none hoards the queue.
-        slots = min(self.batch, math.ceil(n / self.workers))
-        relief = _Relief(np.asarray(terrain.heightmap), float(terrain.max_height),
-                         float(terrain.size))
-        return merge_episodes(self._submit_all(_work, call, relief, population, record, slots),
-                              n)
+            self._queue.put((call, None, None))
+        # A worker holds at most its fair share of a request's slots, so none hoards the queue.
+        slots = [min(self.batch, math.ceil(n / self.workers)) for n in sizes]
+        reliefs = [_Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
+                           float(r.terrain.size)) for r in requests]
+        parts = [part for worker in self._submit_all(_work, call, reliefs,
+                                                     [r.population for r in requests], record,
+                                                     slots)
+                 for part in worker]
+        return [merge_episodes([(index, episodes) for r, index, episodes in parts if r == request],
+                               n) for request, n in enumerate(sizes)]
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and self._pool is not None:

@@ -1,41 +1,89 @@
 """The ePOET loop (paper Algorithm 1 without the SAC steps; REFERENCE.md section 6).
 
-Each iteration: every `adjust_interval * iterations_before_transfer` iterations the pool
-reproduces (mutated children, minimal criterion, PATA-EC novelty, at most `max_admitted` child
-admitted); then every active pair takes one ES step on its environment and is evaluated; every
-`iterations_before_transfer` iterations agents are transferred between environments.
+Each iteration, as in Enhanced POET's `poet_algo.py`:
+1. every `reproduce_interval` iterations, `reproduce`: eligible parents propose mutated children,
+   the minimal criterion filters them, and the most novel are admitted with the best agent;
+2. `optimize`: every active pair takes one ES step on its environment and is evaluated;
+3. every `transfer_interval` iterations, `transfer`: agents move between environments.
 
-All randomness is keyed: a seed for (purpose, environment, iteration) comes from one
-SeedSequence of the run's seed, so the order in which things are evaluated, the number of
-workers and a checkpoint/resume never change what a run does.
+All randomness is keyed: a seed for (purpose, ids...) comes from one SeedSequence of the run's
+seed, so the order in which things are evaluated, the number of workers and a checkpoint/resume
+never change what a run does. The work of each step (every pair's ES episodes, every evaluation)
+goes to the workers as one call, so no worker waits at a per-pair barrier.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from enum import IntEnum
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from epoet.config import PoetConfig, TerrainConfig
 from epoet.es.optimizer import OpenAIES
 from epoet.es.policy import init_params
-from epoet.es.workers import Evaluator
+from epoet.es.rollout import Episodes
+from epoet.es.workers import Agents, Evaluator, Mirrored, Request
 from epoet.poet.novelty import pata_ec, rank_by_novelty
 from epoet.poet.pairs import Environment, Pair
 from epoet.terrain import CppnMutationError, Terrain, make_terrain, mutate_genome, new_genome
 
-# Purposes of keyed seeds.
-_ES, _EVAL, _TRANSFER, _PROPOSAL, _CHILD, _MC, _PATA, _BOWL, _AGENT, _OPT, _ADMIT = range(11)
+
+class Key(IntEnum):
+    """What a keyed seed is for; with the ids after it, it names one random stream."""
+
+    ROOT_GENOME = 0     # (0,)
+    ROOT_AGENT = 1      # (0,)
+    OPTIMISER = 2       # (env, iteration admitted): the pair's ES noise stream
+    BOWL = 3            # (env, iteration): the bowl part of an environment's terrain
+    ES_SPAWN = 4        # (env, iteration): starts of the ES episodes
+    EVAL = 5            # (env, iteration): starts of the evaluation episodes
+    TRANSFER = 6        # (target env, iteration, candidate + 1 or 0 for direct transfers)
+    PROPOSAL_NOISE = 7  # (target env, iteration, candidate)
+    PROPOSAL_SPAWN = 8  # (target env, iteration, candidate)
+    PARENTS = 9         # (iteration,): which eligible parent each child slot mutates
+    CHILD_GENOME = 10   # (parent env, iteration, slot)
+    CHILD_BOWL = 11     # (iteration, slot)
+    MC = 12             # (iteration, slot)
+    PATA = 13           # (env, iteration) for existing environments
+    CHILD_PATA = 14     # (iteration, slot)
+    ADMIT = 15          # (iteration, slot, candidate + 1 or 0 for direct transfers)
+    ADMIT_NOISE = 16    # (iteration, slot, candidate)
+    ADMIT_SPAWN = 17    # (iteration, slot, candidate)
 
 
-@dataclass
-class Scaled:
-    """Score thresholds scaled to the budget's episode length (paper values are for 2000 steps)."""
+@dataclass(frozen=True)
+class Thresholds:
+    """The run's score thresholds: the paper's (set for 2000-step episodes) times the budget's
+    score scale."""
 
     mc_lower: float
     mc_upper: float
-    repro_threshold: float
+    repro: float
+
+    def passes_mc(self, score: float) -> bool:
+        """The minimal criterion: neither too hard nor too easy."""
+        return self.mc_lower <= score <= self.mc_upper
+
+
+@dataclass
+class Child:
+    """A proposed child environment with the terrain the minimal criterion judged it on."""
+
+    env: Environment
+    terrain: Terrain
+    slot: int
+
+
+class FineTune(NamedTuple):
+    """One proposal ES step: `theta` on `terrain` with `es`'s settings and state; `ids` key its
+    noise and spawn seeds."""
+
+    es: OpenAIES
+    terrain: Terrain
+    theta: np.ndarray
+    ids: tuple[int, ...]
 
 
 class EPOET:
@@ -43,7 +91,8 @@ class EPOET:
 
     def __init__(self, algo: PoetConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
                  seed: int, n_pairs: int, eval_episodes: int, score_scale: float,
-                 layer_sizes: tuple[int, ...]) -> None:
+                 layer_sizes: tuple[int, ...], transfer_interval: int | None = None,
+                 reproduce_interval: int | None = None) -> None:
         self.cfg = algo
         self.terrain_cfg = terrain
         self.evaluator = evaluator
@@ -51,8 +100,12 @@ class EPOET:
         self.n_pairs = n_pairs
         self.eval_episodes = eval_episodes
         self.layer_sizes = layer_sizes
-        self.limits = Scaled(algo.mc_lower * score_scale, algo.mc_upper * score_scale,
-                             algo.repro_threshold * score_scale)
+        self.thresholds = Thresholds(algo.mc_lower * score_scale, algo.mc_upper * score_scale,
+                                     algo.repro_threshold * score_scale)
+        # The paper's schedule unless the budget sets its own (README: Budgets).
+        self.transfer_interval = transfer_interval or algo.iterations_before_transfer
+        self.reproduce_interval = (reproduce_interval
+                                   or algo.adjust_interval * algo.iterations_before_transfer)
         self.iteration = 0
         self.active: list[Pair] = []
         self.archived: list[Pair] = []
@@ -60,19 +113,18 @@ class EPOET:
         self.transfers = 0
         self.env_steps = 0
         self._terrains: dict[tuple[int, int], Terrain] = {}
-        root = Environment(index=0, genome=new_genome(terrain.cppn, self._seed(_CHILD, 0, 0)),
+        root = Environment(index=0, genome=new_genome(terrain.cppn, self._seed(Key.ROOT_GENOME, 0)),
                            generation=0, parent=None, created_at=0)
-        theta = init_params(self._seed(_AGENT, 0, 0), layer_sizes)
-        self._admit(root, theta)
+        self._admit(root, init_params(self._seed(Key.ROOT_AGENT, 0), layer_sizes))
 
     # --- keyed randomness -------------------------------------------------------------------
-    def _seeds(self, n: int, purpose: int, env: int, iteration: int, extra: int = 0) -> np.ndarray:
-        """n non-negative int64 seeds, a function of the run seed and the key alone."""
-        seq = np.random.SeedSequence([self.seed, purpose, env, iteration, extra])
+    def _seeds(self, n: int, key: Key, *ids: int) -> np.ndarray:
+        """n non-negative int64 seeds, a function of the run seed, the key and the ids alone."""
+        seq = np.random.SeedSequence([self.seed, int(key), *ids])
         return (seq.generate_state(n, np.uint64) >> np.uint64(1)).astype(np.int64)
 
-    def _seed(self, purpose: int, env: int, iteration: int, extra: int = 0) -> int:
-        return int(self._seeds(1, purpose, env, iteration, extra)[0])
+    def _seed(self, key: Key, *ids: int) -> int:
+        return int(self._seeds(1, key, *ids)[0])
 
     # --- environments -------------------------------------------------------------------------
     def terrain(self, env: Environment, iteration: int | None = None) -> Terrain:
@@ -82,7 +134,7 @@ class EPOET:
         if key not in self._terrains:
             if len(self._terrains) > 4 * (len(self.active) + len(self.archived)) + 16:
                 self._terrains.clear()  # bounded cache: only the current iteration is reused
-            self._terrains[key] = self._make_terrain(env, self._seed(_BOWL, env.index, t), t)
+            self._terrains[key] = self._make_terrain(env, self._seed(Key.BOWL, env.index, t), t)
         return self._terrains[key]
 
     def _make_terrain(self, env: Environment, bowl_seed: int, iteration: int) -> Terrain:
@@ -98,12 +150,41 @@ class EPOET:
                         sigma_floor=c.sigma_floor, l2_coeff=c.l2_coeff)
 
     def _admit(self, env: Environment, theta: np.ndarray) -> Pair:
-        pair = Pair(env=env, es=self._new_es(theta, self._seed(_OPT, env.index, env.created_at)))
+        pair = Pair(env=env, es=self._new_es(theta, self._seed(Key.OPTIMISER, env.index,
+                                                                env.created_at)))
         self.active.append(pair)
         self.next_index = max(self.next_index, env.index + 1)
         if len(self.active) > self.cfg.max_num_envs:
             self.archived.append(self.active.pop(0))  # the oldest pair leaves the active pool
         return pair
+
+    # --- episodes -------------------------------------------------------------------------------
+    def _run(self, requests: list[Request]) -> list[Episodes]:
+        """One call to the workers for every request; counts the environment steps."""
+        episodes = self.evaluator.run(requests)
+        self.env_steps += sum(int(e.lengths.sum()) for e in episodes)
+        return episodes
+
+    def _eval_request(self, terrain: Terrain, thetas: np.ndarray, key: Key, *ids: int
+                      ) -> Request:
+        """`eval_episodes` seeded episodes of each agent in `thetas` (K, P) on `terrain`."""
+        return Request(terrain, Agents.of(thetas, self._seeds(self.eval_episodes, key, *ids)))
+
+    def _scores(self, requests: list[Request]) -> list[np.ndarray]:
+        """Mean return of each agent of each evaluation request."""
+        return [e.returns.mean(axis=1) for e in self._run(requests)]
+
+    def _fine_tune(self, jobs: list[FineTune], noise_key: Key, spawn_key: Key
+                   ) -> list[np.ndarray]:
+        """The theta each job's ES step proposes; no optimiser's state changes."""
+        noise = [self._seeds(self.n_pairs, noise_key, *job.ids) for job in jobs]
+        requests = [Request(job.terrain,
+                            Mirrored.of(job.theta, seeds, job.es.sigma,
+                                        self._seeds(self.n_pairs, spawn_key, *job.ids)))
+                    for job, seeds in zip(jobs, noise)]
+        return [job.es.propose(seeds, e.returns[:len(seeds)], e.returns[len(seeds):],
+                               theta=job.theta)
+                for job, seeds, e in zip(jobs, noise, self._run(requests))]
 
     # --- one iteration ----------------------------------------------------------------------
     def iterate(self) -> dict[str, float]:
@@ -111,12 +192,10 @@ class EPOET:
         t = self.iteration
         start, steps0 = time.perf_counter(), self.env_steps
         metrics: dict[str, float] = {}
-        period = self.cfg.adjust_interval * self.cfg.iterations_before_transfer
-        if t > 0 and t % period == 0:
+        if t > 0 and t % self.reproduce_interval == 0:
             metrics["admitted"] = float(self.reproduce())
-        for pair in self.active:
-            metrics.update(self._es_step(pair))
-        if len(self.active) > 1 and t % self.cfg.iterations_before_transfer == 0:
+        metrics.update(self.optimize())
+        if len(self.active) > 1 and t % self.transfer_interval == 0:
             metrics["transfers"] = float(self.transfer())
         elapsed = time.perf_counter() - start
         metrics.update({
@@ -131,147 +210,162 @@ class EPOET:
         self.iteration += 1
         return metrics
 
-    def _es_step(self, pair: Pair) -> dict[str, float]:
-        t, idx = self.iteration, pair.env.index
-        terrain = self.terrain(pair.env)
-        noise_seeds = pair.es.sample_seeds()
-        spawn = self._seeds(len(noise_seeds), _ES, idx, t)
-        r_pos, r_neg = self._es_returns(terrain, pair.theta, noise_seeds, pair.es.sigma, spawn)
-        stats = pair.es.tell(noise_seeds, r_pos, r_neg)
-        score = float(self._evaluate(terrain, pair.theta[None], _EVAL, idx)[0])
-        self._record(pair, score)
-        returns = np.concatenate([r_pos, r_neg])
-        prefix = f"pair{idx}"
-        return {f"{prefix}/return_mean": float(returns.mean()),
-                f"{prefix}/return_max": float(returns.max()),
-                f"{prefix}/score": score, f"{prefix}/lr": stats["lr"],
-                f"{prefix}/sigma": stats["sigma"]}
+    def optimize(self) -> dict[str, float]:
+        """One ES step of every active pair on its own environment, then its evaluation."""
+        t = self.iteration
+        noise = [pair.es.sample_seeds() for pair in self.active]
+        requests = [Request(self.terrain(pair.env),
+                            Mirrored.of(pair.theta, seeds, pair.es.sigma,
+                                        self._seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t)))
+                    for pair, seeds in zip(self.active, noise)]
+        metrics: dict[str, float] = {}
+        for pair, seeds, episodes in zip(self.active, noise, self._run(requests)):
+            n = len(seeds)
+            stats = pair.es.tell(seeds, episodes.returns[:n], episodes.returns[n:])
+            prefix = f"pair{pair.env.index}"
+            metrics.update({f"{prefix}/return_mean": float(episodes.returns.mean()),
+                            f"{prefix}/return_max": float(episodes.returns.max()),
+                            f"{prefix}/lr": stats["lr"], f"{prefix}/sigma": stats["sigma"]})
+        scores = self._scores([self._eval_request(self.terrain(p.env), p.theta[None], Key.EVAL,
+                                                  p.env.index, t) for p in self.active])
+        for pair, score in zip(self.active, scores):
+            self._record(pair, float(score[0]))
+            metrics[f"pair{pair.env.index}/score"] = pair.score
+        return metrics
 
     def _record(self, pair: Pair, score: float) -> None:
         pair.scores.append(score)
-        pair.env.solved |= score >= self.limits.repro_threshold
-
-    def _es_returns(self, terrain: Terrain, theta: np.ndarray, noise_seeds: np.ndarray,
-                    sigma: float, spawn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        episodes = self.evaluator.es_episodes(terrain, theta, noise_seeds, sigma, spawn)
-        self.env_steps += int(episodes.lengths.sum())
-        n = len(noise_seeds)
-        return episodes.returns[:n], episodes.returns[n:]
-
-    def _evaluate(self, terrain: Terrain, thetas: np.ndarray, purpose: int, env: int,
-                  extra: int = 0) -> np.ndarray:
-        """Mean return of each theta over `eval_episodes` seeded episodes."""
-        spawn = self._seeds(self.eval_episodes, purpose, env, self.iteration, extra)
-        episodes = self.evaluator.evaluate(terrain, thetas, spawn)
-        self.env_steps += int(episodes.lengths.sum())
-        return episodes.returns.mean(axis=1)
-
-    def _fine_tune(self, target: Pair, terrain: Terrain, theta: np.ndarray, purpose: int,
-                   extra: int) -> np.ndarray:
-        """One ES step of `theta` on `terrain` with the target's optimiser settings, leaving
-        the target's ES untouched."""
-        idx, t = target.env.index, self.iteration
-        noise_seeds = self._seeds(self.n_pairs, purpose, idx, t, extra)
-        spawn = self._seeds(self.n_pairs, purpose, idx, t, extra + 1_000_000)
-        r_pos, r_neg = self._es_returns(terrain, theta, noise_seeds, target.es.sigma, spawn)
-        return target.es.propose(noise_seeds, r_pos, r_neg, theta=theta)
+        pair.env.solved |= score >= self.thresholds.repro
 
     # --- transfer ---------------------------------------------------------------------------
     def transfer(self) -> int:
-        """Try every other agent on each environment; the best that beats the incumbent wins.
+        """Try every other agent on each environment; the best fine-tuned one that beats the
+        incumbent's recent best replaces it, resetting its optimiser.
 
-        Direct transfers are evaluated first; those that beat the target's recent best are
-        refined by one proposal ES step on the target (REFERENCE.md section 6), and the best of
-        all candidates replaces the target's agent, resetting its optimiser.
+        As the reference: direct transfers are evaluated first; those that beat the target's
+        best score over the last `transfer_interval` evaluations are refined by one proposal ES
+        step with the target's optimiser, and only a proposal that also beats that bar can be
+        accepted (an untuned direct transfer never replaces an agent).
         """
-        accepted = 0
+        t = self.iteration
         thetas = np.stack([p.theta for p in self.active])  # agents before any replacement
-        for m, target in enumerate(self.active):
-            others = [j for j in range(len(self.active)) if j != m]
-            terrain = self.terrain(target.env)
-            bar = max(target.scores[-self.cfg.iterations_before_transfer:])
-            direct = self._evaluate(terrain, thetas[others], _TRANSFER, target.env.index)
-            best_score, best_theta = bar, None
-            for j, score in zip(others, direct):
-                if score <= bar:
-                    continue
-                if score > best_score:
-                    best_score, best_theta = float(score), thetas[j]
-                proposal = self._fine_tune(target, terrain, thetas[j], _PROPOSAL, extra=j)
-                p_score = float(self._evaluate(terrain, proposal[None], _TRANSFER,
-                                               target.env.index, extra=1 + j)[0])
-                if p_score > best_score:
-                    best_score, best_theta = p_score, proposal
-            if best_theta is not None:
-                target.es.reset(best_theta)
-                target.scores.pop()  # the new agent's score stands for this iteration
-                self._record(target, best_score)
-                accepted += 1
-        self.transfers += accepted
-        return accepted
+        others = [[j for j in range(len(self.active)) if j != m] for m in range(len(self.active))]
+        bars = [max(p.scores[-self.transfer_interval:]) for p in self.active]
+        direct = self._scores([self._eval_request(self.terrain(target.env), thetas[others[m]],
+                                                  Key.TRANSFER, target.env.index, t, 0)
+                               for m, target in enumerate(self.active)])
+        candidates = [(m, j) for m in range(len(self.active))
+                      for j, score in zip(others[m], direct[m]) if score > bars[m]]
+        if not candidates:
+            return 0
+        proposals = self._fine_tune([FineTune(self.active[m].es, self.terrain(self.active[m].env),
+                                              thetas[j], (self.active[m].env.index, t, j))
+                                     for m, j in candidates],
+                                    Key.PROPOSAL_NOISE, Key.PROPOSAL_SPAWN)
+        scores = self._scores([self._eval_request(self.terrain(self.active[m].env),
+                                                  proposal[None], Key.TRANSFER,
+                                                  self.active[m].env.index, t, j + 1)
+                               for (m, j), proposal in zip(candidates, proposals)])
+        best: dict[int, tuple[float, np.ndarray]] = {}
+        for (m, _), proposal, score in zip(candidates, proposals, scores):
+            if score[0] > max(bars[m], best.get(m, (-np.inf,))[0]):
+                best[m] = (float(score[0]), proposal)
+        for m, (score, theta) in best.items():
+            target = self.active[m]
+            target.es.reset(theta)
+            target.scores.pop()  # the new agent's score stands for this iteration
+            self._record(target, score)
+        self.transfers += len(best)
+        return len(best)
 
     # --- reproduction -----------------------------------------------------------------------
     def reproduce(self) -> int:
-        """Propose mutated children of eligible environments and admit the most novel ones."""
-        t, lim = self.iteration, self.limits
-        parents = [p for p in self.active if p.score >= lim.repro_threshold]
+        """Propose children of eligible environments and admit the most novel that pass."""
+        parents = [p for p in self.active if p.score >= self.thresholds.repro]
         if not parents:
             return 0
-        rng = np.random.default_rng(self._seed(_CHILD, 0, t, 1_000_000))
-        passing: list[tuple[Environment, Terrain]] = []  # with the terrain the MC judged
-        for c in range(self.cfg.num_children):
-            parent = parents[int(rng.integers(len(parents)))]
-            tc = self.terrain_cfg
-            try:
-                genome = mutate_genome(parent.env.genome, tc.cppn, tc.mutation,
-                                       self._seed(_CHILD, parent.env.index, t, c), tc.grid)
-            except CppnMutationError:
-                continue  # this parent yielded no valid child in max_tries; propose the next
-            child = Environment(index=-1, genome=genome, generation=parent.env.generation + 1,
-                                parent=parent.env.index, created_at=t)
-            terrain = self._child_terrain(child, c)
-            # Minimal criterion: the parent's agent neither fails nor already masters the child.
-            score = float(self._evaluate(terrain, parent.theta[None], _MC, parent.env.index,
-                                         extra=c)[0])
-            if lim.mc_lower <= score <= lim.mc_upper:
-                passing.append((child, terrain))
+        passing = self._minimal_criterion(self._propose_children(parents))
         if not passing:
             return 0
-        agents = np.stack([p.theta for p in self.active + self.archived])
-        existing = np.stack([self._pata_ec(self.terrain(p.env), agents, p.env.index)
-                             for p in self.active + self.archived])
-        candidates = np.stack([self._pata_ec(terrain, agents, 10_000 + i)
-                               for i, (_, terrain) in enumerate(passing)])
-        order, _ = rank_by_novelty(candidates, existing, k=self.cfg.novelty_k)
+        return self._admit_most_novel(passing)
+
+    def _propose_children(self, parents: list[Pair]) -> list[tuple[Child, Pair]]:
+        """Up to `num_children` valid CPPN mutations of randomly chosen eligible parents."""
+        t = self.iteration
+        rng = np.random.default_rng(self._seed(Key.PARENTS, t))
+        tc = self.terrain_cfg
+        children = []
+        for slot in range(self.cfg.num_children):
+            parent = parents[int(rng.integers(len(parents)))]
+            try:
+                genome = mutate_genome(parent.env.genome, tc.cppn, tc.mutation,
+                                       self._seed(Key.CHILD_GENOME, parent.env.index, t, slot),
+                                       tc.grid)
+            except CppnMutationError:
+                continue  # this parent yielded no valid child in max_tries; propose the next
+            env = Environment(index=-1, genome=genome, generation=parent.env.generation + 1,
+                              parent=parent.env.index, created_at=t)
+            terrain = self._make_terrain(env, self._seed(Key.CHILD_BOWL, t, slot), t)
+            children.append((Child(env, terrain, slot), parent))
+        return children
+
+    def _minimal_criterion(self, children: list[tuple[Child, Pair]]) -> list[Child]:
+        """Children on which their parent's agent neither fails nor already excels."""
+        if not children:
+            return []
+        t = self.iteration
+        scores = self._scores([self._eval_request(child.terrain, parent.theta[None], Key.MC, t,
+                                                  child.slot) for child, parent in children])
+        return [child for (child, _), score in zip(children, scores)
+                if self.thresholds.passes_mc(float(score[0]))]
+
+    def _admit_most_novel(self, passing: list[Child]) -> int:
+        """In order of PATA-EC novelty, admit children whose best transferred agent also passes
+        the minimal criterion (the reference's rule), at most `max_admitted` of them."""
+        t, th = self.iteration, self.thresholds
+        pool = self.active + self.archived
+        agents = np.stack([p.theta for p in pool])
+        requests = ([self._eval_request(self.terrain(p.env), agents, Key.PATA, p.env.index, t)
+                     for p in pool]
+                    + [self._eval_request(c.terrain, agents, Key.CHILD_PATA, t, c.slot)
+                       for c in passing])
+        ranks = [pata_ec(s, th.mc_lower, th.mc_upper) for s in self._scores(requests)]
+        order, _ = rank_by_novelty(np.stack(ranks[len(pool):]), np.stack(ranks[:len(pool)]),
+                                   k=self.cfg.novelty_k)
         admitted = 0
-        for i in order[: self.cfg.max_admitted]:
-            child, terrain = passing[i]
-            child.index = self.next_index
-            self._admit(child, self._best_agent_for(terrain, child.index))
-            self._terrains[(child.index, t)] = terrain
+        for i in order:
+            child = passing[i]
+            score, theta = self._best_agent_for(child)
+            if not th.passes_mc(score):
+                continue
+            child.env.index = self.next_index
+            self._admit(child.env, theta)
+            self._terrains[(child.env.index, t)] = child.terrain
             admitted += 1
+            if admitted == self.cfg.max_admitted:
+                break
         return admitted
 
-    def _child_terrain(self, child: Environment, slot: int) -> Terrain:
-        return self._make_terrain(child, self._seed(_BOWL, 10_000 + slot, self.iteration),
-                                  self.iteration)
-
-    def _pata_ec(self, terrain: Terrain, agents: np.ndarray, key: int) -> np.ndarray:
-        scores = self._evaluate(terrain, agents, _PATA, key)
-        return pata_ec(scores, self.limits.mc_lower, self.limits.mc_upper)
-
-    def _best_agent_for(self, terrain: Terrain, key: int) -> np.ndarray:
-        """Best active agent on a new environment, directly or after one fine-tuning ES step."""
+    def _best_agent_for(self, child: Child) -> tuple[float, np.ndarray]:
+        """(score, theta) of the best active agent on a child, directly or after one
+        fine-tuning ES step with a fresh optimiser (as the reference's new pair would take)."""
+        t, slot = self.iteration, child.slot
         thetas = np.stack([p.theta for p in self.active])
-        direct = self._evaluate(terrain, thetas, _TRANSFER, key)
+        direct = self._scores([self._eval_request(child.terrain, thetas, Key.ADMIT, t, slot,
+                                                  0)])[0]
+        # A fresh optimiser per candidate: initial lr and sigma, no Adam state (its own noise
+        # stream is unused: the step's noise comes from keyed seeds).
+        tuned = self._fine_tune([FineTune(self._new_es(theta, 0), child.terrain, theta,
+                                          (t, slot, j)) for j, theta in enumerate(thetas)],
+                                Key.ADMIT_NOISE, Key.ADMIT_SPAWN)
+        scores = self._scores([self._eval_request(child.terrain, theta[None], Key.ADMIT, t, slot,
+                                                  j + 1) for j, theta in enumerate(tuned)])
         best = int(np.argmax(direct))
         best_score, best_theta = float(direct[best]), thetas[best]
-        for j, pair in enumerate(self.active):
-            tuned = self._fine_tune(pair, terrain, thetas[j], _ADMIT, extra=j)
-            score = float(self._evaluate(terrain, tuned[None], _TRANSFER, key, extra=1 + j)[0])
-            if score > best_score:
-                best_score, best_theta = score, tuned
-        return best_theta.copy()
+        for theta, score in zip(tuned, scores):
+            if score[0] > best_score:
+                best_score, best_theta = float(score[0]), theta
+        return best_score, best_theta.copy()
 
     # --- open-endedness measure ------------------------------------------------------------------
     @property
