@@ -74,12 +74,16 @@ class RewardConfig:
                       "finish_bonus")
 
 
+INTEGRATORS = ("rk4", "implicitfast")
+
+
 @dataclass
 class AgentConfig:
     """The hexapod and its episode rules (REFERENCE.md sections 1-3)."""
 
     name: str = "hexapod"
-    timestep: float = 0.02          # one RK4 step per control step: 50 Hz, as the reference
+    timestep: float = 0.02          # one physics step per control step: 50 Hz, as the reference
+    integrator: str = "rk4"         # rk4 (the reference) | implicitfast (faster; README: Budgets)
     max_episode_steps: int = 2000
     start_x: float = -6.0           # spawn x; the finish line is `finish_x` (see README)
     finish_x: float = 6.0
@@ -94,6 +98,8 @@ class AgentConfig:
 
     def __post_init__(self) -> None:
         _check(self.name == "hexapod", f"agent.name must be 'hexapod', got {self.name!r}.")
+        _check(self.integrator in INTEGRATORS,
+               f"agent.integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}.")
         _positive(self, "timestep", "max_episode_steps", "no_progress_steps", "spawn_clearance")
         _non_negative(self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std",
                       "progress_margin")
@@ -270,28 +276,28 @@ class PoetConfig:
 class BudgetConfig:
     """How much compute, never which algorithm. Paper values are the `paper` budget.
 
-    Score thresholds (minimal criterion, reproduction, solved) are scaled by
-    episode_steps / 2000, the episode length the paper's thresholds were set for.
+    Score thresholds (minimal criterion, reproduction, solved) are set for 2000-step episodes
+    and multiplied by `score_scale` (the paper budget: 1). A small budget may also set ePOET's
+    transfer and reproduction intervals; null keeps the algorithm's (the paper's).
     """
 
-    name: str = "laptop"
-    iterations: int = 150           # ES iterations (ePOET / ePOET-SAC)
-    n_pairs: int = 48               # mirrored pairs per ES step (paper: 256 pairs = 512 episodes)
-    episode_steps: int = 400        # paper: 2000
-    eval_episodes: int = 3          # paper: 5
-    frames: int = 100_000           # environment frames for the RL baselines (paper: ~1M)
-    eval_every: int = 10_000        # RL baselines: frames between deterministic evaluations
+    name: str = MISSING
+    iterations: int = MISSING       # ES iterations (ePOET / ePOET-SAC)
+    n_pairs: int = MISSING          # mirrored pairs per ES step (paper: 256 pairs = 512 episodes)
+    episode_steps: int = MISSING    # paper: 2000
+    eval_episodes: int = MISSING    # paper: 5
+    frames: int = MISSING           # environment frames for the RL baselines (paper: ~1M)
+    eval_every: int = MISSING       # RL baselines: frames between deterministic evaluations
+    score_scale: float = MISSING
+    transfer_interval: Optional[int] = None
+    reproduce_interval: Optional[int] = None
 
     def __post_init__(self) -> None:
         _positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
-                  "eval_every")
-
-    @property
-    def score_scale(self) -> float:
-        return self.episode_steps / PAPER_EPISODE_STEPS
-
-
-PAPER_EPISODE_STEPS = 2000
+                  "eval_every", "score_scale")
+        for name in ("transfer_interval", "reproduce_interval"):
+            value = getattr(self, name)
+            _check(value is None or value > 0, f"budget.{name} must be > 0 or null, got {value}.")
 
 
 @dataclass
@@ -327,7 +333,7 @@ class Config:
     algo: Any = MISSING             # one of ALGO_SCHEMAS, chosen by `algo.name`
     agent: AgentConfig = field(default_factory=AgentConfig)
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
-    budget: BudgetConfig = field(default_factory=BudgetConfig)
+    budget: BudgetConfig = MISSING
     workers: WorkersConfig = field(default_factory=WorkersConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     seed: int = 0

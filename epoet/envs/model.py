@@ -26,6 +26,9 @@ TARGET_HIGH = np.tile([0.6, 0.4, 0.8], len(LEGS))
 
 MJCF = resources.files("epoet.envs") / "assets" / "hexapod.xml"
 
+_INTEGRATORS = {"rk4": mujoco.mjtIntegrator.mjINT_RK4,
+                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
+
 
 class TerrainMismatchError(ValueError):
     """A terrain that does not fit the model's heightfield (grid, extent or elevation)."""
@@ -49,6 +52,7 @@ def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
     """
     spec = mujoco.MjSpec.from_file(str(MJCF))
     spec.option.timestep = agent.timestep
+    spec.option.integrator = _INTEGRATORS[agent.integrator]
     hfield = spec.hfields[0]
     hfield.nrow = hfield.ncol = terrain.grid
     half = terrain.size / 2

@@ -27,7 +27,8 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
     with make_evaluator(cfg.agent, cfg.terrain, workers, cfg.workers.batch, sizes) as evaluator:
         poet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                      eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                     layer_sizes=sizes)
+                     layer_sizes=sizes, transfer_interval=budget.transfer_interval,
+                     reproduce_interval=budget.reproduce_interval)
         if resume is not None:
             poet.load_state_dict(resume["poet"])
             print(f"[epoet] resumed at iteration {poet.iteration}", flush=True)
