@@ -51,7 +51,8 @@ def bare_rate(poet: EPOET, cfg: Config, samples: int) -> float:
         seeds = np.tile(noise, 2)
         recorded = engine.run(poet.terrain(pair.env), params, seeds, record=True)
         t = recorded.transitions
-        seconds += raw_seconds(engine, seeds, t["action"], t["episode"])
+        seconds += raw_seconds(cfg.agent, cfg.terrain, poet.terrain(pair.env), seeds,
+                               t["action"], t["episode"])
         steps += int(recorded.lengths.sum()) + len(seeds) * cfg.agent.settle_steps
     return steps / seconds
 

@@ -18,24 +18,27 @@ import mujoco
 import numpy as np
 
 from epoet.config import AgentConfig, TerrainConfig
-from epoet.envs.model import action_to_targets
+from epoet.envs.model import Ground, action_to_targets, build_model
 from epoet.envs.spawn import spawn
 from epoet.es.optimizer import mirrored_population
 from epoet.es.policy import init_params
-from epoet.es.rollout import DEFAULT_BATCH, RolloutEngine
+from epoet.es.rollout import DEFAULT_BATCH, RolloutEngine, TerrainLike
 from epoet.terrain import make_terrain
 
 
-def raw_seconds(engine: RolloutEngine, seeds: np.ndarray, actions: np.ndarray,
-                episode: np.ndarray) -> float:
+def raw_seconds(agent: AgentConfig, terrain_cfg: TerrainConfig, terrain: TerrainLike,
+                seeds: np.ndarray, actions: np.ndarray, episode: np.ndarray) -> float:
     """Time of spawning each episode and replaying its recorded actions with bare mj_step."""
-    model, data = engine.model, mujoco.MjData(engine.model)
+    model = build_model(agent, terrain_cfg)
+    ground = Ground(model)
+    ground.set(model, np.asarray(terrain.heightmap), terrain.max_height, terrain.size)
+    data = mujoco.MjData(model)
     targets = action_to_targets(actions)
     total = 0.0
     for e, seed in enumerate(seeds):
         rows = list(targets[episode == e])
         start = time.perf_counter()
-        spawn(model, data, engine.ground, engine.agent, np.random.default_rng(int(seed)))
+        spawn(model, data, ground, agent, np.random.default_rng(int(seed)))
         for row in rows:
             np.copyto(data.ctrl, row)
             mujoco.mj_step(model, data)
@@ -71,7 +74,7 @@ def main() -> None:
         episodes = engine.run(terrain, params, seeds)
         rollout = min(rollout, time.perf_counter() - start)
         assert np.array_equal(episodes.returns, recorded.returns), "rollouts are not deterministic"
-        raw = min(raw, raw_seconds(engine, seeds, actions, episode))
+        raw = min(raw, raw_seconds(agent, terrain_cfg, terrain, seeds, actions, episode))
 
     print(f"episodes: {len(seeds)}, physics steps: {steps}, lengths {recorded.lengths.min()}.."
           f"{recorded.lengths.max()}")

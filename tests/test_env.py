@@ -127,6 +127,27 @@ def test_contacts_standing_and_lifted_leg(flat: Terrain) -> None:
     assert obs[48:53].sum() >= 4, "the other feet stay on the ground"
 
 
+@pytest.mark.parametrize("integrator", ["rk4", "implicitfast"])
+def test_contact_flags_describe_the_state_after_the_step(integrator: str,
+                                                         terrain_cfg: TerrainConfig) -> None:
+    """Joint angles and contact flags describe one instant: the state the step ended in."""
+    env = HexapodEnv(agent={"integrator": integrator, "spawn_yaw": 0.0}, terrain=terrain_cfg)
+    obs, _ = env.reset(seed=1)
+    current = mujoco.MjData(env.model)
+    contacts = layout(env.model).contact
+    rng = np.random.default_rng(0)
+    flags = []
+    for _ in range(300):
+        obs, *_ = env.step(rng.uniform(-1.0, 1.0, 18))
+        mujoco.mj_copyData(current, env.model, env.data)
+        mujoco.mj_forward(env.model, current)  # everything recomputed from this state alone
+        np.testing.assert_array_equal(obs[47:53], current.sensordata[contacts] > 0)
+        np.testing.assert_array_equal(obs[0:18], current.qpos[7:25])
+        flags.append(obs[47:53].copy())
+    flags = np.array(flags)
+    assert 0.05 < flags.mean() < 0.95 and (np.diff(flags, axis=0) != 0).any()
+
+
 def test_spawn_above_local_ground_on_rough_terrain(terrain_cfg: TerrainConfig) -> None:
     cfg = replace(terrain_cfg, max_height=1.5, max_height_step=0.0)
     env = HexapodEnv(agent={"settle_steps": 0}, terrain=cfg)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import signal
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -34,11 +35,13 @@ def population(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return params, np.arange(n) + 100 * seed
 
 
-def test_engine_reproduces_the_gym_env_episode_for_episode(terrain):
-    params, seeds = population(4)
+@pytest.mark.parametrize("integrator", ["rk4", "implicitfast"])
+def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
+    agent = replace(AGENT, integrator=integrator)
+    params, seeds = population(4, seed=3)
     # batch 2 < 4 episodes: slots are refilled as episodes end.
-    episodes = RolloutEngine(AGENT, TERRAIN_CFG, batch=2).run(terrain, params, seeds)
-    env = HexapodEnv(agent=AGENT, terrain=TERRAIN_CFG)
+    episodes = RolloutEngine(agent, TERRAIN_CFG, batch=2).run(terrain, params, seeds)
+    env = HexapodEnv(agent=agent, terrain=TERRAIN_CFG)
     for e in range(len(seeds)):
         obs, _ = env.reset(seed=int(seeds[e]), options={"terrain": terrain})
         total, steps, done, info = 0.0, 0, False, {}

@@ -1,20 +1,25 @@
-"""The batched rollout engine: many episodes on one terrain, stepped in lockstep in one process.
+"""The batched rollout engine: many episodes, stepped in lockstep in one process.
 
-Episodes run in `batch` slots, one MjData each (all sharing one MjModel, so one terrain per run).
-Per control step the engine makes one batched policy call (each slot its own parameters), writes
-the targets into each active MjData, calls `mj_step`, copies qpos/qvel/sensordata into (B, n)
-buffers, and then computes reward, termination and the next observation for the whole batch with
-the vectorised `HexapodTask`. Python work per slot is the `mj_step` call and four row copies;
+Episodes run in `batch` slots, one MjData each. The terrains of a call are loaded once each into
+their own copy of the model (an MjData steps with any copy of the model it was made for), so
+slots on different terrains run side by side and a job stream may mix terrains freely: a worker
+never drains its slots at the boundary between two populations. Per control step the engine makes
+one batched policy call (each slot its own parameters), writes the targets into each active
+MjData, steps it (`epoet.envs.model.step`), copies qpos/qvel/sensordata into (B, n) buffers, and
+then computes reward, termination and the next observation for the whole batch with the
+vectorised `HexapodTask`. Python work per slot is the physics step and four row copies;
 everything else is one numpy call per step.
 
 When an episode ends, its slot takes the next job straight away (spawned from that job's own
 seed), so slots stay busy until the job stream runs dry; then finished slots simply stop being
-stepped. An episode's result depends only on its parameters, its spawn seed and the terrain, never
-on the batch size, the slot it ran in or the worker that ran it: each spawn resets its MjData
-(warmstart included) and each policy row is computed independently.
+stepped. An episode's result depends only on its parameters, its spawn seed and its terrain,
+never on the batch size, the slot it ran in, the other terrains of the call or the worker that ran
+it: each spawn resets its MjData (warmstart included) and each policy row is computed
+independently.
 """
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -23,7 +28,7 @@ import mujoco
 import numpy as np
 
 from epoet.config import AgentConfig, TerrainConfig
-from epoet.envs.model import Ground, action_to_targets, build_model, layout
+from epoet.envs.model import Ground, action_to_targets, build_model, layout, step
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
 from epoet.es.policy import LAYER_SIZES, BatchedPolicy, num_params
@@ -35,8 +40,8 @@ TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated
 # RK4 hexapod): rollout/raw 0.82 at 8, 0.86 at 12-24, 0.85 at 32, 0.80 at 64.
 DEFAULT_BATCH = 16
 
-Job = tuple[int, np.ndarray, int]
-"""One episode to run: (episode index, policy parameters (P,), spawn seed)."""
+Job = tuple[int, np.ndarray, int, int]
+"""One episode to run: (episode index, policy parameters (P,), spawn seed, terrain index)."""
 
 
 class TerrainLike(Protocol):
@@ -131,8 +136,16 @@ class _Run:
     jobs: Iterator[Job]
 
 
+@dataclass
+class _Field:
+    """One terrain of the current call, written into its own copy of the model."""
+
+    model: mujoco.MjModel
+    ground: Ground
+
+
 class RolloutEngine:
-    """Runs episodes of many parameter vectors on one terrain at close to raw MuJoCo speed."""
+    """Runs episodes of many parameter vectors on given terrains at close to raw MuJoCo speed."""
 
     def __init__(self, agent: AgentConfig, terrain: TerrainConfig, batch: int = DEFAULT_BATCH,
                  layer_sizes: Sequence[int] = LAYER_SIZES) -> None:
@@ -145,9 +158,9 @@ class RolloutEngine:
             raise ValueError(f"layer_sizes must map {OBS_DIM} observations to {ACT_DIM} "
                              f"actions, got {self.layer_sizes}.")
         self.num_params = num_params(self.layer_sizes)
-        self.model = build_model(agent, terrain)
-        self.ground = Ground(self.model)
-        self.task = HexapodTask(agent, layout(self.model), self.ground.half_x)
+        self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
+        self.task = HexapodTask(agent, layout(self.model), Ground(self.model).half_x)
+        self._fields: list[_Field] = []
         m, b = self.model, self.batch
         self._datas = [mujoco.MjData(m) for _ in range(b)]
         self._qpos, self._qvel = np.zeros((b, m.nq)), np.zeros((b, m.nv))
@@ -159,12 +172,18 @@ class RolloutEngine:
         # a new numpy wrapper on every `data.qpos` access, and a row view costs the same.
         self._slots = [(d, d.ctrl, self._ctrl[i], d.qpos, self._qpos[i], d.qvel, self._qvel[i],
                         d.sensordata, self._sensor[i]) for i, d in enumerate(self._datas)]
+        self._slot_model = [self.model] * b  # the model (terrain) each slot steps with
         self._policies: dict[int, BatchedPolicy] = {}
 
-    def set_terrain(self, terrain: TerrainLike) -> None:
-        """Write the terrain into the shared model (each spawn resets its MjData afterwards)."""
-        self.ground.set(self.model, np.asarray(terrain.heightmap), float(terrain.max_height),
-                        float(terrain.size))
+    def set_terrains(self, terrains: Sequence[TerrainLike]) -> None:
+        """The terrains that jobs name by index, each written into its own model copy."""
+        for k, terrain in enumerate(terrains):
+            if k == len(self._fields):
+                model = copy.copy(self.model)
+                self._fields.append(_Field(model, Ground(model)))
+            field = self._fields[k]
+            field.ground.set(field.model, np.asarray(terrain.heightmap),
+                             float(terrain.max_height), float(terrain.size))
 
     def run(self, terrain: TerrainLike, params: np.ndarray, episode_seeds: np.ndarray, *,
             record: bool = False) -> Episodes:
@@ -178,14 +197,15 @@ class RolloutEngine:
                              f"params, got {seeds.shape}.")
         if not len(seeds):
             raise ValueError("run needs at least one episode.")
-        jobs = ((e, params[e], int(seeds[e])) for e in range(len(seeds)))
-        self.set_terrain(terrain)
+        jobs = ((e, params[e], int(seeds[e]), 0) for e in range(len(seeds)))
+        self.set_terrains([terrain])
         return merge_episodes([self.run_jobs(jobs, record=record, slots=len(seeds))],
                               len(seeds))
 
     def run_jobs(self, jobs: Iterable[Job], *, record: bool = False, slots: int | None = None
                  ) -> tuple[np.ndarray, Episodes]:
-        """Run jobs on the current terrain until the stream ends; jobs are pulled as slots free up.
+        """Run jobs on their terrains (`set_terrains`) until the stream ends; jobs are pulled as
+        slots free up.
 
         Returns the episode indices seen (ascending) and their results in that order. `slots`
         caps the slots in use (default: all): fewer rows make each batched step cheaper, and a
@@ -203,13 +223,13 @@ class RolloutEngine:
         results: list[tuple[int, float, int, bool]] = []
 
         self._start(run, range(width))
-        active = [self._slots[i] for i in np.flatnonzero(run.running)]
+        active = self._active(run)
         while active:
             run.policy(obs, out=actions)
             action_to_targets(actions, out=ctrl)
-            for d, ctrl_in, ctrl_row, qp, qp_row, qv, qv_row, sd, sd_row in active:
+            for model, d, ctrl_in, ctrl_row, qp, qp_row, qv, qv_row, sd, sd_row in active:
                 np.copyto(ctrl_in, ctrl_row)
-                mujoco.mj_step(self.model, d)
+                step(model, d)
                 np.copyto(qp_row, qp)
                 np.copyto(qv_row, qv)
                 np.copyto(sd_row, sd)
@@ -232,8 +252,12 @@ class RolloutEngine:
                 run.running[ended] = False
                 run.episode[ended] = -1
                 self._start(run, ended)
-                active = [self._slots[i] for i in np.flatnonzero(run.running)]
+                active = self._active(run)
         return self._collect(results, recorder)
+
+    def _active(self, run: _Run) -> list[tuple]:
+        """(model, *slot bindings) of every running slot."""
+        return [(self._slot_model[i], *self._slots[i]) for i in np.flatnonzero(run.running)]
 
     def _start(self, run: _Run, slots: Iterable[int]) -> None:
         """Spawn the next jobs into free `slots`; slots left without a job stay idle."""
@@ -242,9 +266,11 @@ class RolloutEngine:
             job = next(run.jobs, None)
             if job is None:
                 break
-            index, params, seed = job
+            index, params, seed, terrain = job
+            field = self._fields[terrain]
+            self._slot_model[i] = field.model
             d, _, _, qp, qp_row, qv, qv_row, sd, sd_row = self._slots[i]
-            spawn(self.model, d, self.ground, self.agent, np.random.default_rng(seed))
+            spawn(field.model, d, field.ground, self.agent, np.random.default_rng(seed))
             np.copyto(qp_row, qp)
             np.copyto(qv_row, qv)
             np.copyto(sd_row, sd)

@@ -9,10 +9,10 @@ a time from a shared queue; it rebuilds theta +- sigma * noise(seed) itself and 
 (and transitions if asked for). Parameter vectors per sample never travel.
 
 Load balancing is per episode: every worker runs one `RolloutEngine` whose free slots pull the next
-episode from the shared queue, in request order; when the next episode belongs to the next
-request, the worker finishes the episodes it holds and moves on to that request's terrain
-without waiting for the other workers. An episode's result is a function of its parameters, spawn
-seed and terrain only, hence identical for any worker count, batch size or scheduling.
+episode from the shared queue, whichever request it belongs to (the engine holds every terrain
+of the call), so a worker is busy until the queue is empty. An episode's result is a function of
+its parameters, spawn seed and terrain only, hence identical for any worker count, batch size or
+scheduling.
 
 Processes start with "forkserver" (fork after torch/OpenMP threads exist can deadlock); each
 builds its engine once in the pool initializer. A worker exception is re-raised in the parent (the
@@ -256,14 +256,50 @@ class SerialEvaluator(_Backend):
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
     def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
-        results = []
-        for terrain, population in requests:
-            n = len(population)
-            self.engine.set_terrain(terrain)
-            jobs = ((e, *population.job(e)) for e in range(n))
-            results.append(merge_episodes([self.engine.run_jobs(jobs, record=record, slots=n)],
-                                          n))
-        return results
+        self.engine.set_terrains([r.terrain for r in requests])
+        items = [(k, e) for k, r in enumerate(requests) for e in range(len(r.population))]
+        part = self.engine.run_jobs(_jobs(iter(items), [r.population for r in requests]),
+                                    record=record)
+        return _split([part], [len(r.population) for r in requests])
+
+
+def _jobs(items: Iterator[tuple[int, int]], populations: Sequence[Population]
+          ) -> Iterator[tuple[int, np.ndarray, int, int]]:
+    """Engine jobs for (request, episode) items; the engine's episode index is the item's
+    position in the call (`_encode`), so results can be split back per request."""
+    for k, e in items:
+        params, seed = populations[k].job(e)
+        yield _encode(k, e), params, seed, k
+
+
+# An engine job's index packs (request, episode): the request in the high bits.
+_SHIFT = 32
+
+
+def _encode(request: int, episode: int) -> int:
+    return (request << _SHIFT) | episode
+
+
+def _split(parts: Sequence[tuple[np.ndarray, Episodes]], sizes: Sequence[int]
+           ) -> list[Episodes]:
+    """Per-request `Episodes` from engine results (from one or several workers) whose indices
+    are `_encode`d."""
+    mask = (1 << _SHIFT) - 1
+    out = []
+    for k, n in enumerate(sizes):
+        mine = []
+        for index, episodes in parts:
+            rows = (index >> _SHIFT) == k
+            part = Episodes(episodes.returns[rows], episodes.lengths[rows],
+                            episodes.finished[rows])
+            if episodes.transitions is not None:
+                t = episodes.transitions
+                keep = (t["episode"] >> _SHIFT) == k
+                part.transitions = {**{key: v[keep] for key, v in t.items()},
+                                    "episode": t["episode"][keep] & mask}
+            mine.append((index[rows] & mask, part))
+        out.append(merge_episodes(mine, n))
+    return out
 
 
 # ---------------------------------------------------------------- process pool
@@ -293,27 +329,10 @@ def _items(call: int) -> Iterator[tuple[int, int]]:
 
 
 def _work(call: int, reliefs: Sequence[_Relief], populations: Sequence[Population],
-          record: bool, slots: Sequence[int]) -> list[tuple[int, np.ndarray, Episodes]]:
-    """Run queue items until the end marker: (request, episode indices, results) per stretch.
-
-    Items arrive in request order. The job stream of one request ends at the first item of the
-    next, which is kept and starts the next stretch once the engine's slots have drained.
-    """
-    items = _items(call)
-    item = next(items, None)
-    parts = []
-    while item is not None:
-        request = item[0]
-
-        def jobs() -> Iterator[tuple[int, np.ndarray, int]]:
-            nonlocal item
-            while item is not None and item[0] == request:
-                yield (item[1], *populations[request].job(item[1]))
-                item = next(items, None)
-
-        _engine.set_terrain(reliefs[request])
-        parts.append((request, *_engine.run_jobs(jobs(), record=record, slots=slots[request])))
-    return parts
+          record: bool, slots: int) -> tuple[np.ndarray, Episodes]:
+    """Run this call's queue items until the end marker: (encoded indices, results)."""
+    _engine.set_terrains(reliefs)
+    return _engine.run_jobs(_jobs(_items(call), populations), record=record, slots=slots)
 
 
 class PoolEvaluator(_Backend):
@@ -362,16 +381,12 @@ class PoolEvaluator(_Backend):
                 self._queue.put((call, request, e))
         for _ in range(self.workers):
             self._queue.put((call, None, None))
-        # A worker holds at most its fair share of a request's slots, so none hoards the queue.
-        slots = [min(self.batch, math.ceil(n / self.workers)) for n in sizes]
+        # A worker holds at most its fair share of slots at first, so none hoards the queue.
+        slots = min(self.batch, math.ceil(sum(sizes) / self.workers))
         reliefs = [_Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
                            float(r.terrain.size)) for r in requests]
-        parts = [part for worker in self._submit_all(_work, call, reliefs,
-                                                     [r.population for r in requests], record,
-                                                     slots)
-                 for part in worker]
-        return [merge_episodes([(index, episodes) for r, index, episodes in parts if r == request],
-                               n) for request, n in enumerate(sizes)]
+        return _split(self._submit_all(_work, call, reliefs, [r.population for r in requests],
+                                       record, slots), sizes)
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and self._pool is not None:
