@@ -10,7 +10,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.config import AgentConfig, TerrainConfig, validate
-from epoet.envs.model import Ground, action_to_targets, build_model, layout, step
+from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
 from epoet.terrain import Terrain, make_terrain
@@ -51,6 +51,7 @@ class HexapodEnv(gym.Env):
         self.agent_cfg, self.terrain_cfg = _configs(agent, terrain)
         self.model = build_model(self.agent_cfg, self.terrain_cfg)
         self.data = mujoco.MjData(self.model)
+        self._step = stepper(self.model)
         self.ground = Ground(self.model)
         self.task = HexapodTask(self.agent_cfg, layout(self.model), self.ground.half_x)
         self.resample_terrain = resample_terrain
@@ -94,7 +95,7 @@ class HexapodEnv(gym.Env):
             # must be visible instead.
             raise ValueError(f"action contains NaN or inf: {action}")
         action_to_targets(action, out=self.data.ctrl)
-        step(self.model, self.data)
+        self._step(self.model, self.data)
         qpos, qvel, sensordata = self._gather()
         reward, terminated, truncated, terms = self.task.step(qpos, qvel, sensordata, self._state)
         self.task.observe(qpos, qvel, sensordata, self._obs)

@@ -6,6 +6,7 @@ every terrain of a run: `set_heightfield` rewrites `hfield_data` in place (no re
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 
@@ -68,12 +69,14 @@ def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
 
 def begin(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     """Compute the current state's position- and velocity-dependent quantities (contacts and
-    their sensors included), as `step` leaves them: call it after setting a state by hand."""
+    their sensors included), as a `stepper` step leaves them: call it after setting a state by
+    hand."""
     mujoco.mj_step1(model, data)
 
 
-def step(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """One physics step after which qpos, qvel and the foot contacts all describe the new state.
+def stepper(model: mujoco.MjModel) -> Callable[[mujoco.MjModel, mujoco.MjData], None]:
+    """The step function for this model's integrator: `step(model, data)` advances one physics
+    step after which qpos, qvel and the foot contacts all describe the new state.
 
     mj_step computes sensors in its forward pass, before integrating, so afterwards the contact
     sensors would still describe the previous state (about 11% of flags differed). Euler and
@@ -83,15 +86,21 @@ def step(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     RK4 cannot be split (mj_step2 would integrate with Euler), so it recomputes kinematics,
     collisions and position sensors after mj_step. Actuator forces (acceleration-stage sensors)
     keep describing the force applied during the step, which is what the reward penalises.
+    Chosen once per model: the step is in the rollout hot loop.
     """
-    if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
-        mujoco.mj_step(model, data)
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_collision(model, data)
-        mujoco.mj_sensorPos(model, data)
-    else:
-        mujoco.mj_step2(model, data)
-        mujoco.mj_step1(model, data)
+    return _step_rk4 if model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else _step_split
+
+
+def _step_rk4(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    mujoco.mj_step(model, data)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_collision(model, data)
+    mujoco.mj_sensorPos(model, data)
+
+
+def _step_split(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    mujoco.mj_step2(model, data)
+    mujoco.mj_step1(model, data)
 
 
 def layout(model: mujoco.MjModel) -> Layout:

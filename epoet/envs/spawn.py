@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 
 from epoet.config import AgentConfig
-from epoet.envs.model import Ground, action_to_targets, begin, step
+from epoet.envs.model import Ground, action_to_targets, begin, stepper
 
 FOOTPRINT = 0.35
 """Half-width (m) of the square searched for the highest ground: the legs reach ~0.25 m."""
@@ -29,5 +29,6 @@ def spawn(model: mujoco.MjModel, data: mujoco.MjData, ground: Ground, agent: Age
     data.qvel[:] = rng.normal(0.0, agent.spawn_vel_std, size=model.nv)
     data.ctrl[:] = _NEUTRAL
     begin(model, data)
+    step = stepper(model)
     for _ in range(agent.settle_steps):
         step(model, data)

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 
 from epoet.config import AgentConfig, TerrainConfig
-from epoet.envs.model import Ground, action_to_targets, build_model, layout, step
+from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
 from epoet.es.policy import LAYER_SIZES, BatchedPolicy, num_params
@@ -159,6 +159,7 @@ class RolloutEngine:
                              f"actions, got {self.layer_sizes}.")
         self.num_params = num_params(self.layer_sizes)
         self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
+        self._step = stepper(self.model)
         self.task = HexapodTask(agent, layout(self.model), Ground(self.model).half_x)
         self._fields: list[_Field] = []
         m, b = self.model, self.batch
@@ -219,6 +220,7 @@ class RolloutEngine:
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
         obs, ctrl, actions = self._obs[:width], self._ctrl[:width], self._actions[:width]
         done = np.zeros(width, dtype=bool)
+        step = self._step
         recorder = _Recorder() if record else None
         results: list[tuple[int, float, int, bool]] = []
 
