@@ -109,7 +109,14 @@ class AgentConfig:
 
 @dataclass
 class CppnConfig:
-    """neat-python genome settings, paper Table 5 (names as in neat-python's config file)."""
+    """neat-python genome settings, paper Table 5 (names as in neat-python's config file).
+
+    Table 5 omits seven settings; those follow the reference's config, not neat-python's usual
+    values: no response or connection mutations, no replacement of biases or weights, and
+    connections toggled at rate 0.1 (response_mutate_rate, response_replace_rate,
+    conn_add_prob, conn_delete_prob, bias_replace_rate, weight_replace_rate,
+    enabled_mutate_rate).
+    """
 
     num_inputs: int = 2
     num_outputs: int = 1
@@ -130,13 +137,13 @@ class CppnConfig:
     bias_min_value: float = -10.0
     bias_mutate_power: float = 0.1
     bias_mutate_rate: float = 0.75
-    bias_replace_rate: float = 0.1
+    bias_replace_rate: float = 0.0
     compatibility_disjoint_coefficient: float = 1.0
     compatibility_weight_coefficient: float = 0.5
-    conn_add_prob: float = 0.1
-    conn_delete_prob: float = 0.075
+    conn_add_prob: float = 0.0
+    conn_delete_prob: float = 0.0
     enabled_default: bool = True
-    enabled_mutate_rate: float = 0.01
+    enabled_mutate_rate: float = 0.1
     node_add_prob: float = 0.1
     node_delete_prob: float = 0.075
     response_init_mean: float = 1.0
@@ -145,8 +152,8 @@ class CppnConfig:
     response_max_value: float = 10.0
     response_min_value: float = -10.0
     response_mutate_power: float = 0.2
-    response_mutate_rate: float = 0.75
-    response_replace_rate: float = 0.1
+    response_mutate_rate: float = 0.0
+    response_replace_rate: float = 0.0
     single_structural_mutation: bool = True
     structural_mutation_surer: str = "default"
     weight_init_mean: float = 0.0
@@ -156,7 +163,7 @@ class CppnConfig:
     weight_min_value: float = -10.0
     weight_mutate_power: float = 0.1
     weight_mutate_rate: float = 0.75
-    weight_replace_rate: float = 0.1
+    weight_replace_rate: float = 0.0
 
     def __post_init__(self) -> None:
         _check(self.num_inputs == 2 and self.num_outputs == 1,
@@ -180,13 +187,19 @@ class MutationConfig:
     check_grid: int = 20
     min_range: float = 0.1          # max of (output - output at the first point) must exceed this
     min_variance: float = 0.1
-    response_rescale_low: float = 0.25
+    response_rescale_low: float = 0.25     # outside [low, high] the output response is reset
     response_rescale_high: float = 16.0
+    response_target_low: float = 0.25      # to U(target_low, target_high) / peak (reference)
+    response_target_high: float = 0.75
     output_response: float = 10.0   # the reference sets the output node's response before mutating
-    max_tries: int = 200
+    max_tries: int = 2000           # with no connection mutations, deep genomes need many tries
 
     def __post_init__(self) -> None:
-        _positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high")
+        _positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high",
+                  "response_target_low")
+        _check(self.response_target_low <= self.response_target_high,
+               f"terrain.mutation.response_target_low ({self.response_target_low}) must not "
+               f"exceed response_target_high ({self.response_target_high}).")
         _non_negative(self, "min_genome_distance", "min_range", "min_variance")
 
 

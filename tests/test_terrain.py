@@ -1,6 +1,8 @@
 """Terrains: bowl, CPPN (real neat-python genomes), mixing, mutation rules, files, gallery."""
 from __future__ import annotations
 
+import copy
+
 import random
 import subprocess
 import sys
@@ -15,7 +17,7 @@ from omegaconf import OmegaConf
 from epoet.config import ConfigError, GalleryConfig, TerrainConfig, validate
 from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, evaluate,
                            genome_config, grid_inputs, make_terrain, max_height_at, mix,
-                           mutate_terrain, new_genome, normalize, random_bowl)
+                           mutate_genome, mutate_terrain, new_genome, normalize, random_bowl)
 from epoet.terrain.cppn import _ACTIVATIONS, fingerprint, has_input_output_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,12 +86,37 @@ def test_mutated_child_obeys_the_validity_rules(cfg):
     child = mutate_terrain(parent, cfg, 7, iteration=10)
     rules, gc = cfg.mutation, genome_config(cfg.cppn)
     assert has_input_output_path(child.genome)                                   # (a)
-    assert parent.genome.distance(child.genome, gc) > rules.min_genome_distance  # (b)
+    assert parent.genome.distance(child.genome, gc) > rules.min_genome_distance  # (b), and
+    # test_children_are_far_enough_from_parents_whose_response_needs_no_reset below
     out = evaluate(child.genome, *grid_inputs(rules.check_grid))                 # (c)
     shifted = out - out[0, 0]
     assert shifted.max() > rules.min_range and shifted.var() > rules.min_variance
     assert child.generation == parent.generation + 1 and child.parent_id == parent.id
     assert child.max_height == pytest.approx(max_height_at(cfg, 10))
+
+
+def test_children_are_far_enough_from_parents_whose_response_needs_no_reset(cfg):
+    """Rule (b) itself: a root's output response (1.0) is reset to `output_response` before
+    mutating, which alone exceeds the distance bar, so test parents already at that value."""
+    rules, gc = cfg.mutation, genome_config(cfg.cppn)
+    parent = make_terrain(cfg, 1).genome
+    parent.nodes[0].response = rules.output_response
+    distances = [parent.distance(mutate_genome(parent, cfg.cppn, rules, seed, cfg.grid), gc)
+                 for seed in range(12)]
+    assert min(distances) > rules.min_genome_distance
+
+
+def test_an_out_of_range_output_is_rescaled_as_the_reference_does(cfg):
+    """Peak outside [rescale_low, rescale_high]: response = U(target_low, target_high) / peak."""
+    rules = cfg.mutation
+    child = mutate_genome(make_terrain(cfg, 1).genome, cfg.cppn, rules, 11, cfg.grid)
+    probe = copy.deepcopy(child)
+    probe.nodes[0].response = rules.output_response  # the output the rule judged
+    out = evaluate(probe, *grid_inputs(rules.check_grid))
+    peak = float((out - out.flat[0]).max())
+    assert rules.min_range < peak < rules.response_rescale_low, "seed 11 must need a rescale"
+    response = child.nodes[0].response
+    assert rules.response_target_low / peak <= response <= rules.response_target_high / peak
 
 
 def test_mutation_is_deterministic_per_seed(cfg):

@@ -200,9 +200,9 @@ def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationC
     `min_genome_distance`, (c) on a check_grid x check_grid grid the output minus its value at
     the first point has max > min_range and variance > min_variance, and the output is finite
     on the terrain's own grid (our addition: chained square/inv nodes can overflow).
-    Then, as the reference does, the output response is rescaled when that max lies outside
-    [response_rescale_low, response_rescale_high]; we multiply the response by low/max
-    (or high/max), which equals the reference's assignment when its response was 1.
+    Then, as the reference does, when that max lies outside [response_rescale_low,
+    response_rescale_high] the output response is set to U(response_target_low,
+    response_target_high) / max, drawn from the same seeded stream.
     """
     gc = genome_config(cppn)
     check_x, check_y = grid_inputs(rules.check_grid)
@@ -229,10 +229,9 @@ def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationC
                 continue
             if not np.all(np.isfinite(evaluate(child, full_x, full_y))):
                 continue
-            if peak < rules.response_rescale_low:
-                child.nodes[OUTPUT_KEY].response *= rules.response_rescale_low / peak
-            elif peak > rules.response_rescale_high:
-                child.nodes[OUTPUT_KEY].response *= rules.response_rescale_high / peak
+            if not rules.response_rescale_low <= peak <= rules.response_rescale_high:
+                target = random.uniform(rules.response_target_low, rules.response_target_high)
+                child.nodes[OUTPUT_KEY].response = target / peak
             return child
     raise CppnMutationError(
         f"no valid CPPN child in {rules.max_tries} tries (seed {seed}); relax "
