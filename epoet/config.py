@@ -208,8 +208,8 @@ class TerrainConfig:
     """The heightfield: extent, resolution, the bowl part, the CPPN part and the height schedule."""
 
     kind: str = "bowl"              # bowl | cppn
-    grid: int = 100                 # samples per side
-    size: float = 20.0              # metres per side (square terrain centred at the origin)
+    grid: int = 200                 # samples per side
+    size: float = 40.0              # metres per side (square terrain centred at the origin)
     base: float = 0.5               # hfield base thickness below height 0 (metres)
     max_height: float = 0.1         # initial maximum height S (metres)
     max_height_step: float = 0.01   # +S per iteration (paper)

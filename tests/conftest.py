@@ -19,7 +19,7 @@ def terrain_cfg() -> TerrainConfig:
 
 @pytest.fixture
 def flat() -> Terrain:
-    return Terrain(np.zeros((40, 40)), 0.0, 20.0, "bowl", 0)
+    return Terrain(np.zeros((40, 40)), 0.0, 40.0, "bowl", 0)
 
 
 @pytest.fixture

@@ -58,7 +58,7 @@ def test_results_do_not_depend_on_batch_size(terrain):
     params, seeds = population(6, seed=4)
     runs = [RolloutEngine(AGENT, TERRAIN_CFG, batch=b).run(terrain, params, seeds, record=True)
             for b in (1, 4, 8)]
-    assert len(set(runs[0].lengths.tolist())) > 3  # slots free up at different steps
+    assert len(set(runs[0].lengths.tolist())) >= 3  # slots free up at different steps
     for other in runs[1:]:
         np.testing.assert_array_equal(other.returns, runs[0].returns)
         np.testing.assert_array_equal(other.lengths, runs[0].lengths)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from epoet.config import ConfigError, GalleryConfig, TerrainConfig, validate
+from epoet.config import Config, ConfigError, GalleryConfig, TerrainConfig, compose, validate
 from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, evaluate,
                            genome_config, grid_inputs, make_terrain, max_height_at, mix,
                            mutate_genome, mutate_terrain, new_genome, normalize, random_bowl)
@@ -173,6 +173,25 @@ def test_max_height_schedule_grows_by_the_step_and_stops_at_the_limit(cfg):
 
 
 # ---------------------------------------------------------------- files
+def test_terrains_keep_the_reference_feature_scale():
+    """Features live in normalised coordinates, so the extent sets the slopes: at the same S the
+    terrain users run must be as steep as the reference's 40 m x 40 m, 200 x 200 field (a 20 m
+    field would be twice as steep)."""
+    users = validate(compose(["terrain=cppn"]), Config).terrain
+    reference = TerrainConfig(kind="cppn", size=40.0, grid=200)
+
+    def max_slope(tc: TerrainConfig, genome: neat.DefaultGenome) -> float:
+        t = make_terrain(tc, seed=4, iteration=50, genome=genome)
+        metres = t.heightmap * t.max_height
+        spacing = tc.size / (tc.grid - 1)
+        return max(np.abs(np.diff(metres, axis=0)).max(), np.abs(np.diff(metres, axis=1)).max()) \
+            / spacing
+
+    genome = mutate_genome(new_genome(reference.cppn, 2), reference.cppn, reference.mutation, 5,
+                           reference.grid)
+    assert max_slope(users, genome) == pytest.approx(max_slope(reference, genome), rel=0.1)
+
+
 
 @pytest.mark.parametrize("kind", ["bowl", "cppn"])
 def test_save_load_round_trips_exactly(tmp_path, kind):

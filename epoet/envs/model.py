@@ -138,7 +138,7 @@ class Ground:
         self.ncol = int(model.hfield_ncol[0])
         self.half_x, self.half_y, self.elevation, self.base = (float(v) for v in model.hfield_size[0])
         self.heights = np.zeros((self.nrow, self.ncol))  # metres
-        self._roughness = np.zeros((self.nrow, self.ncol))
+        self._roughness: np.ndarray | None = None  # computed on first use (the engine needs none)
         self.heightmap = np.zeros((self.nrow, self.ncol))  # terrain units in [0, 1]
         self.max_height = 0.0
 
@@ -160,7 +160,7 @@ class Ground:
         self.heightmap = np.asarray(heightmap, dtype=np.float64)
         self.max_height = float(max_height)
         self.heights = self.heightmap * self.max_height
-        self._roughness = patch_variance(self.heights)
+        self._roughness = None
         model.hfield_data[:] = (self.heightmap * (self.max_height / self.elevation)).ravel()
 
     def cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -181,6 +181,8 @@ class Ground:
         The reference computes it on hfield data that held heights in [0, S]; heights in metres
         are the same quantity now that the relief is S, not S^2.
         """
+        if self._roughness is None:
+            self._roughness = patch_variance(self.heights)
         return self._roughness[self.cell(np.atleast_1d(x), np.atleast_1d(y))]
 
 
