@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from epoet.checkpoint import load_checkpoint
-from epoet.config import AgentConfig, PoetConfig, TerrainConfig
+from epoet.config import AgentConfig, Config, PoetConfig, TerrainConfig, compose, validate
 from epoet.es.workers import SerialEvaluator, make_evaluator
 from epoet.poet.loop import EPOET, Key
 from epoet.run import run
@@ -270,3 +270,14 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
     one, two = final_state(1), final_state(2)
     assert len(one["active"]) == 3 and one["transfers"] > 0
     _assert_same(one, two)
+
+
+@pytest.mark.parametrize("budget", sorted(p.stem for p in (ROOT / "conf" / "budget").glob("*.yaml")))
+def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budget: str) -> None:
+    """Small budgets may trade integrator, intervals and S schedule for time; `paper` may not."""
+    cfg = validate(compose([f"budget={budget}"]), Config)
+    assert cfg.agent.max_episode_steps == cfg.budget.episode_steps
+    if budget == "paper":
+        assert cfg.agent.integrator == "rk4" and cfg.budget.score_scale == 1.0
+        assert cfg.budget.transfer_interval is None and cfg.budget.reproduce_interval is None
+        assert cfg.terrain.max_height_step == 0.01

@@ -265,8 +265,8 @@ class SerialEvaluator(_Backend):
 
 def _jobs(items: Iterator[tuple[int, int]], populations: Sequence[Population]
           ) -> Iterator[tuple[int, np.ndarray, int, int]]:
-    """Engine jobs for (request, episode) items; the engine's episode index is the item's
-    position in the call (`_encode`), so results can be split back per request."""
+    """Engine jobs for (request, episode) items, on the request's terrain; the engine's episode
+    index packs both (`_encode`), so results can be split back per request."""
     for k, e in items:
         params, seed = populations[k].job(e)
         yield _encode(k, e), params, seed, k
