@@ -1,0 +1,71 @@
+"""Golden results: a smoke run of each algorithm ends with the parameters it ended with when the
+fixture was written, so refactoring cannot change a seeded result unnoticed.
+
+The fixture (tests/golden.json) holds, per algorithm, the parameter count, their sum and a
+strided sample of them. Regenerate it only for an intended change of behaviour, and say so in
+the commit:
+
+    EPOET_WRITE_GOLDEN=1 .venv/bin/pytest tests/test_golden.py
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from epoet.checkpoint import load_checkpoint
+from epoet.config import compose
+from epoet.run import run
+
+GOLDEN = Path(__file__).with_name("golden.json")
+SAMPLES = 16
+BASELINE = ["budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
+            "budget.frames=240", "budget.eval_every=120", "budget.eval_episodes=1",
+            "algo.frames_per_batch=60", "checkpoint_every=2"]
+OVERRIDES = {
+    "epoet": ["budget=smoke", "workers.num=2", "algo.es.hidden=[8]", "terrain.grid=40",
+              "algo.iterations_before_transfer=1", "algo.adjust_interval=2",
+              "algo.num_children=2", "algo.repro_threshold=-100000", "algo.mc_lower=-100000",
+              "algo.mc_upper=100000", "budget.iterations=5"],
+    "ppo": ["algo=ppo", *BASELINE, "algo.epochs=2", "algo.minibatch=30"],
+    "vmpo": ["algo=vmpo", *BASELINE, "algo.epochs=2", "algo.minibatch=30"],
+    "sac": ["algo=sac", *BASELINE, "algo.hidden=[32,32]", "algo.batch_size=32",
+            "algo.updates_per_batch=8", "algo.init_random_frames=60"],
+}
+
+
+def final_parameters(algo: str, run_dir: Path) -> np.ndarray:
+    """Every learned parameter at the end of the run, flattened in a fixed order."""
+    state = load_checkpoint(run_dir / "checkpoint.pkl")
+    if algo == "epoet":
+        pairs = state["poet"]["active"] + state["poet"]["archived"]
+        return np.concatenate([p["es"]["theta"] for p in pairs])
+    params = state["agent"]["loss"]
+    return np.concatenate([params[k].detach().double().numpy().ravel() for k in sorted(params)
+                           if isinstance(params[k], torch.Tensor) and params[k].is_floating_point()])
+
+
+def fingerprint(values: np.ndarray) -> dict:
+    picks = np.linspace(0, values.size - 1, SAMPLES).astype(int)
+    return {"count": int(values.size), "sum": float(values.sum()),
+            "sample": [float(v) for v in values[picks]]}
+
+
+@pytest.mark.parametrize("algo", sorted(OVERRIDES))
+def test_a_smoke_run_ends_with_the_golden_parameters(algo: str, mlflow_uri: str,
+                                                     tmp_path: Path) -> None:
+    run(compose(OVERRIDES[algo]), tmp_path / "run")
+    got = fingerprint(final_parameters(algo, tmp_path / "run"))
+    if os.environ.get("EPOET_WRITE_GOLDEN"):
+        golden = json.loads(GOLDEN.read_text()) if GOLDEN.exists() else {}
+        golden[algo] = got
+        GOLDEN.write_text(json.dumps(golden, indent=1, sort_keys=True) + "\n")
+        pytest.skip("golden fixture written")
+    want = json.loads(GOLDEN.read_text())[algo]
+    assert got["count"] == want["count"]
+    np.testing.assert_allclose(got["sample"], want["sample"], rtol=1e-10, atol=0)
+    assert got["sum"] == pytest.approx(want["sum"], rel=1e-10, abs=0)
