@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery bench clean-venv
+.PHONY: install test train gallery bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -30,6 +30,12 @@ bench: install
 	$(PY) bench/rollout_throughput.py
 	$(PY) bench/es_scaling.py
 	$(PY) bench/sac_updates.py
+	$(PY) bench/integrators.py
+	$(PY) bench/epoet_iteration.py
+
+# Learning per iteration and per second with each integrator (about 15 minutes).
+bench-learning: install
+	$(PY) bench/integrator_learning.py
 
 clean-venv:
 	rm -rf $(VENV)
