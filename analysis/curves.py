@@ -35,7 +35,8 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 from mlflow.exceptions import MlflowException  # noqa: E402
 
-from epoet.tracking import TrackingError, open_store, resolve_tracking_uri  # noqa: E402
+from epoet.errors import first_line  # noqa: E402
+from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path  # noqa: E402
 
 EPOET_ALGOS = ("epoet",)
 BASELINE_ALGOS = ("ppo", "sac", "vmpo")
@@ -56,11 +57,10 @@ def connect(tracking_uri: str | None = None) -> tuple[MlflowClient, str]:
     MLflow would silently create the database, and an analysis must never write to the store.
     """
     uri = resolve_tracking_uri(tracking_uri)
-    if uri.startswith("sqlite:///"):
-        db = Path(uri[len("sqlite:///"):].split("?", 1)[0])
-        if not db.is_file():
-            raise CurvesError(f"there is no MLflow store at {db.absolute()}: train a run first "
-                              "or point MLFLOW_TRACKING_URI at a store.")
+    db = sqlite_path(uri)
+    if db is not None and not db.is_file():
+        raise CurvesError(f"there is no MLflow store at {db}: train a run first "
+                          "or point MLFLOW_TRACKING_URI at a store.")
     return open_store(uri), uri
 
 
@@ -243,8 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except MlflowException as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        print(f"error: cannot read the MLflow store: {first}", file=sys.stderr)
+        print(f"error: cannot read the MLflow store: {first_line(exc)}", file=sys.stderr)
         return 2
     return 0
 

@@ -11,13 +11,14 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import load
 from epoet.es.policy import init_params
 from epoet.es.rollout import DEFAULT_BATCH
-from epoet.es.workers import Evaluator, make_evaluator
+from epoet.es.workers import Evaluator, Mirrored, Request, make_evaluator
 from epoet.terrain import make_terrain
 
 
@@ -29,18 +30,19 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
 
-    agent = AgentConfig(max_episode_steps=args.max_steps)
-    terrain_cfg = TerrainConfig(kind="cppn")
+    paper = load(["budget=paper"])  # RK4, the CPPN terrain
+    agent = replace(paper.agent, max_episode_steps=args.max_steps)
+    terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
     rng = np.random.default_rng(0)
     theta = init_params(0)
-    noise_seeds = rng.integers(0, 2**62, args.pairs)
-    spawn_seeds = rng.integers(0, 2**62, args.pairs)
+    es = Request(terrain, Mirrored.of(theta, rng.integers(0, 2**62, args.pairs), 0.02,
+                                      rng.integers(0, 2**62, args.pairs)))
 
     def es_step(evaluator: Evaluator) -> tuple[float, np.ndarray]:
         start = time.perf_counter()
-        plus, minus = evaluator.es_returns(terrain, theta, noise_seeds, 0.02, spawn_seeds)
-        return time.perf_counter() - start, np.concatenate([plus, minus])
+        (episodes,) = evaluator.run([es])
+        return time.perf_counter() - start, episodes.returns
 
     start = time.perf_counter()
     pool = make_evaluator(agent, terrain_cfg, workers=2, batch=args.batch)

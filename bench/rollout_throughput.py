@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import mujoco
 import numpy as np
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import AgentConfig, TerrainConfig, load
 from epoet.envs.model import Ground, action_to_targets, build_model
 from epoet.envs.spawn import spawn
 from epoet.es.optimizer import mirrored_population
@@ -55,8 +56,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
 
-    agent = AgentConfig(max_episode_steps=args.max_steps)
-    terrain_cfg = TerrainConfig(kind=args.terrain)
+    paper = load(["budget=paper", f"algo={'epoet' if args.terrain == 'cppn' else 'ppo'}"])
+    agent = replace(paper.agent, max_episode_steps=args.max_steps)
+    terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
     engine = RolloutEngine(agent, terrain_cfg, batch=args.batch)
     rng = np.random.default_rng(0)

@@ -1,6 +1,6 @@
 """Gradient updates per second: our SAC update vs the same update in plain PyTorch.
 
-"Ours" is exactly the runner's code path, `epoet.rl.sac.SacAgent.gradient_steps`: uniform
+"Ours" is exactly the runner's code path, `epoet.rl.sac.SacLearner.gradient_steps`: uniform
 samples from its TorchRL replay buffer, TorchRL's SACLoss, the agent's optimiser, SoftUpdate.
 "Plain" is a CleanRL-style SAC written below: twin Q networks, a tanh-Gaussian actor, automatic
 entropy tuning and a soft target update, one Adam per part (CleanRL's layout). Same sizes:
@@ -26,8 +26,8 @@ from tensordict import TensorDict
 from torch import nn
 
 from epoet.config import compose, validate
-from epoet.rl.common import batch_plan, make_env, set_threads
-from epoet.rl.sac import SacAgent
+from epoet.rl.setup import batch_plan, make_env, set_threads
+from epoet.rl.sac import SacLearner
 
 OBS_DIM, ACT_DIM, BUFFER = 53, 18, 10_000
 
@@ -106,7 +106,7 @@ class PlainSac:
                     tp.data.copy_(self.tau * p.data + (1 - self.tau) * tp.data)
 
 
-def make_ours(threads: int | None) -> tuple[SacAgent, int]:
+def make_ours(threads: int | None) -> tuple[SacLearner, int]:
     """The runner's SAC agent from the `algo=sac` config; torch threads set as the runner does
     (`workers.num`, default: the cores this process may use). Returns it and the thread count."""
     overrides = ["algo=sac", f"budget.frames={BUFFER}"]
@@ -115,7 +115,7 @@ def make_ours(threads: int | None) -> tuple[SacAgent, int]:
     cfg = validate(compose(overrides))
     threads = set_threads(cfg)
     env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=0)
-    agent = SacAgent(cfg.algo, env, batch_plan(cfg))
+    agent = SacLearner(cfg.algo, env, batch_plan(cfg))
     env.close()
     return agent, threads
 

@@ -15,10 +15,11 @@ import dataclasses
 import os
 import pickle
 import struct
-import tempfile
 import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from epoet.files import atomic_write
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
     from epoet.config import Config
@@ -53,49 +54,25 @@ class _CrcWriter:
         return self._file.write(data)
 
 
-def _fsync_dir(directory: Path) -> None:
-    """Persist the rename itself; without it a crash can lose the new directory entry."""
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
-    """Write `state` to `path` atomically: readers see the old checkpoint or the new, never half.
-
-    The data goes to a temporary file in the same directory (same filesystem, so `os.replace` is
-    atomic), is fsynced, then renamed over `path`. On any failure the temporary file is removed
-    and the previous checkpoint is untouched.
-    """
+    """Write `state` to `path` atomically (`atomic_write`): on any failure the previous
+    checkpoint is untouched."""
     path = Path(path)
     if not isinstance(state, dict):
         raise CheckpointError(f"cannot save checkpoint {path}: state must be a dict, "
                               f"got {type(state).__name__}.")
     if path.is_dir():
         raise CheckpointError(f"cannot save checkpoint {path}: it is a directory.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    tmp = Path(tmp_name)
     try:
-        os.fchmod(fd, 0o644)  # mkstemp makes 0600; a checkpoint is as readable as other outputs
-        with os.fdopen(fd, "wb") as file:
+        with atomic_write(path) as file:
             file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, 0, 0))  # length and CRC patched below
             writer = _CrcWriter(file)
             pickle.dump(state, writer, protocol=5)
             file.seek(0)
             file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, writer.length, writer.crc))
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        tmp.unlink(missing_ok=True)
-        if isinstance(exc, Exception):
-            raise CheckpointError(f"cannot save checkpoint {path}: "
-                                  f"{type(exc).__name__}: {exc}.") from exc
-        raise  # KeyboardInterrupt / SystemExit: clean up, then let them through unchanged
-    _fsync_dir(path.parent)
+    except Exception as exc:  # KeyboardInterrupt / SystemExit pass through unchanged
+        raise CheckpointError(f"cannot save checkpoint {path}: "
+                              f"{type(exc).__name__}: {exc}.") from exc
 
 
 def find_checkpoint(path: str | Path) -> Path:

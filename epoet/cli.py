@@ -9,14 +9,15 @@ from hydra.errors import HydraException, MissingConfigException
 from omegaconf.errors import OmegaConfBaseException
 
 from epoet.config import register_configs
+from epoet.errors import first_line
 
 
 def fail(err: BaseException) -> NoReturn:
     """Exit 2 with the error's first line, plus its cause's (Hydra wraps OmegaConf's errors)."""
-    text = (str(err).strip().splitlines() or [type(err).__name__])[0]
+    text = first_line(err)
     cause = err.__cause__
     if cause is not None and str(cause).strip():
-        text += f": {str(cause).strip().splitlines()[0]}"
+        text += f": {first_line(cause)}"
     if isinstance(err, MissingConfigException) and err.options:
         # Schemas are registered in the same groups; users choose among the YAML files only.
         options = sorted(o for o in err.options if not o.endswith("_schema"))

@@ -1,20 +1,23 @@
-"""Structured configs: the schema behind conf/, with types checked by OmegaConf and ranges by us.
+"""Structured configs: the schema behind conf/. Values live in the YAML files; these classes hold
+their types and range checks, nothing else.
 
 Hydra's ConfigStore registers each dataclass as the schema of its YAML file, so a typo or a wrong
-type fails at composition. Ranges are checked by `validate`, which builds the dataclasses (running
-their `__post_init__`) before any work starts; every failure is one `ConfigError` sentence.
+type fails at composition. `validate` builds the dataclass tree with `OmegaConf.to_object`,
+which runs each `__post_init__` range check before any work starts; every failure is one
+`ConfigError` sentence naming the key a user types.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, ClassVar, Optional
 
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING, DictConfig, OmegaConf
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import DictConfig, OmegaConf
 
 
 class ConfigError(ValueError):
@@ -28,8 +31,7 @@ def _check(ok: bool, message: str) -> None:
 
 def _key(obj: Any, name: str) -> str:
     """The dotted config key a user types for a field, e.g. `terrain.grid`."""
-    prefix = _PREFIX.get(type(obj).__name__, "")
-    return f"{prefix}.{name}" if prefix else name
+    return f"{obj.KEY}.{name}" if obj.KEY else name
 
 
 def _positive(obj: Any, *names: str) -> None:
@@ -44,28 +46,24 @@ def _non_negative(obj: Any, *names: str) -> None:
         _check(value >= 0, f"{_key(obj, name)} must be >= 0, got {value}.")
 
 
-_PREFIX = {"AgentConfig": "agent", "RewardConfig": "agent.reward", "TerrainConfig": "terrain",
-           "CppnConfig": "terrain.cppn", "MutationConfig": "terrain.mutation",
-           "EsConfig": "algo.es", "PoetConfig": "algo", "BudgetConfig": "budget",
-           "WorkersConfig": "workers", "TrackingConfig": "tracking"}
-
-
 @dataclass
 class RewardConfig:
     """Weights of the paper's Eq. 1 as implemented by the reference (REFERENCE.md section 2)."""
 
-    target_speed: float = 0.4
-    lateral_speed_penalty: float = 30.0
-    w_velocity: float = 6.0
-    w_heading: float = 10.0
-    w_lateral: float = 10.0
-    c_lateral: float = 0.1
-    c_heading: float = 0.1
-    c_pitch: float = 0.5
-    c_roll: float = 0.5
-    c_actuator: float = 1e-4
-    c_vertical: float = 0.7
-    finish_bonus: float = 500.0
+    KEY: ClassVar[str] = "agent.reward"
+
+    target_speed: float
+    lateral_speed_penalty: float
+    w_velocity: float
+    w_heading: float
+    w_lateral: float
+    c_lateral: float
+    c_heading: float
+    c_pitch: float
+    c_roll: float
+    c_actuator: float
+    c_vertical: float
+    finish_bonus: float
 
     def __post_init__(self) -> None:
         _positive(self, "target_speed")
@@ -81,20 +79,22 @@ INTEGRATORS = ("rk4", "implicitfast")
 class AgentConfig:
     """The hexapod and its episode rules (REFERENCE.md sections 1-3)."""
 
-    name: str = "hexapod"
-    timestep: float = 0.02          # one physics step per control step: 50 Hz, as the reference
-    integrator: str = "rk4"         # rk4 (the reference) | implicitfast (faster; README: Budgets)
-    max_episode_steps: int = 2000
-    start_x: float = -6.0           # spawn x; the finish line is `finish_x` (see README)
-    finish_x: float = 6.0
-    no_progress_steps: int = 500    # end after this many steps without a new best x
-    progress_margin: float = 0.01   # metres beyond the best x that count as progress
-    settle_steps: int = 20
-    spawn_xy_std: float = 0.1
-    spawn_yaw: float = 0.8          # yaw ~ U(-spawn_yaw, spawn_yaw)
-    spawn_vel_std: float = 0.1
-    spawn_clearance: float = 0.14   # torso height above the highest ground under the robot
-    reward: RewardConfig = field(default_factory=RewardConfig)
+    KEY: ClassVar[str] = "agent"
+
+    name: str
+    timestep: float                  # one physics step per control step: 50 Hz, as the reference
+    integrator: str                  # rk4 (the reference) | implicitfast (faster; README: Budgets)
+    max_episode_steps: int
+    start_x: float                   # spawn x; the finish line is `finish_x` (see README)
+    finish_x: float
+    no_progress_steps: int           # end after this many steps without a new best x
+    progress_margin: float           # metres beyond the best x that count as progress
+    settle_steps: int
+    spawn_xy_std: float
+    spawn_yaw: float                 # yaw ~ U(-spawn_yaw, spawn_yaw)
+    spawn_vel_std: float
+    spawn_clearance: float           # torso height above the highest ground under the robot
+    reward: RewardConfig
 
     def __post_init__(self) -> None:
         _check(self.name == "hexapod", f"agent.name must be 'hexapod', got {self.name!r}.")
@@ -109,61 +109,56 @@ class AgentConfig:
 
 @dataclass
 class CppnConfig:
-    """neat-python genome settings, paper Table 5 (names as in neat-python's config file).
+    """neat-python genome settings (names as in neat-python's config file; values: paper Table 5
+    and, for what it omits, the reference: conf/terrain/genome/table5.yaml)."""
 
-    Table 5 omits seven settings; those follow the reference's config, not neat-python's usual
-    values: no response or connection mutations, no replacement of biases or weights, and
-    connections toggled at rate 0.1 (response_mutate_rate, response_replace_rate,
-    conn_add_prob, conn_delete_prob, bias_replace_rate, weight_replace_rate,
-    enabled_mutate_rate).
-    """
+    KEY: ClassVar[str] = "terrain.cppn"
 
-    num_inputs: int = 2
-    num_outputs: int = 1
-    num_hidden: int = 2
-    initial_connection: str = "full_nodirect"
-    feed_forward: bool = True
-    activation_default: str = "random"
-    activation_mutate_rate: float = 0.5
-    activation_options: list[str] = field(
-        default_factory=lambda: ["identity", "sin", "sigmoid", "square", "tanh", "gauss"])
-    aggregation_default: str = "sum"
-    aggregation_mutate_rate: float = 0.1
-    aggregation_options: list[str] = field(default_factory=lambda: ["sum"])
-    bias_init_mean: float = 0.0
-    bias_init_stdev: float = 0.1
-    bias_init_type: str = "gaussian"
-    bias_max_value: float = 10.0
-    bias_min_value: float = -10.0
-    bias_mutate_power: float = 0.1
-    bias_mutate_rate: float = 0.75
-    bias_replace_rate: float = 0.0
-    compatibility_disjoint_coefficient: float = 1.0
-    compatibility_weight_coefficient: float = 0.5
-    conn_add_prob: float = 0.0
-    conn_delete_prob: float = 0.0
-    enabled_default: bool = True
-    enabled_mutate_rate: float = 0.1
-    node_add_prob: float = 0.1
-    node_delete_prob: float = 0.075
-    response_init_mean: float = 1.0
-    response_init_stdev: float = 0.0
-    response_init_type: str = "gaussian"
-    response_max_value: float = 10.0
-    response_min_value: float = -10.0
-    response_mutate_power: float = 0.2
-    response_mutate_rate: float = 0.0
-    response_replace_rate: float = 0.0
-    single_structural_mutation: bool = True
-    structural_mutation_surer: str = "default"
-    weight_init_mean: float = 0.0
-    weight_init_stdev: float = 0.25
-    weight_init_type: str = "gaussian"
-    weight_max_value: float = 10.0
-    weight_min_value: float = -10.0
-    weight_mutate_power: float = 0.1
-    weight_mutate_rate: float = 0.75
-    weight_replace_rate: float = 0.0
+    num_inputs: int
+    num_outputs: int
+    num_hidden: int
+    initial_connection: str
+    feed_forward: bool
+    activation_default: str
+    activation_mutate_rate: float
+    activation_options: list[str]
+    aggregation_default: str
+    aggregation_mutate_rate: float
+    aggregation_options: list[str]
+    bias_init_mean: float
+    bias_init_stdev: float
+    bias_init_type: str
+    bias_max_value: float
+    bias_min_value: float
+    bias_mutate_power: float
+    bias_mutate_rate: float
+    bias_replace_rate: float
+    compatibility_disjoint_coefficient: float
+    compatibility_weight_coefficient: float
+    conn_add_prob: float
+    conn_delete_prob: float
+    enabled_default: bool
+    enabled_mutate_rate: float
+    node_add_prob: float
+    node_delete_prob: float
+    response_init_mean: float
+    response_init_stdev: float
+    response_init_type: str
+    response_max_value: float
+    response_min_value: float
+    response_mutate_power: float
+    response_mutate_rate: float
+    response_replace_rate: float
+    single_structural_mutation: bool
+    structural_mutation_surer: str
+    weight_init_mean: float
+    weight_init_stdev: float
+    weight_init_type: str
+    weight_max_value: float
+    weight_min_value: float
+    weight_mutate_power: float
+    weight_mutate_rate: float
+    weight_replace_rate: float
 
     def __post_init__(self) -> None:
         _check(self.num_inputs == 2 and self.num_outputs == 1,
@@ -183,16 +178,18 @@ class CppnConfig:
 class MutationConfig:
     """Validity rules for mutated CPPN children (REFERENCE.md section 4, the reference's rules)."""
 
-    min_genome_distance: float = 0.8
-    check_grid: int = 20
-    min_range: float = 0.1          # max of (output - output at the first point) must exceed this
-    min_variance: float = 0.1
-    response_rescale_low: float = 0.25     # outside [low, high] the output response is reset
-    response_rescale_high: float = 16.0
-    response_target_low: float = 0.25      # to U(target_low, target_high) / peak (reference)
-    response_target_high: float = 0.75
-    output_response: float = 10.0   # the reference sets the output node's response before mutating
-    max_tries: int = 2000           # with no connection mutations, deep genomes need many tries
+    KEY: ClassVar[str] = "terrain.mutation"
+
+    min_genome_distance: float
+    check_grid: int
+    min_range: float                 # max of (output - output at the first point) must exceed this
+    min_variance: float
+    response_rescale_low: float      # outside [low, high] the output response is reset
+    response_rescale_high: float
+    response_target_low: float       # to U(target_low, target_high) / peak (reference)
+    response_target_high: float
+    output_response: float           # the reference sets the output node's response before mutating
+    max_tries: int                   # with no connection mutations, deep genomes need many tries
 
     def __post_init__(self) -> None:
         _positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high",
@@ -207,19 +204,21 @@ class MutationConfig:
 class TerrainConfig:
     """The heightfield: extent, resolution, the bowl part, the CPPN part and the height schedule."""
 
-    kind: str = "bowl"              # bowl | cppn
-    grid: int = 200                 # samples per side
-    size: float = 40.0              # metres per side (square terrain centred at the origin)
-    base: float = 0.5               # hfield base thickness below height 0 (metres)
-    max_height: float = 0.1         # initial maximum height S (metres)
-    max_height_step: float = 0.01   # +S per iteration (paper)
-    max_height_limit: float = 2.2   # cap on S (reference)
-    bowl_weight: float = 0.3        # heightmap = 0.3 bowl + 0.7 CPPN (paper); 1.0 = bowl only
-    bump_grid: int = 20
-    bump_low: float = 0.15
-    bump_high: float = 1.0
-    cppn: CppnConfig = field(default_factory=CppnConfig)
-    mutation: MutationConfig = field(default_factory=MutationConfig)
+    KEY: ClassVar[str] = "terrain"
+
+    kind: str                        # bowl | cppn
+    grid: int                        # samples per side
+    size: float                      # metres per side (square terrain centred at the origin)
+    base: float                      # hfield base thickness below height 0 (metres)
+    max_height: float                # initial maximum height S (metres)
+    max_height_step: float           # +S per iteration (paper)
+    max_height_limit: float          # cap on S (reference)
+    bowl_weight: float               # heightmap = w bowl + (1 - w) CPPN; 1.0 = bowl only
+    bump_grid: int
+    bump_low: float
+    bump_high: float
+    cppn: CppnConfig
+    mutation: MutationConfig
 
     def __post_init__(self) -> None:
         _check(self.kind in ("bowl", "cppn"),
@@ -241,14 +240,16 @@ class TerrainConfig:
 class EsConfig:
     """OpenAI-ES of every pair (paper Table 4, REFERENCE.md section 5)."""
 
-    hidden: list[int] = field(default_factory=lambda: [40, 40])
-    lr: float = 0.01
-    lr_decay: float = 0.9999
-    lr_floor: float = 0.001
-    sigma: float = 0.02
-    sigma_decay: float = 0.999
-    sigma_floor: float = 0.01
-    l2_coeff: float = 0.01
+    KEY: ClassVar[str] = "algo.es"
+
+    hidden: list[int]
+    lr: float
+    lr_decay: float
+    lr_floor: float
+    sigma: float
+    sigma_decay: float
+    sigma_floor: float
+    l2_coeff: float
 
     def __post_init__(self) -> None:
         _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
@@ -266,17 +267,19 @@ class EsConfig:
 class PoetConfig:
     """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig)."""
 
-    name: str = "epoet"
-    es: EsConfig = field(default_factory=EsConfig)
-    iterations_before_transfer: int = 15
-    adjust_interval: int = 5        # reproduction every adjust_interval * 15 = 75 iterations
-    max_num_envs: int = 40
-    num_children: int = 8
-    max_admitted: int = 1
-    mc_lower: float = 500.0
-    mc_upper: float = 3000.0
-    repro_threshold: float = 2000.0
-    novelty_k: int = 5
+    KEY: ClassVar[str] = "algo"
+
+    name: str
+    es: EsConfig
+    iterations_before_transfer: int
+    adjust_interval: int             # reproduction every adjust_interval transfer intervals
+    max_num_envs: int
+    num_children: int
+    max_admitted: int
+    mc_lower: float
+    mc_upper: float
+    repro_threshold: float
+    novelty_k: int
 
     def __post_init__(self) -> None:
         _positive(self, "iterations_before_transfer", "adjust_interval", "max_num_envs",
@@ -294,16 +297,18 @@ class BudgetConfig:
     transfer and reproduction intervals; null keeps the algorithm's (the paper's).
     """
 
-    name: str = MISSING
-    iterations: int = MISSING       # ES iterations (ePOET / ePOET-SAC)
-    n_pairs: int = MISSING          # mirrored pairs per ES step (paper: 256 pairs = 512 episodes)
-    episode_steps: int = MISSING    # paper: 2000
-    eval_episodes: int = MISSING    # paper: 5
-    frames: int = MISSING           # environment frames for the RL baselines (paper: ~1M)
-    eval_every: int = MISSING       # RL baselines: frames between deterministic evaluations
-    score_scale: float = MISSING
-    transfer_interval: Optional[int] = None
-    reproduce_interval: Optional[int] = None
+    KEY: ClassVar[str] = "budget"
+
+    name: str
+    iterations: int                  # ES iterations (ePOET / ePOET-SAC)
+    n_pairs: int                     # mirrored pairs per ES step (2 episodes each)
+    episode_steps: int
+    eval_episodes: int
+    frames: int                      # environment frames for the RL baselines
+    eval_every: int                  # RL baselines: frames between deterministic evaluations
+    score_scale: float
+    transfer_interval: Optional[int]     # null: the algorithm's
+    reproduce_interval: Optional[int]    # null: the algorithm's
 
     def __post_init__(self) -> None:
         _positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
@@ -317,9 +322,11 @@ class BudgetConfig:
 class WorkersConfig:
     """Where rollouts run: `local` is a process pool on this machine."""
 
-    backend: str = "local"
-    num: Optional[int] = None       # None: one worker per available core
-    batch: int = 16                 # robots per process (fits the cache: bench/rollout_throughput)
+    KEY: ClassVar[str] = "workers"
+
+    backend: str
+    num: Optional[int]               # None: one worker per available core
+    batch: int                       # robots per process (fits the cache: bench/rollout_throughput)
 
     def __post_init__(self) -> None:
         _check(self.backend in ("local",),
@@ -332,8 +339,10 @@ class WorkersConfig:
 class TrackingConfig:
     """MLflow: the store defaults to sqlite:///<project root>/mlflow.db; MLFLOW_TRACKING_URI wins."""
 
-    experiment: str = "epoet"
-    uri: Optional[str] = None
+    KEY: ClassVar[str] = "tracking"
+
+    experiment: str
+    uri: Optional[str]
 
     def __post_init__(self) -> None:
         _check(bool(self.experiment), "tracking.experiment must not be empty.")
@@ -343,15 +352,17 @@ class TrackingConfig:
 class Config:
     """The root config (conf/config.yaml)."""
 
-    algo: Any = MISSING             # one of ALGO_SCHEMAS, chosen by `algo.name`
-    agent: AgentConfig = field(default_factory=AgentConfig)
-    terrain: TerrainConfig = field(default_factory=TerrainConfig)
-    budget: BudgetConfig = MISSING
-    workers: WorkersConfig = field(default_factory=WorkersConfig)
-    tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    seed: int = 0
-    checkpoint_every: int = 10      # ES iterations, or collector batches (baselines), per checkpoint
-    resume: Optional[str] = None    # a run folder or checkpoint file to continue
+    KEY: ClassVar[str] = ""
+
+    algo: Any                        # one of ALGO_SCHEMAS: its YAML file names its schema
+    agent: AgentConfig
+    terrain: TerrainConfig
+    budget: BudgetConfig
+    workers: WorkersConfig
+    tracking: TrackingConfig
+    seed: int
+    checkpoint_every: int            # ES iterations, or collector batches (baselines), per checkpoint
+    resume: Optional[str]            # a run folder or checkpoint file to continue
 
     def __post_init__(self) -> None:
         _check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
@@ -374,14 +385,127 @@ class Config:
 class GalleryConfig:
     """`python -m epoet.terrain`: a root terrain and its mutated descendants as one PNG grid."""
 
-    terrain: TerrainConfig = field(default_factory=TerrainConfig)
-    seed: int = 0
-    n: int = 8
-    out: str = "gallery"
+    KEY: ClassVar[str] = ""
+
+    terrain: TerrainConfig
+    seed: int
+    n: int
+    out: str
 
     def __post_init__(self) -> None:
         _non_negative(self, "seed")
         _positive(self, "n")
+
+
+# --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, REFERENCE.md section 8) -----------------
+# Sizes are per collector batch of `frames_per_batch` frames; budget.frames is the total. A budget
+# smaller than one batch shrinks the batch and keeps the ratios (epochs per batch, SAC updates and
+# random frames per collected frame): see `BatchPlan` in epoet/rl/.
+
+RL_ACTIVATIONS = ("tanh", "relu", "elu")
+
+
+@dataclass
+class RlConfig:
+    """What the three baselines share: the networks, the optimiser and the collector batch."""
+
+    KEY: ClassVar[str] = "algo"
+
+    name: str
+    hidden: list[int]
+    activation: str
+    lr: float                        # one Adam over all parameters (Table 2: policy = value lr)
+    gamma: float
+    frames_per_batch: int            # the paper's trajectory_length
+    obs_norm: bool                   # running observation normalisation (PPO and VMPO in the paper)
+
+    def __post_init__(self) -> None:
+        _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
+               f"algo.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
+        _check(self.activation in RL_ACTIVATIONS,
+               f"algo.activation must be one of {list(RL_ACTIVATIONS)}, got {self.activation!r}.")
+        _positive(self, "lr", "frames_per_batch")
+        _check(0.0 < self.gamma <= 1.0, f"algo.gamma must be in (0, 1], got {self.gamma}.")
+
+
+@dataclass
+class OnPolicyConfig(RlConfig):
+    """PPO and VMPO: GAE on each batch, then `epochs` passes of shuffled minibatches."""
+
+    gae_lambda: float                # Table 2 calls it "tau"
+    epochs: int
+    minibatch: int
+    critic_coeff: float
+    max_grad_norm: Optional[float]   # not in the paper; None disables clipping
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(0.0 <= self.gae_lambda <= 1.0,
+               f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.")
+        _positive(self, "epochs", "minibatch", "critic_coeff")
+        _check(self.max_grad_norm is None or self.max_grad_norm > 0,
+               f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.")
+
+
+@dataclass
+class PpoConfig(OnPolicyConfig):
+    """PPO with the clipped objective (paper Table 2)."""
+
+    clip: float
+    entropy_coeff: float
+    normalize_advantage: bool        # not in the paper; the common PPO implementation detail
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(self, "clip")
+        _non_negative(self, "entropy_coeff")
+
+
+@dataclass
+class VmpoConfig(OnPolicyConfig):
+    """V-MPO (Song et al. 2019; REFERENCE.md section 8); see epoet/rl/vmpo.py."""
+
+    top_fraction: float
+    eta_init: float
+    eps_eta: float
+    alpha_init: float
+    eps_alpha: float
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(0.0 < self.top_fraction <= 1.0,
+               f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.")
+        _positive(self, "eta_init", "eps_eta", "alpha_init", "eps_alpha")
+
+
+@dataclass
+class SacConfig(RlConfig):
+    """SAC with twin Q networks and automatic entropy tuning (paper Table 3)."""
+
+    batch_size: int
+    tau: float                       # soft target update rate
+    alpha_init: float
+    target_entropy: Optional[float]  # None: -(action dimensions), the usual heuristic
+    reward_scale: float
+    updates_per_batch: int           # gradient updates per collector batch
+    init_random_frames: int          # Table 3 pretrain_epoch 1: one batch of uniform actions
+    buffer_size: int
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(self, "batch_size", "alpha_init", "reward_scale", "updates_per_batch",
+                  "buffer_size")
+        _non_negative(self, "init_random_frames")
+        _check(0.0 < self.tau <= 1.0, f"algo.tau must be in (0, 1], got {self.tau}.")
+        _check(self.buffer_size >= self.batch_size,
+               f"algo.buffer_size ({self.buffer_size}) must hold at least one batch "
+               f"(algo.batch_size={self.batch_size}).")
+
+
+# --- composition and validation -------------------------------------------------------------------
+
+ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig, "ppo": PpoConfig, "sac": SacConfig,
+                                 "vmpo": VmpoConfig}  # conf/algo/<name>.yaml -> its schema
 
 
 def register_configs() -> None:
@@ -402,167 +526,22 @@ CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 
 
 def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
-    """The config `python -m epoet <overrides>` would run, for notebooks, tests and benches."""
+    """The config `python -m epoet <overrides>` would run, for notebooks, tests and benches
+    (inside a running Hydra app, from that app's config search path, the same conf/)."""
     register_configs()
+    if GlobalHydra.instance().is_initialized():
+        return hydra_compose(config_name=config_name, overrides=list(overrides))
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         return hydra_compose(config_name=config_name, overrides=list(overrides))
 
 
-def to_object(cfg: DictConfig, schema: type) -> Any:
-    """Build the dataclass tree from a composed config, running every range check."""
-    data = OmegaConf.to_container(cfg, resolve=True)
-    return _build(schema, data)
+def validate(cfg: DictConfig) -> Any:
+    """The dataclass tree of a composed config, every range check run; raises ConfigError with
+    one sentence. The YAML's schema (and, for `algo`, the algorithm's) decides each node's type."""
+    return OmegaConf.to_object(cfg)
 
 
-def _build(schema: type, data: Any) -> Any:
-    if not is_dataclass(schema) or not isinstance(data, dict):
-        return data
-    kwargs = {}
-    names = {f.name: f for f in fields(schema)}
-    for key, value in data.items():
-        if key not in names:
-            continue  # keys owned by other schemas (hydra internals); types were checked already
-        if key == "algo" and schema is Config:
-            kwargs[key] = _build(_algo_schema(value), value)
-            continue
-        sub = _SCHEMAS.get(str(names[key].type))
-        kwargs[key] = _build(sub, value) if sub is not None else value
-    return schema(**kwargs)
-
-
-def _algo_schema(algo: Any) -> type:
-    name = algo.get("name") if isinstance(algo, dict) else None
-    _check(name in ALGO_SCHEMAS,
-           f"algo must be one of {sorted(ALGO_SCHEMAS)}, got {name!r}.")
-    return ALGO_SCHEMAS[name]
-
-
-ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig}
-
-_SCHEMAS: dict[str, type] = {cls.__name__: cls for cls in (
-    RewardConfig, AgentConfig, CppnConfig, MutationConfig, TerrainConfig, EsConfig, PoetConfig,
-    BudgetConfig, WorkersConfig, TrackingConfig)}
-
-
-def validate(cfg: DictConfig, schema: type = Config) -> Any:
-    """Range-check a composed config; raises ConfigError with one sentence."""
-    return to_object(cfg, schema)
-
-
-# --- RL baselines ---------------------------------------------------------------------------------
-# PPO, SAC and VMPO (paper Tables 2-3, REFERENCE.md section 8); the YAML files are
-# conf/algo/{ppo,sac,vmpo}.yaml and the runners live in epoet/rl/. Sizes are per collector batch of
-# `frames_per_batch` frames; budget.frames is the total. A budget smaller than one batch shrinks the
-# batch and keeps the ratios (epochs per batch, SAC updates and random frames per collected frame):
-# see `batch_plan` in epoet/rl/common.py.
-
-RL_ACTIVATIONS = ("tanh", "relu", "elu")
-
-
-@dataclass
-class RlConfig:
-    """What the three baselines share: the networks, the optimiser and the collector batch."""
-
-    name: str = MISSING
-    hidden: list[int] = field(default_factory=lambda: [64, 64])
-    activation: str = "tanh"
-    lr: float = 3e-4                # one Adam over all parameters (Table 2: policy = value lr)
-    gamma: float = 0.99
-    frames_per_batch: int = 2000    # the paper's trajectory_length
-    obs_norm: bool = True           # running observation normalisation (PPO and VMPO in the paper)
-
-    def __post_init__(self) -> None:
-        _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
-               f"algo.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
-        _check(self.activation in RL_ACTIVATIONS,
-               f"algo.activation must be one of {list(RL_ACTIVATIONS)}, got {self.activation!r}.")
-        _positive(self, "lr", "frames_per_batch")
-        _check(0.0 < self.gamma <= 1.0, f"algo.gamma must be in (0, 1], got {self.gamma}.")
-
-
-@dataclass
-class OnPolicyConfig(RlConfig):
-    """PPO and VMPO: GAE on each batch, then `epochs` passes of shuffled minibatches."""
-
-    gae_lambda: float = 0.95        # Table 2 calls it "tau"
-    epochs: int = 10
-    minibatch: int = 64
-    critic_coeff: float = 0.5
-    max_grad_norm: Optional[float] = 0.5  # not in the paper; None disables clipping
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _check(0.0 <= self.gae_lambda <= 1.0,
-               f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.")
-        _positive(self, "epochs", "minibatch", "critic_coeff")
-        _check(self.max_grad_norm is None or self.max_grad_norm > 0,
-               f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.")
-
-
-@dataclass
-class PpoConfig(OnPolicyConfig):
-    """PPO with the clipped objective (paper Table 2)."""
-
-    name: str = "ppo"
-    clip: float = 0.2
-    entropy_coeff: float = 0.005
-    normalize_advantage: bool = True  # not in the paper; the common PPO implementation detail
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive(self, "clip")
-        _non_negative(self, "entropy_coeff")
-
-
-@dataclass
-class VmpoConfig(OnPolicyConfig):
-    """V-MPO (Song et al. 2019; REFERENCE.md section 8); see epoet/rl/vmpo.py."""
-
-    name: str = "vmpo"
-    minibatch: int = 128
-    top_fraction: float = 0.5
-    eta_init: float = 1.0
-    eps_eta: float = 0.02
-    alpha_init: float = 0.1
-    eps_alpha: float = 0.01
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _check(0.0 < self.top_fraction <= 1.0,
-               f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.")
-        _positive(self, "eta_init", "eps_eta", "alpha_init", "eps_alpha")
-
-
-@dataclass
-class SacConfig(RlConfig):
-    """SAC with twin Q networks and automatic entropy tuning (paper Table 3)."""
-
-    name: str = "sac"
-    hidden: list[int] = field(default_factory=lambda: [256, 256])
-    activation: str = "relu"
-    obs_norm: bool = False
-    batch_size: int = 256
-    tau: float = 0.005              # soft target update rate
-    alpha_init: float = 1.0
-    target_entropy: Optional[float] = None  # None: -(action dimensions), the usual heuristic
-    reward_scale: float = 5.0
-    updates_per_batch: int = 1000   # 1000 gradient updates per 2000 collected frames
-    init_random_frames: int = 2000  # Table 3 pretrain_epoch 1: one batch of uniform actions
-    buffer_size: int = 1_000_000
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive(self, "batch_size", "alpha_init", "reward_scale", "updates_per_batch",
-                  "buffer_size")
-        _non_negative(self, "init_random_frames")
-        _check(0.0 < self.tau <= 1.0, f"algo.tau must be in (0, 1], got {self.tau}.")
-        _check(self.buffer_size >= self.batch_size,
-               f"algo.buffer_size ({self.buffer_size}) must hold at least one batch "
-               f"(algo.batch_size={self.batch_size}).")
-
-
-ALGO_SCHEMAS.update({"ppo": PpoConfig, "sac": SacConfig, "vmpo": VmpoConfig})
-_SCHEMAS.update({cls.__name__: cls for cls in (PpoConfig, SacConfig, VmpoConfig)})
-_PREFIX.update({cls.__name__: "algo" for cls in (RlConfig, OnPolicyConfig, PpoConfig, SacConfig,
-                                                 VmpoConfig)})
-# --- end RL baselines -----------------------------------------------------------------------------
+def load(overrides: Sequence[str] = ()) -> Config:
+    """The validated config of `python -m epoet <overrides>`: where code outside a run (tests,
+    benches, notebooks) gets the defaults, which live in the YAML files only."""
+    return validate(compose(overrides))

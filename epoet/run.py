@@ -23,7 +23,7 @@ RUNNERS: dict[str, str] = {
     "epoet": "epoet.poet.runner:train",
     "ppo": "epoet.rl.ppo:train",
     "sac": "epoet.rl.sac:train",
-    "vmpo": "epoet.rl.vmpo_runner:train",
+    "vmpo": "epoet.rl.vmpo:train",
 }
 
 # What a resume may change: where and how it runs, and how long it goes on.

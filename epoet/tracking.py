@@ -37,6 +37,8 @@ from mlflow.utils.validation import (
     MAX_TAG_VAL_LENGTH,
 )
 
+from epoet.errors import first_line
+
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_TRACKING_URI = f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
 PARENT_RUN_ENV = "EPOET_PARENT_RUN_ID"
@@ -155,7 +157,7 @@ def resolve_tracking_uri(tracking_uri: str | None = None) -> str:
     return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
 
 
-def _sqlite_path(uri: str) -> Path | None:
+def sqlite_path(uri: str) -> Path | None:
     """The database file of a `sqlite:///` URI (relative paths are relative to the cwd)."""
     if not uri.startswith("sqlite:///"):
         return None
@@ -187,8 +189,7 @@ def _reason(exc: BaseException) -> str:
     text = str(exc).strip()
     if found := _ROOT_CAUSE.search(text):
         return found.group(0).strip()
-    lines = text.splitlines()
-    text = lines[0] if lines else type(exc).__name__
+    text = first_line(exc)
     return text if len(text) <= 300 else text[:297] + "..."
 
 
@@ -220,7 +221,7 @@ def _check_sqlite(uri: str, db: Path) -> None:
 def open_store(tracking_uri: str | None = None) -> MlflowClient:
     """Connect to the store and prove it answers, so a bad store fails before any training."""
     uri = resolve_tracking_uri(tracking_uri)
-    db = _sqlite_path(uri)
+    db = sqlite_path(uri)
     if db is not None:
         _check_sqlite(uri, db)
     try:
@@ -302,7 +303,7 @@ class MlflowTracker:
         """Get or create the experiment; local stores keep artifacts next to the database."""
         exp = self.client.get_experiment_by_name(self.experiment)
         if exp is None:
-            db = _sqlite_path(self.tracking_uri)
+            db = sqlite_path(self.tracking_uri)
             # MLflow's default artifact root is ./mlruns of whatever cwd (a Hydra job folder)
             # first creates the experiment; pin it beside the database instead.
             location = None

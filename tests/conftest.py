@@ -1,11 +1,13 @@
 """Shared fixtures: small configs and terrains that exercise the real code paths quickly."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import AgentConfig, TerrainConfig, load
 from epoet.config import compose as compose_config
 from epoet.terrain import Terrain
 
@@ -14,7 +16,7 @@ torch.set_num_threads(1)
 
 @pytest.fixture
 def terrain_cfg() -> TerrainConfig:
-    return TerrainConfig(kind="cppn", grid=40, size=20.0, max_height=0.3, bowl_weight=0.3)
+    return replace(load(["budget=paper"]).terrain, grid=40, size=20.0, max_height=0.3, bowl_weight=0.3)
 
 
 @pytest.fixture
@@ -24,7 +26,7 @@ def flat() -> Terrain:
 
 @pytest.fixture
 def short_agent() -> AgentConfig:
-    return AgentConfig(max_episode_steps=60)
+    return replace(load(["budget=paper"]).agent, max_episode_steps=60)
 
 
 @pytest.fixture

@@ -16,12 +16,13 @@ from omegaconf import DictConfig
 from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
-import epoet.rl.common as common
+import epoet.rl.setup as setup
 from epoet.checkpoint import CheckpointError, load_checkpoint
 from epoet.config import ConfigError, validate
 from epoet.config import compose as compose_config
 from epoet.rl import sac
-from epoet.rl.common import RunningObsNorm, load_policy, make_env, obs_norm_of
+from epoet.rl.policy_file import load_policy
+from epoet.rl.setup import RunningObsNorm, make_env, obs_norm_of
 from epoet.run import run
 from epoet.tracking import MemoryTracker
 
@@ -83,7 +84,7 @@ def test_smoke_run_logs_to_mlflow_and_exports_a_rebuildable_policy(algo, store, 
 
     # the exported policy, rebuilt with plain torch, acts as the trained actor
     checkpoint = load_checkpoint(tmp_path / "run")
-    td = deterministic_rollout(raw, result.agent.actor, checkpoint)
+    td = deterministic_rollout(raw, result.learner.actor, checkpoint)
     act = load_policy(result.policy_path)
     actions = td["action"].numpy()
     assert actions.std(0).max() > 1e-3  # the check below compares actions that vary
@@ -101,8 +102,8 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
     straight = run(compose_config(overrides), tmp_path / "straight")
 
     # kill the second run while it learns from batch 3 (its last checkpoint is after batch 2)
-    agent_type = type(straight.agent)
-    learn, calls = agent_type.learn, []
+    learner_type = type(straight.learner)
+    learn, calls = learner_type.learn, []
 
     def dying_learn(self, batch):
         calls.append(1)
@@ -110,16 +111,16 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
             raise Killed()
         return learn(self, batch)
 
-    monkeypatch.setattr(agent_type, "learn", dying_learn)
+    monkeypatch.setattr(learner_type, "learn", dying_learn)
     with pytest.raises(Killed):
         run(compose_config(overrides), tmp_path / "killed")
-    monkeypatch.setattr(agent_type, "learn", learn)
+    monkeypatch.setattr(learner_type, "learn", learn)
     assert load_checkpoint(tmp_path / "killed")["loop"]["batches"] == 2
     resumed = run(compose_config([*overrides, f"resume={tmp_path / 'killed'}"]),
                   tmp_path / "killed")
 
     assert resumed.frames == straight.frames == 240
-    ours, theirs = resumed.agent.loss.state_dict(), straight.agent.loss.state_dict()
+    ours, theirs = resumed.learner.loss.state_dict(), straight.learner.loss.state_dict()
     assert ours.keys() == theirs.keys()
     for key in ours:
         assert torch.equal(ours[key], theirs[key]), key
@@ -186,11 +187,11 @@ def test_resume_from_another_algorithm_is_refused(store, tmp_path):
 
 def test_budget_scales_the_batch_and_keeps_the_ratios():
     cfg = validate(compose_config(["algo=sac", "budget=smoke"]))  # 400 frames < 2000 per batch
-    plan = common.batch_plan(cfg)
+    plan = setup.batch_plan(cfg)
     assert (plan.frames_per_batch, plan.batches) == (400, 1)
     assert plan.scaled(cfg.algo.updates_per_batch) == 200  # 1000 per 2000 frames
     cfg = validate(compose_config(["algo=ppo", "budget=laptop"]))
-    plan = common.batch_plan(cfg)
+    plan = setup.batch_plan(cfg)
     assert (plan.frames_per_batch, plan.batches, plan.scale) == (2000, 50, 1.0)
 
 
@@ -227,7 +228,7 @@ def test_training_env_draws_a_new_terrain_per_episode_on_the_height_schedule(ter
     seen = []
     for _ in range(4):
         env.reset()
-        seen.append(common.hexapod(env).terrain)
+        seen.append(setup.hexapod(env).terrain)
     env.close()
     assert all(t.kind == terrain for t in seen)
     assert len({t.id for t in seen}) == 4

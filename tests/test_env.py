@@ -53,7 +53,7 @@ def test_action_maps_to_targets() -> None:
 
 def test_reward_terms_match_reference_formulas() -> None:
     env = HexapodEnv(terrain={"kind": "bowl", "grid": 40})
-    task = HexapodTask(AgentConfig(), layout(env.model), 10.0)
+    task = HexapodTask(env.agent_cfg, layout(env.model), 10.0)
     rng = np.random.default_rng(0)
     qpos = np.zeros((1, 25)); qvel = np.zeros((1, 24)); sensordata = np.zeros((1, 24))
     yaw, tilt = 0.3, 0.1
@@ -85,7 +85,7 @@ def test_reward_terms_match_reference_formulas() -> None:
 
 def test_finish_bonus_paid_once() -> None:
     env = HexapodEnv(terrain={"kind": "bowl", "grid": 40})
-    task = HexapodTask(AgentConfig(finish_x=6.0), layout(env.model), 10.0)
+    task = HexapodTask(replace(env.agent_cfg, finish_x=6.0), layout(env.model), 10.0)
     qpos = np.zeros((1, 25)); qpos[0, 3] = 1.0; qpos[0, 2] = 0.1
     qvel = np.zeros((1, 24)); sd = np.zeros((1, 24))
     state = EpisodeState.zeros(1)

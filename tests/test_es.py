@@ -1,13 +1,16 @@
 """The numpy ES policy and the OpenAI-ES optimiser."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from epoet.config import load
 from epoet.es.optimizer import (OpenAIES, adam_step, centered_ranks, es_gradient,
                                 mirrored_population, noise)
-from epoet.es.policy import (LAYER_SIZES, BatchedPolicy, batched_forward, flatten, forward,
-                             init_params, num_params, unflatten)
+from epoet.es.policy import LAYER_SIZES, BatchedPolicy, forward, init_params, num_params, unflatten
 
 SMALL = (5, 4, 3)  # a 2-layer net keeps policy tests tiny
+ES = load(["budget=paper"]).algo.es  # the paper's ES settings
 
 
 # ---------------------------------------------------------------- policy
@@ -26,14 +29,13 @@ def test_init_is_seeded_gaussian_with_std_0_1():
     assert abs(a.std() - 0.1) < 0.005 and abs(a.mean()) < 0.01
 
 
-def test_unflatten_layout_is_w_then_b_per_layer_and_flatten_inverts_it():
+def test_unflatten_layout_is_w_then_b_per_layer():
     params = np.arange(num_params(SMALL), dtype=np.float64)
     (w1, b1), (w2, b2) = unflatten(params, SMALL)
     np.testing.assert_array_equal(w1, np.arange(20).reshape(5, 4))
     np.testing.assert_array_equal(b1, [20, 21, 22, 23])
     np.testing.assert_array_equal(w2, np.arange(24, 36).reshape(4, 3))
     np.testing.assert_array_equal(b2, [36, 37, 38])
-    np.testing.assert_array_equal(flatten(unflatten(params, SMALL)), params)
     w1[0, 0] = -1.0  # views: crossover can write through them
     assert params[0] == -1.0
 
@@ -54,11 +56,13 @@ def test_forward_single_and_batch_of_observations_agree():
     assert np.all(np.abs(batch) < 1.0)  # tanh on the output layer
 
 
-def test_batched_forward_equals_per_row_forward():
+def test_batched_policy_equals_per_row_forward():
     rng = np.random.default_rng(2)
     params = rng.normal(0, 0.3, size=(6, num_params()))
     obs = rng.standard_normal((6, 53))
-    actions = batched_forward(params, obs)
+    policy = BatchedPolicy(6)
+    policy.set_params(params)
+    actions = policy(obs)
     assert actions.shape == (6, 18)
     for i in range(6):
         np.testing.assert_allclose(actions[i], forward(params[i], obs[i]), rtol=0, atol=1e-12)
@@ -91,7 +95,6 @@ def test_batched_policy_reuses_buffers_and_follows_new_params():
     lambda: BatchedPolicy(2, SMALL).set_params(np.zeros((3, num_params(SMALL)))),
     lambda: BatchedPolicy(2, SMALL)(np.zeros((2, 4))),
     lambda: num_params((53,)),
-    lambda: flatten([(np.zeros((2, 3)), np.zeros(3)), (np.zeros((4, 1)), np.zeros(1))]),
 ])
 def test_policy_bad_input_raises_value_error(call):
     with pytest.raises(ValueError):
@@ -136,7 +139,7 @@ def test_gradient_equals_hand_computation():
 
 def test_tell_applies_adam_on_minus_g_plus_l2_theta_then_decays():
     theta = np.array([0.3, -0.2, 0.1])
-    es = OpenAIES(theta, seed=0, n_pairs=2)
+    es = OpenAIES(theta, 0, ES, n_pairs=2)
     seeds, pos, neg = [11, 22], np.array([10.0, 0.0]), np.array([5.0, 20.0])
     g = es_gradient(seeds, pos, neg, 0.02, 3)
     grad = -g + 0.01 * theta
@@ -151,8 +154,9 @@ def test_tell_applies_adam_on_minus_g_plus_l2_theta_then_decays():
 
 
 def test_schedules_stop_at_their_floors():
-    es = OpenAIES(np.zeros(3), seed=0, n_pairs=1, lr=0.01, lr_decay=0.5, lr_floor=0.004,
-                  sigma=0.02, sigma_decay=0.5, sigma_floor=0.008)
+    cfg = replace(ES, lr=0.01, lr_decay=0.5, lr_floor=0.004, sigma=0.02, sigma_decay=0.5,
+                  sigma_floor=0.008)
+    es = OpenAIES(np.zeros(3), 0, cfg, n_pairs=1)
     for _ in range(3):
         es.tell(es.sample_seeds(), [1.0], [0.0])
     assert es.lr == 0.004 and es.sigma == 0.008
@@ -164,7 +168,7 @@ def _quadratic(points: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 def test_es_climbs_a_quadratic():
     target = np.random.default_rng(5).normal(0, 0.5, size=10)
-    es = OpenAIES(np.zeros(10), seed=1, n_pairs=16)
+    es = OpenAIES(np.zeros(10), 1, ES, n_pairs=16)
     start = np.linalg.norm(es.theta - target)
     for _ in range(300):
         seeds = es.sample_seeds()
@@ -187,7 +191,7 @@ def _advance(es: OpenAIES, steps: int) -> None:
 
 
 def test_propose_changes_nothing_and_equals_tell():
-    es = OpenAIES(np.full(4, 0.2), seed=2, n_pairs=3)
+    es = OpenAIES(np.full(4, 0.2), 2, ES, n_pairs=3)
     _advance(es, 2)
     seeds, pos, neg = [1, 2, 3], np.array([1.0, 4.0, 2.0]), np.array([3.0, 0.0, 5.0])
     before = es.state_dict()
@@ -198,7 +202,7 @@ def test_propose_changes_nothing_and_equals_tell():
 
 
 def test_propose_from_a_candidate_theta_uses_this_pairs_adam_state():
-    es = OpenAIES(np.full(4, 0.2), seed=2, n_pairs=3)
+    es = OpenAIES(np.full(4, 0.2), 2, ES, n_pairs=3)
     _advance(es, 2)
     candidate = np.array([1.0, -1.0, 0.5, 0.0])
     seeds, pos, neg = [1, 2, 3], np.array([1.0, 4.0, 2.0]), np.array([3.0, 0.0, 5.0])
@@ -209,7 +213,7 @@ def test_propose_from_a_candidate_theta_uses_this_pairs_adam_state():
 
 
 def test_reset_restores_initial_lr_sigma_and_adam_state():
-    es = OpenAIES(np.zeros(4), seed=3, n_pairs=2)
+    es = OpenAIES(np.zeros(4), 3, ES, n_pairs=2)
     _advance(es, 3)
     new_theta = np.ones(4)
     es.reset(new_theta)
@@ -220,10 +224,10 @@ def test_reset_restores_initial_lr_sigma_and_adam_state():
 
 
 def test_state_dict_round_trip_gives_identical_subsequent_steps():
-    a = OpenAIES(np.zeros(5), seed=4, n_pairs=2)
+    a = OpenAIES(np.zeros(5), 4, ES, n_pairs=2)
     _advance(a, 3)
     state = a.state_dict()
-    b = OpenAIES(np.ones(5), seed=99, n_pairs=2)
+    b = OpenAIES(np.ones(5), 99, ES, n_pairs=2)
     b.load_state_dict(state)
     _advance(a, 3)
     assert not np.array_equal(state["theta"], a.theta)  # the saved state is a copy
@@ -232,7 +236,7 @@ def test_state_dict_round_trip_gives_identical_subsequent_steps():
 
 
 def test_seed_stream_is_a_function_of_the_seed():
-    a, b = OpenAIES(np.zeros(2), seed=5, n_pairs=4), OpenAIES(np.zeros(2), seed=5, n_pairs=4)
+    a, b = OpenAIES(np.zeros(2), 5, ES, n_pairs=4), OpenAIES(np.zeros(2), 5, ES, n_pairs=4)
     s = a.sample_seeds()
     assert s.dtype == np.int64 and s.shape == (4,)
     np.testing.assert_array_equal(s, b.sample_seeds())
@@ -240,16 +244,15 @@ def test_seed_stream_is_a_function_of_the_seed():
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda: OpenAIES(np.zeros(3), seed=0, n_pairs=0), "n_pairs"),
-    (lambda: OpenAIES(np.zeros(3), seed=0, sigma=0.0), "sigma"),
-    (lambda: OpenAIES(np.zeros(3), seed=0, sigma_floor=0.5), "sigma_floor"),
-    (lambda: OpenAIES(np.zeros((3, 2)), seed=0), "theta"),
-    (lambda: OpenAIES(np.zeros(3), seed=0, n_pairs=2).tell([1, 2], [0.0, 1.0], [0.0]),
+    (lambda: OpenAIES(np.zeros((3, 2)), 0, ES, n_pairs=1), "theta"),
+    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=2).tell([1, 2], [0.0, 1.0], [0.0]),
      "one value per seed"),
-    (lambda: OpenAIES(np.zeros(3), seed=0, n_pairs=1).tell([1], [np.nan], [0.0]), "finite"),
-    (lambda: OpenAIES(np.zeros(3), seed=0).propose([1], [0.0], [1.0], theta=np.zeros(4)),
+    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).tell([1], [np.nan], [0.0]), "finite"),
+    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).propose([1], [0.0], [1.0],
+                                                          theta=np.zeros(4)),
      "parameters"),
-    (lambda: OpenAIES(np.zeros(3), seed=0).load_state_dict({"theta": np.zeros(3)}), "missing"),
+    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).load_state_dict({"theta": np.zeros(3)}),
+     "missing"),
 ])
 def test_optimizer_bad_input_raises_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message):

@@ -12,20 +12,21 @@ import numpy as np
 import pytest
 
 from epoet.checkpoint import load_checkpoint
-from epoet.config import AgentConfig, Config, PoetConfig, TerrainConfig, compose, validate
+from epoet.config import TerrainConfig, load
 from epoet.es.workers import SerialEvaluator, make_evaluator
 from epoet.poet.loop import EPOET, Key
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = (53, 8, 18)
+PAPER = load(["budget=paper"])  # the paper's agent (RK4) and ePOET settings
 SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
 
 
 def make_poet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> EPOET:
-    agent = AgentConfig(max_episode_steps=20, settle_steps=2)
+    agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
     evaluator = SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES)
-    return EPOET(PoetConfig(**algo), terrain_cfg, evaluator, seed=seed, n_pairs=2, eval_episodes=1,
+    return EPOET(replace(PAPER.algo, **algo), terrain_cfg, evaluator, seed=seed, n_pairs=2, eval_episodes=1,
                  score_scale=1.0, layer_sizes=SIZES)
 
 
@@ -258,9 +259,9 @@ def test_admission_fine_tunes_with_a_fresh_optimiser(terrain_cfg: TerrainConfig)
 
 def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> None:
     def final_state(workers: int) -> dict:
-        agent = AgentConfig(max_episode_steps=20, settle_steps=2)
+        agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
         with make_evaluator(agent, terrain_cfg, workers, batch=3, layer_sizes=SIZES) as ev:
-            poet = EPOET(PoetConfig(num_children=2, **OPEN), terrain_cfg, ev, seed=5,
+            poet = EPOET(replace(PAPER.algo, num_children=2, **OPEN), terrain_cfg, ev, seed=5,
                          n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES,
                          transfer_interval=1, reproduce_interval=1)
             for _ in range(3):
@@ -275,7 +276,7 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
 @pytest.mark.parametrize("budget", sorted(p.stem for p in (ROOT / "conf" / "budget").glob("*.yaml")))
 def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budget: str) -> None:
     """Small budgets may trade integrator, intervals and S schedule for time; `paper` may not."""
-    cfg = validate(compose([f"budget={budget}"]), Config)
+    cfg = load([f"budget={budget}"])
     assert cfg.agent.max_episode_steps == cfg.budget.episode_steps
     if budget == "paper":
         assert cfg.agent.integrator == "rk4" and cfg.budget.score_scale == 1.0

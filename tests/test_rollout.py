@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import load
 from epoet.envs import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
 from epoet.es.optimizer import mirrored_population
@@ -17,11 +17,13 @@ from epoet.es.rollout import RolloutEngine
 from epoet.es.workers import Agents, Mirrored, Request, make_evaluator
 from epoet.terrain import Terrain, make_terrain
 
-TERRAIN_CFG = TerrainConfig(kind="cppn", grid=40, max_height=0.3)
+PAPER = load(["budget=paper"])  # the paper's agent (RK4) and CPPN terrain
+BOWL = load(["algo=ppo", "budget=paper"]).terrain
+TERRAIN_CFG = replace(PAPER.terrain, grid=40, max_height=0.3)
 # Episodes end at different times: stalls after 8 steps without progress, 40 steps at most.
-AGENT = AgentConfig(max_episode_steps=40, no_progress_steps=8)
+AGENT = replace(PAPER.agent, max_episode_steps=40, no_progress_steps=8)
 # Spawned 0.05 m before the finish line, about a third of the robots start past it.
-NEAR_FINISH = AgentConfig(max_episode_steps=40, start_x=5.95, finish_x=6.0)
+NEAR_FINISH = replace(PAPER.agent, max_episode_steps=40, start_x=5.95, finish_x=6.0)
 
 
 @pytest.fixture(scope="module")
@@ -97,36 +99,33 @@ def test_recorded_transitions_add_up_to_the_returns(terrain):
 
 def test_one_and_two_workers_give_identical_results(terrain):
     theta = init_params(7)
-    noise_seeds, spawn_seeds = np.array([11, 12, 13]), np.array([21, 22, 23])
-    thetas, eval_seeds = np.stack([theta, -theta]), np.array([5, 6])
+    es = Request(terrain, Mirrored.of(theta, np.array([11, 12, 13]), 0.05, np.array([21, 22, 23])))
+    evaluation = Request(terrain, Agents.of(np.stack([theta, -theta]), np.array([5, 6])))
     with make_evaluator(AGENT, TERRAIN_CFG, workers=1, batch=2) as one, \
             make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=2) as two:
-        plus, minus = one.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
-        for got, want in zip(two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds),
-                             (plus, minus)):
-            np.testing.assert_array_equal(got, want)
-        ev1 = one.evaluate(terrain, thetas, eval_seeds, record=True)
-        ev2 = two.evaluate(terrain, thetas, eval_seeds, record=True)
+        (returns,) = [e.returns for e in one.run([es])]
+        np.testing.assert_array_equal(two.run([es])[0].returns, returns)
+        (ev1,), (ev2,) = one.run([evaluation], record=True), two.run([evaluation], record=True)
         assert ev1.returns.shape == (2, 2)
         np.testing.assert_array_equal(ev2.returns, ev1.returns)
         for key, value in ev1.transitions.items():
             np.testing.assert_array_equal(ev2.transitions[key], value)
         # A worker's exception reaches the caller with its type, and the pool carries on.
-        wrong_grid = make_terrain(TerrainConfig(grid=20), seed=0)
+        wrong_grid = make_terrain(replace(BOWL, grid=20), seed=0)
         with pytest.raises(TerrainMismatchError):
-            two.es_returns(wrong_grid, theta, noise_seeds, 0.05, spawn_seeds)
-        again = two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
-        np.testing.assert_array_equal(again[0], plus)
+            two.run([es._replace(terrain=wrong_grid)])
+        np.testing.assert_array_equal(two.run([es])[0].returns, returns)
         # A worker that dies (killed here) is an error in the parent, not a hang.
         os.kill(next(iter(two._pool._processes)), signal.SIGKILL)
         with pytest.raises(RuntimeError, match="died"):
-            two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+            two.run([es])
     # The mirrored population is the one `mirrored_population` builds, pairs sharing a start.
     direct = RolloutEngine(AGENT, TERRAIN_CFG, batch=6).run(
-        terrain, mirrored_population(theta, noise_seeds, 0.05), np.tile(spawn_seeds, 2))
-    np.testing.assert_array_equal(direct.returns, np.concatenate([plus, minus]))
+        terrain, mirrored_population(theta, np.array([11, 12, 13]), 0.05),
+        np.tile([21, 22, 23], 2))
+    np.testing.assert_array_equal(direct.returns, returns)
     with pytest.raises(RuntimeError, match="closed"):
-        two.es_returns(terrain, theta, noise_seeds, 0.05, spawn_seeds)
+        two.run([es])
 
 
 def test_one_call_of_many_requests_equals_one_call_each(terrain):
@@ -165,9 +164,10 @@ def test_bad_input_is_refused_in_one_sentence(terrain):
         engine.run(terrain, params, seeds - 1)
     with make_evaluator(AGENT, TERRAIN_CFG, workers=1) as evaluator:
         with pytest.raises(ValueError, match="one seed per noise seed"):
-            evaluator.es_returns(terrain, params[0], np.arange(3), 0.02, np.arange(2))
+            evaluator.run([Request(terrain, Mirrored.of(params[0], np.arange(3), 0.02,
+                                                        np.arange(2)))])
         with pytest.raises(ValueError, match="spawn_seeds must have shape"):
-            evaluator.evaluate(terrain, params, np.zeros((2, 4), dtype=int))
+            evaluator.run([Request(terrain, Agents.of(params, np.zeros((2, 4), dtype=int)))])
     for workers in (0, "ray"):
         with pytest.raises(ValueError, match="workers must be"):
             make_evaluator(AGENT, TERRAIN_CFG, workers=workers)

@@ -2,30 +2,31 @@
 from __future__ import annotations
 
 import copy
-
 import random
 import subprocess
 import sys
 import types
+from dataclasses import replace
 from pathlib import Path
 
 import neat
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
 
-from epoet.config import Config, ConfigError, GalleryConfig, TerrainConfig, compose, validate
+from epoet.config import ConfigError, TerrainConfig, compose, load, validate
 from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, evaluate,
                            genome_config, grid_inputs, make_terrain, max_height_at, mix,
                            mutate_genome, mutate_terrain, new_genome, normalize, random_bowl)
 from epoet.terrain.cppn import _ACTIVATIONS, fingerprint, has_input_output_path
 
 ROOT = Path(__file__).resolve().parents[1]
+CPPN = load(["budget=paper"]).terrain       # the paper's ePOET terrain (conf/terrain/cppn.yaml)
+BOWL = load(["algo=ppo", "budget=paper"]).terrain  # the baselines' (conf/terrain/bowl.yaml)
 
 
 @pytest.fixture
 def cfg() -> TerrainConfig:
-    return TerrainConfig(kind="cppn", grid=40, max_height=0.2)
+    return copy.deepcopy(replace(CPPN, grid=40, max_height=0.2))  # tests may edit cfg.cppn
 
 
 def neat_network(genome: neat.DefaultGenome, cfg: TerrainConfig) -> neat.nn.FeedForwardNetwork:
@@ -137,7 +138,7 @@ def test_mutation_without_a_valid_child_raises_a_clear_error(cfg):
 
 
 def test_bowl_terrains_do_not_mutate(cfg):
-    bowl = make_terrain(TerrainConfig(kind="bowl", grid=40), 1)
+    bowl = make_terrain(replace(BOWL, grid=40), 1)
     with pytest.raises(ValueError, match="only CPPN terrains mutate"):
         mutate_terrain(bowl, cfg, 2)
 
@@ -177,8 +178,8 @@ def test_terrains_keep_the_reference_feature_scale():
     """Features live in normalised coordinates, so the extent sets the slopes: at the same S the
     terrain users run must be as steep as the reference's 40 m x 40 m, 200 x 200 field (a 20 m
     field would be twice as steep)."""
-    users = validate(compose(["terrain=cppn"]), Config).terrain
-    reference = TerrainConfig(kind="cppn", size=40.0, grid=200)
+    users = CPPN
+    reference = replace(users, size=40.0, grid=200)
 
     def max_slope(tc: TerrainConfig, genome: neat.DefaultGenome) -> float:
         """Steepest grid step per metre of S (budgets change S's schedule, not the geometry)."""
@@ -196,7 +197,7 @@ def test_terrains_keep_the_reference_feature_scale():
 
 @pytest.mark.parametrize("kind", ["bowl", "cppn"])
 def test_save_load_round_trips_exactly(tmp_path, kind):
-    terrain = make_terrain(TerrainConfig(kind=kind, grid=40), 9, iteration=3)
+    terrain = make_terrain(replace(CPPN if kind == "cppn" else BOWL, grid=40), 9, iteration=3)
     loaded = Terrain.load(terrain.save(tmp_path / "t.npz"))
     np.testing.assert_array_equal(loaded.heightmap, terrain.heightmap)
     assert loaded.heightmap.dtype == np.float64
@@ -251,15 +252,14 @@ def test_unknown_kind_is_rejected_by_make_terrain(cfg):
 @pytest.mark.parametrize("field, value", [("grid", 0), ("grid", -3), ("size", 0.0),
                                           ("size", -1.0)])
 def test_non_positive_sizes_fail_validation_naming_the_field(field, value):
-    raw = OmegaConf.structured(GalleryConfig)
-    raw.terrain[field] = value
+    raw = compose([f"terrain.{field}={value}"], config_name="gallery")
     with pytest.raises(ConfigError, match=f"terrain.{field} must be > 0"):
-        validate(raw, GalleryConfig)
+        validate(raw)
 
 
 def test_a_genome_on_a_bowl_terrain_and_negative_seeds_are_rejected(cfg):
     with pytest.raises(ValueError, match="takes no CPPN genome"):
-        make_terrain(TerrainConfig(kind="bowl", grid=40), 0, genome=new_genome(cfg.cppn, 0))
+        make_terrain(replace(BOWL, grid=40), 0, genome=new_genome(cfg.cppn, 0))
     with pytest.raises(ValueError, match="seed must be an integer >= 0"):
         make_terrain(cfg, -1)
 

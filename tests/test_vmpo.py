@@ -18,7 +18,7 @@ from torchrl.modules import (
 )
 from torchrl.objectives.value import GAE
 
-from epoet.rl.vmpo import top_half_weights, VMPOLoss
+from epoet.rl.vmpo_loss import top_half_weights, VMPOLoss
 
 torch.set_num_threads(1)
 

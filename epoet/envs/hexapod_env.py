@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.config import AgentConfig, TerrainConfig, validate
+from epoet.config import CONF_DIR, AgentConfig, TerrainConfig, compose
 from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
@@ -17,10 +17,21 @@ from epoet.terrain import Terrain, make_terrain
 
 
 def _configs(agent: Any, terrain: Any) -> tuple[AgentConfig, TerrainConfig]:
-    """Accept dataclasses, dicts or DictConfigs (as gym.make passes kwargs) and range-check them."""
-    return (validate(OmegaConf.merge(OmegaConf.structured(AgentConfig), _plain(agent)), AgentConfig),
-            validate(OmegaConf.merge(OmegaConf.structured(TerrainConfig), _plain(terrain)),
-                     TerrainConfig))
+    """Dataclasses as they are; dicts or DictConfigs (as gym.make passes kwargs) as overrides of
+    the paper budget's agent and of the terrain file their `kind` names, range-checked."""
+    if isinstance(agent, AgentConfig) and isinstance(terrain, TerrainConfig):
+        return agent, terrain
+    terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
+    kind = terrain.get("kind", "bowl")
+    base = compose(["budget=paper", f"terrain={kind}" if (CONF_DIR / "terrain" / f"{kind}.yaml")
+                    .exists() else "terrain=bowl"])
+    OmegaConf.resolve(base)  # agent.max_episode_steps interpolates the budget's episode length
+
+    def build(value: Any, node: DictConfig, schema: type) -> Any:
+        return value if isinstance(value, schema) else \
+            OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
+
+    return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
 
 
 def _plain(value: Any) -> dict:
@@ -30,8 +41,6 @@ def _plain(value: Any) -> dict:
         return OmegaConf.to_container(value, resolve=True)
     if isinstance(value, (AgentConfig, TerrainConfig)):
         return asdict(value)
-    if isinstance(value, str):  # gym.make("epoet/Hexapod-v0", terrain="cppn")
-        return {"kind": value}
     return dict(value)
 
 

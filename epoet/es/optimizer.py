@@ -20,9 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from epoet.config import EsConfig
+
 # Seeds are drawn as rng.integers(0, SEED_HIGH, dtype=int64): a 63-bit range makes a repeated
 # seed within a run (hence a duplicated perturbation) practically impossible.
 SEED_HIGH = 2**63 - 1
+# Adam's usual constants (the reference's; not among the paper's settings)
+ADAM_BETA1, ADAM_BETA2, ADAM_EPS = 0.9, 0.999, 1e-8
 
 
 def noise(seed: int, num_params: int) -> np.ndarray:
@@ -120,33 +124,14 @@ class OpenAIES:
     without side effects, for transfer; `reset` accepts a transferred theta.
     """
 
-    def __init__(self, theta: np.ndarray, seed: int | np.random.Generator, *, n_pairs: int = 256,
-                 lr: float = 0.01, lr_decay: float = 0.9999, lr_floor: float = 0.001,
-                 sigma: float = 0.02, sigma_decay: float = 0.999, sigma_floor: float = 0.01,
-                 l2_coeff: float = 0.01, beta1: float = 0.9, beta2: float = 0.999,
-                 adam_eps: float = 1e-8) -> None:
-        if n_pairs < 1:
-            raise ValueError(f"n_pairs must be >= 1, got {n_pairs}.")
-        for name, value in (("lr", lr), ("sigma", sigma)):
-            if value <= 0:
-                raise ValueError(f"{name} must be > 0, got {value}.")
-        floors = (("lr_floor", lr_floor, lr), ("sigma_floor", sigma_floor, sigma))
-        for name, value, initial in floors:
-            if not 0 <= value <= initial:
-                raise ValueError(f"{name} must lie in [0, initial value {initial}], got {value}.")
-        for name, value in (("lr_decay", lr_decay), ("sigma_decay", sigma_decay)):
-            if not 0 < value <= 1:
-                raise ValueError(f"{name} must lie in (0, 1], got {value}.")
-        for name, value in (("beta1", beta1), ("beta2", beta2)):
-            if not 0 <= value < 1:
-                raise ValueError(f"{name} must lie in [0, 1), got {value}.")
-        if l2_coeff < 0 or adam_eps <= 0:
-            raise ValueError(f"need l2_coeff >= 0 and adam_eps > 0, got {l2_coeff}, {adam_eps}.")
-        self.n_pairs = int(n_pairs)
-        self.lr_init, self.lr_decay, self.lr_floor = lr, lr_decay, lr_floor
-        self.sigma_init, self.sigma_decay, self.sigma_floor = sigma, sigma_decay, sigma_floor
-        self.l2_coeff = l2_coeff
-        self.beta1, self.beta2, self.adam_eps = beta1, beta2, adam_eps
+    def __init__(self, theta: np.ndarray, seed: int | np.random.Generator, cfg: EsConfig,
+                 n_pairs: int) -> None:
+        self.n_pairs = n_pairs
+        self.lr_init, self.lr_decay, self.lr_floor = cfg.lr, cfg.lr_decay, cfg.lr_floor
+        self.sigma_init, self.sigma_decay, self.sigma_floor = cfg.sigma, cfg.sigma_decay, \
+            cfg.sigma_floor
+        self.l2_coeff = cfg.l2_coeff
+        self.beta1, self.beta2, self.adam_eps = ADAM_BETA1, ADAM_BETA2, ADAM_EPS
         self.rng = np.random.default_rng(seed)
         self.reset(theta)
 

@@ -70,23 +70,6 @@ def unflatten(params: np.ndarray, layer_sizes: Sequence[int] = LAYER_SIZES
             for n_in, n_out, w0, b0 in _layer_slices(layer_sizes)]
 
 
-def flatten(layers: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
-    """Inverse of `unflatten`: concatenate (W, b) pairs into one float64 vector."""
-    parts = []
-    for i, (w, b) in enumerate(layers):
-        w, b = np.asarray(w), np.asarray(b)
-        if w.ndim != 2 or b.shape != (w.shape[1],):
-            raise ValueError(f"layer {i}: need W (in, out) and b (out,), got {w.shape} and "
-                             f"{b.shape}.")
-        if i > 0 and w.shape[0] != layers[i - 1][0].shape[1]:
-            raise ValueError(f"layer {i}: input size {w.shape[0]} does not match the previous "
-                             f"layer's output size {layers[i - 1][0].shape[1]}.")
-        parts += [w.ravel(), b]
-    if not parts:
-        raise ValueError("flatten needs at least one (W, b) layer.")
-    return np.concatenate(parts).astype(np.float64, copy=False)
-
-
 def forward(params: np.ndarray, obs: np.ndarray, layer_sizes: Sequence[int] = LAYER_SIZES
             ) -> np.ndarray:
     """Actions of one parameter vector for one observation (n_0,) or a batch (N, n_0)."""
@@ -160,14 +143,3 @@ class BatchedPolicy:
         np.copyto(out, actions)
         return out
 
-
-def batched_forward(params: np.ndarray, obs: np.ndarray, out: np.ndarray | None = None,
-                    layer_sizes: Sequence[int] = LAYER_SIZES) -> np.ndarray:
-    """One-off convenience: row i of `params` (B, P) applied to row i of `obs` (B, n_0).
-
-    Builds a `BatchedPolicy` each call; hot loops should hold one and call `set_params` once.
-    """
-    params = _check_flat(params, layer_sizes, ndim=2)
-    policy = BatchedPolicy(params.shape[0], layer_sizes)
-    policy.set_params(params)
-    return policy(np.asarray(obs), out=out)

@@ -163,16 +163,6 @@ class Evaluator(Protocol):
 
     def run(self, requests: Sequence[Request], *, record: bool = False) -> list[Episodes]: ...
 
-    def es_episodes(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
-                    sigma: float, spawn_seeds: np.ndarray, *, record: bool = False
-                    ) -> Episodes: ...
-
-    def es_returns(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
-                   sigma: float, spawn_seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
-
-    def evaluate(self, terrain: TerrainLike, thetas: np.ndarray, spawn_seeds: np.ndarray, *,
-                 record: bool = False) -> Episodes: ...
-
     def close(self) -> None: ...
 
     def __enter__(self) -> "Evaluator": ...
@@ -214,26 +204,6 @@ class _Backend(ABC):
                          e.lengths.reshape(r.population.shape),
                          e.finished.reshape(r.population.shape), e.transitions)
                 for r, e in zip(requests, flat)]
-
-    def es_episodes(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
-                    sigma: float, spawn_seeds: np.ndarray, *, record: bool = False) -> Episodes:
-        """The 2n episodes of a mirrored ES population, rows in `mirrored_population` order."""
-        population = Mirrored.of(theta, noise_seeds, sigma, spawn_seeds)
-        return self.run([Request(terrain, population)], record=record)[0]
-
-    def es_returns(self, terrain: TerrainLike, theta: np.ndarray, noise_seeds: np.ndarray,
-                   sigma: float, spawn_seeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(R+, R-): returns of theta + sigma*eps_i and theta - sigma*eps_i per noise seed."""
-        returns = self.es_episodes(terrain, theta, noise_seeds, sigma, spawn_seeds).returns
-        return returns[:len(noise_seeds)], returns[len(noise_seeds):]
-
-    def evaluate(self, terrain: TerrainLike, thetas: np.ndarray, spawn_seeds: np.ndarray, *,
-                 record: bool = False) -> Episodes:
-        """Episodes of K agents: results shaped (K, n); transitions' `episode` is k * n + j.
-
-        `spawn_seeds` (n,) gives every agent the same starts; (K, n) gives each its own.
-        """
-        return self.run([Request(terrain, Agents.of(thetas, spawn_seeds))], record=record)[0]
 
     def __enter__(self) -> "_Backend":
         return self

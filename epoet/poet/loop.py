@@ -144,10 +144,7 @@ class EPOET:
                             genome=env.genome, generation=env.generation, parent_id=parent)
 
     def _new_es(self, theta: np.ndarray, seed: int) -> OpenAIES:
-        c = self.cfg.es
-        return OpenAIES(theta, seed, n_pairs=self.n_pairs, lr=c.lr, lr_decay=c.lr_decay,
-                        lr_floor=c.lr_floor, sigma=c.sigma, sigma_decay=c.sigma_decay,
-                        sigma_floor=c.sigma_floor, l2_coeff=c.l2_coeff)
+        return OpenAIES(theta, seed, self.cfg.es, self.n_pairs)
 
     def _admit(self, env: Environment, theta: np.ndarray) -> Pair:
         pair = Pair(env=env, es=self._new_es(theta, self._seed(Key.OPTIMISER, env.index,

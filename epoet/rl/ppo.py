@@ -1,39 +1,108 @@
-"""PPO on the hexapod (paper Table 2): TorchRL's ClipPPOLoss inside the shared on-policy update.
+"""PPO on the hexapod (paper Table 2), read top to bottom: the on-policy update, then `train`.
 
-Per batch of 2000 frames: GAE (gamma 0.99, lambda 0.95), then 10 epochs of minibatches of 64 on
-the clipped objective (clip 0.2) + entropy bonus (0.005) + value loss; a [64, 64] tanh actor with
-a state-independent log-std and a [64, 64] tanh critic, both reading running-normalised
-observations. The update and the loop live in epoet/rl/common.py (`OnPolicyAgent`,
-`train_loop`); this file is the PPO-specific part.
+Per collector batch: GAE advantages, then epochs of shuffled minibatches on TorchRL's
+ClipPPOLoss (clipped objective + entropy bonus + value loss); a tanh actor with a
+state-independent log-std and a tanh critic, both reading running-normalised observations.
+Sizes and coefficients: conf/algo/ppo.yaml. V-MPO (vmpo.py) runs this same update with its own
+loss.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from torchrl.envs import EnvBase
-from torchrl.objectives import ClipPPOLoss
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.data import LazyTensorStorage, SamplerWithoutReplacement, TensorDictReplayBuffer
+from torchrl.modules import ProbabilisticActor, ValueOperator
+from torchrl.objectives import ClipPPOLoss, LossModule
+from torchrl.objectives.value import GAE
 
-from epoet.config import Config, PpoConfig
-from epoet.rl.common import (BatchPlan, OnPolicyAgent, TrainResult, make_actor, make_value,
-                             train_loop)
+from epoet.config import Config, OnPolicyConfig, PpoConfig
+from epoet.rl.run_state import TrainingRun, TrainResult
+from epoet.rl.setup import BatchPlan, make_actor, make_value
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
 
 
-def build_agent(cfg: Config, env: EnvBase, plan: BatchPlan) -> OnPolicyAgent:
-    algo: PpoConfig = cfg.algo
-    actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=True)
-    critic = make_value(env, algo.hidden, algo.activation)
-    loss = ClipPPOLoss(
-        actor, critic, clip_epsilon=algo.clip, entropy_coeff=algo.entropy_coeff,
-        critic_coeff=algo.critic_coeff, loss_critic_type="l2",
-        normalize_advantage=algo.normalize_advantage)
-    return OnPolicyAgent(algo, plan, actor, critic, loss)
+class OnPolicyLearner:
+    """The on-policy update of PPO and V-MPO; only the TorchRL loss module differs.
+
+    Per collector batch: GAE advantages and value targets once (with the critic before the
+    update, as CleanRL), then `epochs` passes over the batch in shuffled minibatches drawn
+    without replacement from a TensorDictReplayBuffer; each minibatch steps one Adam on the sum of
+    the loss's `loss_*` terms. One Adam over actor and critic equals the paper's two optimisers
+    with the same learning rate (Table 2 lists a policy and a value learning rate, equal): the
+    networks share no parameters and Adam is per parameter. For the same reason gradients are
+    clipped per network, so one network's gradient never scales the other's; the loss's own
+    learned scalars (VMPO's eta and alpha) are not clipped.
+    """
+
+    def __init__(self, cfg: OnPolicyConfig, plan: BatchPlan, actor: ProbabilisticActor,
+                 critic: ValueOperator, loss: LossModule) -> None:
+        self.actor, self.critic, self.loss = actor, critic, loss
+        self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic)
+        self.optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
+        self.epochs = cfg.epochs
+        self.max_grad_norm = cfg.max_grad_norm
+        minibatch = min(cfg.minibatch, plan.frames_per_batch)
+        # a pass of ceil(batch / minibatch) draws covers the batch once (the last draw is short)
+        self.minibatches = math.ceil(plan.frames_per_batch / minibatch)
+        self.buffer = TensorDictReplayBuffer(
+            storage=LazyTensorStorage(plan.frames_per_batch),
+            sampler=SamplerWithoutReplacement(), batch_size=minibatch)
+
+    def learn(self, batch: TensorDictBase) -> dict[str, float]:
+        """One batch: advantages, then the epochs of minibatch steps; the mean of each loss
+        output over the steps."""
+        with torch.no_grad():
+            batch = self.gae(batch)
+        self.buffer.empty()
+        self.buffer.extend(batch.reshape(-1))
+        sums: dict[str, torch.Tensor] = {}
+        for _ in range(self.epochs):
+            for _ in range(self.minibatches):
+                out = self.loss(self.buffer.sample())
+                total = sum(v for k, v in out.items() if k.startswith("loss_"))
+                self.optimizer.zero_grad(set_to_none=True)
+                total.backward()
+                if self.max_grad_norm is not None:
+                    nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
+                    nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
+                self.optimizer.step()
+                for k, v in out.items():
+                    sums[k] = sums.get(k, 0.0) + v.detach().float().mean()
+        steps = self.epochs * self.minibatches
+        return {k: float(v) / steps for k, v in sums.items()}
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.loss.load_state_dict(state["loss"])
+        self.optimizer.load_state_dict(state["optimizer"])
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
           ) -> TrainResult:
     """The `algo=ppo` runner (see epoet.run.RUNNERS)."""
-    return train_loop(cfg, tracker, run_dir, resume, build_agent)
+    algo: PpoConfig = cfg.algo
+    with TrainingRun(cfg, tracker, run_dir, resume) as run:
+        actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)
+        critic = make_value(run.env, algo.hidden, algo.activation)
+        loss = ClipPPOLoss(
+            actor, critic, clip_epsilon=algo.clip, entropy_coeff=algo.entropy_coeff,
+            critic_coeff=algo.critic_coeff, loss_critic_type="l2",
+            normalize_advantage=algo.normalize_advantage)
+        learner = OnPolicyLearner(algo, run.plan, actor, critic, loss)
+
+        collector = run.start(actor, learner)
+        for batch in run.batches(collector):
+            learned = learner.learn(batch)
+            run.log(batch, learned)
+            run.evaluate_if_due(actor)
+            run.checkpoint_if_due(learner)
+        return run.finish(actor, learner)

@@ -1,11 +1,11 @@
-"""SAC on the hexapod (paper Table 3): TorchRL's SACLoss, a uniform replay buffer, soft targets.
+"""SAC on the hexapod (paper Table 3), read top to bottom: the learner, then `train`.
 
-A [256, 256] ReLU tanh-Gaussian actor and twin [256, 256] ReLU Q networks, lr 3e-4, batches of
-256, gamma 0.99, tau 0.005, automatic entropy tuning (alpha from 1, target entropy -18). Rewards
-are multiplied by the reward scale 5 when they enter the replay buffer (the logged returns are
-the env's). Each collector batch of 2000 frames is followed by 1000 gradient updates; the first
-batch comes from uniform random actions (Table 3: one pre-training epoch). The loop lives in
-epoet/rl/common.py (`train_loop`); `SacAgent.gradient_steps` is what bench/sac_updates.py times.
+TorchRL's SACLoss with a ReLU tanh-Gaussian actor and twin ReLU Q networks, a uniform replay
+buffer, soft target updates and automatic entropy tuning (target entropy -(action dimensions)
+unless set). Rewards are multiplied by the reward scale when they enter the replay buffer (the
+logged returns are the env's). Each collector batch is followed by `updates_per_batch` gradient
+updates; the first batch comes from uniform random actions (Table 3: one pre-training epoch).
+Settings: conf/algo/sac.yaml. `SacLearner.gradient_steps` is what bench/sac_updates.py times.
 
 Speed (DESIGN.md: the update rate should match a plain-PyTorch SAC), each measured with the
 bench on this 2-core machine:
@@ -33,7 +33,8 @@ from torchrl.envs import EnvBase
 from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
 from epoet.config import Config, SacConfig
-from epoet.rl.common import BatchPlan, TrainResult, make_actor, make_qvalue, train_loop
+from epoet.rl.run_state import TrainingRun, TrainResult
+from epoet.rl.setup import BatchPlan, make_actor, make_qvalue
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -42,7 +43,7 @@ METRICS = ("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy")
 SAMPLE_CHUNK = 50  # batches drawn from the replay buffer per call
 
 
-class SacAgent:
+class SacLearner:
     """SAC's networks, loss, optimiser, target updater and replay buffer."""
 
     def __init__(self, algo: SacConfig, env: EnvBase, plan: BatchPlan) -> None:
@@ -65,6 +66,7 @@ class SacAgent:
         self.updates_per_batch = plan.scaled(algo.updates_per_batch, minimum=1)
 
     def learn(self, batch: TensorDictBase) -> dict[str, float]:
+        """Store the batch, then `updates_per_batch` updates once the buffer holds a batch."""
         data = batch.reshape(-1).select(*self.keys)  # what the loss reads, nothing more
         data["next", "reward"] = data["next", "reward"] * self.reward_scale
         self.buffer.extend(data)
@@ -110,11 +112,17 @@ class SacAgent:
         self.buffer.load_state_dict(state["buffer"])
 
 
-def build_agent(cfg: Config, env: EnvBase, plan: BatchPlan) -> SacAgent:
-    return SacAgent(cfg.algo, env, plan)
-
-
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
           ) -> TrainResult:
     """The `algo=sac` runner (see epoet.run.RUNNERS)."""
-    return train_loop(cfg, tracker, run_dir, resume, build_agent)
+    algo: SacConfig = cfg.algo
+    with TrainingRun(cfg, tracker, run_dir, resume) as run:
+        learner = SacLearner(algo, run.env, run.plan)
+
+        collector = run.start(learner.actor, learner, algo.init_random_frames)
+        for batch in run.batches(collector):
+            learned = learner.learn(batch)
+            run.log(batch, learned)
+            run.evaluate_if_due(learner.actor)
+            run.checkpoint_if_due(learner)
+        return run.finish(learner.actor, learner)

@@ -56,7 +56,7 @@ def write_gallery(terrains: list[Terrain], out: Path) -> Path:
 def _app(raw: DictConfig) -> None:
     # Failures are reported here: an exception escaping the task makes Hydra log its own lines.
     try:
-        cfg = validate(raw, GalleryConfig)
+        cfg: GalleryConfig = validate(raw)
         out = Path(cfg.out)
         out.mkdir(parents=True, exist_ok=True)
         terrains = chain(cfg)

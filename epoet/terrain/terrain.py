@@ -15,7 +15,6 @@ import hashlib
 import json
 import os
 import pickle
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,8 @@ from matplotlib import colormaps
 from matplotlib.colors import LightSource
 from matplotlib.figure import Figure
 
+from epoet.errors import first_line
+from epoet.files import atomic_write
 from epoet.terrain.cppn import fingerprint
 
 KINDS = ("bowl", "cppn")
@@ -109,7 +110,7 @@ class Terrain:
                 "max_height": self.max_height, "size": self.size}
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write an npz atomically (temp file + os.replace): a crash never leaves half a file.
+        """Write an npz atomically (`atomic_write`): a crash never leaves half a file.
 
         The genome is stored pickled (neat genomes are plain Python objects); evaluating it
         needs no neat config (see cppn.evaluate), so it is stored alone.
@@ -117,15 +118,9 @@ class Terrain:
         path = Path(path)
         genome = (np.frombuffer(pickle.dumps(self.genome), dtype=np.uint8)
                   if self.genome is not None else np.zeros(0, dtype=np.uint8))
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-        try:
-            with open(tmp, "xb") as f:
-                np.savez(f, heightmap=self.heightmap, meta=np.array(json.dumps(self._meta())),
-                         genome=genome)
-            os.replace(tmp, path)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
+        with atomic_write(path) as f:
+            np.savez(f, heightmap=self.heightmap, meta=np.array(json.dumps(self._meta())),
+                     genome=genome)
         return path
 
     @classmethod
@@ -149,9 +144,8 @@ class Terrain:
                           kind=meta["kind"], seed=meta["seed"], generation=meta["generation"],
                           parent_id=meta["parent_id"], genome=pickle.loads(raw) if raw else None)
         except Exception as err:  # a damaged file can fail in zip, json, pickle or our checks
-            reason = str(err).splitlines()[0].rstrip(".") if str(err) else type(err).__name__
-            raise TerrainFileError(
-                f"terrain file {path} is corrupt or not a terrain file ({reason}).") from err
+            raise TerrainFileError(f"terrain file {path} is corrupt or not a terrain file "
+                                   f"({first_line(err).rstrip('.')}).") from err
         if terrain.id != stored_id:
             raise TerrainFileError(f"terrain file {path} is corrupt: its contents do not match "
                                    f"its stored id {stored_id}.")
