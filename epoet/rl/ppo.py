@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import torch
 from tensordict import TensorDictBase
@@ -86,18 +86,23 @@ class OnPolicyLearner:
         self.optimizer.load_state_dict(state["optimizer"])
 
 
-def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
-          ) -> TrainResult:
-    """The `algo=ppo` runner (see epoet.run.RUNNERS)."""
-    algo: PpoConfig = cfg.algo
+def clip_ppo_loss(algo: PpoConfig, actor: ProbabilisticActor, critic: ValueOperator
+                  ) -> LossModule:
+    """PPO's clipped objective + entropy bonus + value loss (paper Table 2)."""
+    return ClipPPOLoss(actor, critic, clip_epsilon=algo.clip, entropy_coeff=algo.entropy_coeff,
+                       critic_coeff=algo.critic_coeff, loss_critic_type="l2",
+                       normalize_advantage=algo.normalize_advantage)
+
+
+def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None,
+          make_loss: Callable[[Any, ProbabilisticActor, ValueOperator], LossModule]
+          = clip_ppo_loss) -> TrainResult:
+    """The `algo=ppo` runner (see epoet.run.RUNNERS); V-MPO runs it with its loss (vmpo.py)."""
+    algo: OnPolicyConfig = cfg.algo
     with TrainingRun(cfg, tracker, run_dir, resume) as run:
         actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)
         critic = make_value(run.env, algo.hidden, algo.activation)
-        loss = ClipPPOLoss(
-            actor, critic, clip_epsilon=algo.clip, entropy_coeff=algo.entropy_coeff,
-            critic_coeff=algo.critic_coeff, loss_critic_type="l2",
-            normalize_advantage=algo.normalize_advantage)
-        learner = OnPolicyLearner(algo, run.plan, actor, critic, loss)
+        learner = OnPolicyLearner(algo, run.plan, actor, critic, make_loss(algo, actor, critic))
 
         collector = run.start(actor, learner)
         for batch in run.batches(collector):
