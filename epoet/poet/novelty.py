@@ -31,8 +31,6 @@ def pata_ec(scores: np.ndarray, mc_lower: float, mc_upper: float) -> np.ndarray:
                          f"n_agents >= 1, got {scores.shape}.")
     if np.isnan(scores).any():
         raise ValueError("PATA-EC scores contain NaN.")
-    if not mc_lower < mc_upper:
-        raise ValueError(f"need mc_lower < mc_upper, got {mc_lower} and {mc_upper}.")
     n_agents = scores.shape[-1]
     if n_agents == 1:
         return np.zeros_like(scores)
