@@ -1,25 +1,18 @@
 """SAC on the hexapod (paper Table 3), read top to bottom: the learner, then `train`.
 
-TorchRL's SACLoss with a ReLU tanh-Gaussian actor and twin ReLU Q networks, a uniform replay
-buffer, soft target updates and automatic entropy tuning (target entropy -(action dimensions)
+A ReLU tanh-Gaussian actor (TorchRL's ProbabilisticActor, which the collector runs) and twin
+ReLU Q networks, the SAC losses of sac_loss.py, a uniform TorchRL replay buffer, soft target
+updates and automatic entropy tuning (target entropy -(action dimensions)
 unless set). Rewards are multiplied by the reward scale when they enter the replay buffer (the
 logged returns are the env's). Each collector batch is followed by `updates_per_batch` gradient
 updates; the first batch comes from uniform random actions (Table 3: one pre-training epoch).
 Settings: conf/algo/sac.yaml. `SacLearner.gradient_steps` is what bench/sac_updates.py times.
 
-Speed (DESIGN.md: the update rate should match a plain-PyTorch SAC), each measured with the
-bench on this 2-core machine:
-- one fused Adam steps the actor, both critics and the temperature together. This equals three
-  separate Adams with the same learning rate: SACLoss keeps the three losses' gradients apart
-  (the actor loss sees detached critics and temperature, the critic target is computed without
-  gradient, the temperature loss sees a detached log-prob) and Adam is per parameter;
-- replay samples are drawn 50 batches per call and split (~8%);
-- the actor's tanh is plain (`safe_tanh=False`): SAC scores its own samples from their pre-tanh
-  values, so TorchRL's clamped tanh (for inverting stored actions) is not needed;
-- `deactivate_vmap=True`: SACLoss evaluates the two critics in a loop instead of vmapping one
-  stacked ensemble; on this CPU the loop was as fast with 2 threads and ~3% faster with 1.
-What remains is SACLoss's own per-call overhead (TensorDict plumbing, functional parameter
-swaps, distribution objects), ~3.5 ms per update against ~14 ms of compute at one thread.
+Speed (DESIGN.md: the update rate should match a plain-PyTorch SAC; bench/sac_updates.py):
+the loss is ours (sac_loss.py: the twin critics as one batched ensemble, no functional
+parameter swaps or distribution objects), one fused Adam steps the actor, both critics and the
+temperature together (the three losses touch disjoint parameters), and replay samples are drawn
+SAMPLE_CHUNK batches per call and split.
 """
 from __future__ import annotations
 
@@ -30,11 +23,11 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
-from torchrl.objectives import SACLoss, SoftUpdate, ValueEstimators
 
 from epoet.config import Config, SacConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
-from epoet.rl.setup import BatchPlan, make_actor, make_qvalue
+from epoet.rl.sac_loss import SacLoss, TwinQ
+from epoet.rl.setup import ACTIVATIONS, OBS, BatchPlan, make_actor, policy_key
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -49,14 +42,14 @@ class SacLearner:
     def __init__(self, algo: SacConfig, env: EnvBase, plan: BatchPlan) -> None:
         self.actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=False,
                                 safe_tanh=False)
-        qvalue = make_qvalue(env, algo.hidden, algo.activation)
-        self.loss = SACLoss(
-            self.actor, qvalue, num_qvalue_nets=2, loss_function="l2",
-            alpha_init=algo.alpha_init, action_spec=env.action_spec, deactivate_vmap=True,
-            target_entropy="auto" if algo.target_entropy is None else algo.target_entropy)
-        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=algo.gamma)
-        self.target_update = SoftUpdate(self.loss, tau=algo.tau)
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=algo.lr, fused=True)
+        obs_dim, act_dim = env.observation_spec[OBS].shape[-1], env.action_spec.shape[-1]
+        critics = TwinQ(obs_dim + act_dim, algo.hidden, ACTIVATIONS[algo.activation])
+        target_entropy = -float(act_dim) if algo.target_entropy is None else algo.target_entropy
+        self.loss = SacLoss(self.actor, critics, obs_key=policy_key(env), gamma=algo.gamma,
+                            alpha_init=algo.alpha_init, target_entropy=target_entropy)
+        self.tau = algo.tau
+        self.optimizer = torch.optim.Adam(
+            [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True)
         # never more room than the run has frames: LazyTensorStorage allocates it all at once
         self.buffer = TensorDictReplayBuffer(
             storage=LazyTensorStorage(min(algo.buffer_size, plan.total_frames)))
@@ -92,14 +85,14 @@ class SacLearner:
             done += chunk
         return dict(zip(METRICS, (total / n).tolist()))
 
-    def update(self, sample: TensorDictBase) -> TensorDictBase:
+    def update(self, sample: TensorDictBase) -> dict[str, torch.Tensor]:
         """One gradient step of actor, critics and temperature, then the soft target update."""
         out = self.loss(sample)
         total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
         self.optimizer.zero_grad(set_to_none=True)
         total.backward()
         self.optimizer.step()
-        self.target_update.step()
+        self.loss.update_targets(self.tau)
         return out
 
     def state_dict(self) -> dict[str, Any]:

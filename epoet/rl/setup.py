@@ -267,13 +267,6 @@ def make_value(env: EnvBase, hidden: list[int], activation: str) -> ValueOperato
                          in_keys=[policy_key(env)])
 
 
-def make_qvalue(env: EnvBase, hidden: list[int], activation: str) -> ValueOperator:
-    """Q(s, a) for SAC (the MLP concatenates its inputs)."""
-    in_features = env.observation_spec[OBS].shape[-1] + env.action_spec.shape[-1]
-    return ValueOperator(mlp(in_features, 1, hidden, activation),
-                         in_keys=[policy_key(env), "action"])
-
-
 # --- evaluation -----------------------------------------------------------------------------------
 
 def evaluate(env: EnvBase, actor: ProbabilisticActor, episodes: int, seed: int,
