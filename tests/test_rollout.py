@@ -153,6 +153,26 @@ def test_one_call_of_many_requests_equals_one_call_each(terrain):
         assert not np.array_equal(elsewhere.returns, separate[1].returns)
 
 
+def test_a_request_records_its_first_episodes_from_the_worker_processes(terrain):
+    """ePOET-SAC's shared replay takes a bounded share of an ES step: the first `record`
+    episodes of a request come back recorded from the workers, step for step, with the same
+    results as an unrecorded call."""
+    theta = init_params(5)
+    es = Request(terrain, Mirrored.of(theta, np.array([1, 2, 3, 4]), 0.05, np.arange(4)),
+                 record=3)
+    evaluation = Request(terrain, Agents.of(theta[None], np.array([9, 10])))
+    with make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=2) as pool:
+        recorded, unrecorded = pool.run([es, evaluation])
+        plain = pool.run([es._replace(record=0)])[0]
+    t = recorded.transitions
+    np.testing.assert_array_equal(np.unique(t["episode"]), [0, 1, 2])
+    assert len(t["reward"]) == int(recorded.lengths[:3].sum())
+    for e in range(3):
+        np.testing.assert_allclose(t["reward"][t["episode"] == e].sum(), recorded.returns[e])
+    assert unrecorded.transitions is None and plain.transitions is None
+    np.testing.assert_array_equal(plain.returns, recorded.returns)
+
+
 def test_bad_input_is_refused_in_one_sentence(terrain):
     engine = RolloutEngine(AGENT, TERRAIN_CFG, batch=2)
     params, seeds = population(3)

@@ -40,8 +40,9 @@ TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated
 # RK4 hexapod): rollout/raw 0.82 at 8, 0.86 at 12-24, 0.85 at 32, 0.80 at 64.
 DEFAULT_BATCH = 16
 
-Job = tuple[int, np.ndarray, int, int]
-"""One episode to run: (episode index, policy parameters (P,), spawn seed, terrain index)."""
+Job = tuple[int, np.ndarray, int, int, bool]
+"""One episode to run: (episode index, policy parameters (P,), spawn seed, terrain index,
+whether its transitions are recorded)."""
 
 
 class TerrainLike(Protocol):
@@ -133,7 +134,9 @@ class _Run:
     returns: np.ndarray
     episode: np.ndarray      # job index per slot; -1 while idle
     running: np.ndarray
+    recording: np.ndarray    # the slot's episode is recorded
     jobs: Iterator[Job]
+    recorder: _Recorder | None = None  # made when the first recorded episode starts
 
 
 @dataclass
@@ -198,12 +201,11 @@ class RolloutEngine:
                              f"params, got {seeds.shape}.")
         if not len(seeds):
             raise ValueError("run needs at least one episode.")
-        jobs = ((e, params[e], int(seeds[e]), 0) for e in range(len(seeds)))
+        jobs = ((e, params[e], int(seeds[e]), 0, record) for e in range(len(seeds)))
         self.set_terrains([terrain])
-        return merge_episodes([self.run_jobs(jobs, record=record, slots=len(seeds))],
-                              len(seeds))
+        return merge_episodes([self.run_jobs(jobs, slots=len(seeds))], len(seeds))
 
-    def run_jobs(self, jobs: Iterable[Job], *, record: bool = False, slots: int | None = None
+    def run_jobs(self, jobs: Iterable[Job], *, slots: int | None = None
                  ) -> tuple[np.ndarray, Episodes]:
         """Run jobs on their terrains (`set_terrains`) until the stream ends; jobs are pulled as
         slots free up.
@@ -216,12 +218,12 @@ class RolloutEngine:
         if width not in self._policies:
             self._policies[width] = BatchedPolicy(width, self.layer_sizes)
         run = _Run(self._policies[width], EpisodeState.zeros(width), np.zeros(width),
-                   np.full(width, -1, dtype=np.int64), np.zeros(width, dtype=bool), iter(jobs))
+                   np.full(width, -1, dtype=np.int64), np.zeros(width, dtype=bool),
+                   np.zeros(width, dtype=bool), iter(jobs))
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
         obs, ctrl, actions = self._obs[:width], self._ctrl[:width], self._actions[:width]
         done = np.zeros(width, dtype=bool)
         step = self._step
-        recorder = _Recorder() if record else None
         results: list[tuple[int, float, int, bool]] = []
 
         self._start(run, range(width))
@@ -239,12 +241,13 @@ class RolloutEngine:
             # one numpy call over all rows is cheaper than selecting the active ones every step.
             reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state)
             np.add(run.returns, reward, out=run.returns, where=run.running)
-            if recorder is not None:
+            recorded = np.flatnonzero(run.running & run.recording) \
+                if run.recorder is not None else ()
+            if len(recorded):
                 before = obs.copy()
             self.task.observe(qpos, qvel, sensor, obs)
-            if recorder is not None:
-                recorder.add(np.flatnonzero(run.running), run.episode, before, actions, reward,
-                             obs, terminated)
+            if len(recorded):
+                run.recorder.add(recorded, run.episode, before, actions, reward, obs, terminated)
             np.logical_or(terminated, truncated, out=done)
             done &= run.running
             if done.any():
@@ -255,7 +258,7 @@ class RolloutEngine:
                 run.episode[ended] = -1
                 self._start(run, ended)
                 active = self._active(run)
-        return self._collect(results, recorder)
+        return self._collect(results, run.recorder)
 
     def _active(self, run: _Run) -> list[tuple]:
         """(model, *slot bindings) of every running slot."""
@@ -268,7 +271,7 @@ class RolloutEngine:
             job = next(run.jobs, None)
             if job is None:
                 break
-            index, params, seed, terrain = job
+            index, params, seed, terrain, record = job
             field = self._fields[terrain]
             self._slot_model[i] = field.model
             d, _, _, qp, qp_row, qv, qv_row, sd, sd_row = self._slots[i]
@@ -278,6 +281,9 @@ class RolloutEngine:
             np.copyto(sd_row, sd)
             self._params[i] = params
             run.episode[i], run.running[i], run.returns[i] = index, True, 0.0
+            run.recording[i] = record
+            if record and run.recorder is None:
+                run.recorder = _Recorder()
             started.append(i)
         if not started:
             return

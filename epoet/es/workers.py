@@ -39,8 +39,8 @@ import numpy as np
 from epoet.config import AgentConfig, TerrainConfig
 from epoet.es.optimizer import mirrored_population
 from epoet.es.policy import LAYER_SIZES, num_params
-from epoet.es.rollout import (DEFAULT_BATCH, Episodes, RolloutEngine, TerrainLike, check_seeds,
-                              merge_episodes)
+from epoet.es.rollout import (DEFAULT_BATCH, Episodes, Job, RolloutEngine, TerrainLike,
+                              check_seeds, merge_episodes)
 
 
 class _Relief(NamedTuple):
@@ -150,10 +150,15 @@ class Agents:
 
 
 class Request(NamedTuple):
-    """A population of episodes on one terrain: the unit of work a call is made of."""
+    """A population of episodes on one terrain: the unit of work a call is made of.
+
+    The transitions of its first `record` episodes (population order) are recorded, so a
+    learner can take a bounded share of an ES step's experience (ePOET-SAC's shared replay).
+    """
 
     terrain: TerrainLike
     population: Population
+    record: int = 0
 
 
 class Evaluator(Protocol):
@@ -182,13 +187,16 @@ class _Backend(ABC):
         self.num_params = num_params(layer_sizes)
 
     @abstractmethod
-    def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
-        """All episodes of every request, one flat `Episodes` per request in population order."""
+    def _run(self, requests: Sequence[Request], records: Sequence[int]) -> list[Episodes]:
+        """All episodes of every request, one flat `Episodes` per request in population order;
+        request k's first `records[k]` episodes recorded."""
 
     def run(self, requests: Sequence[Request], *, record: bool = False) -> list[Episodes]:
         """Every request's episodes in one call; results shaped as each `population.shape`.
 
-        Transitions (when recorded) stay flat per request, their `episode` the flat index.
+        `record=True` records every episode of every request, else each request's first
+        `request.record`. Transitions stay flat per request, their `episode` the flat index;
+        a request with none recorded has `transitions` None.
         """
         requests = [Request(*r) for r in requests]
         for r in requests:
@@ -199,11 +207,14 @@ class _Backend(ABC):
                 raise ValueError("every request needs at least one episode.")
         if not requests:
             return []
-        flat = self._run(requests, record)
+        records = [len(r.population) if record else min(max(r.record, 0), len(r.population))
+                   for r in requests]
+        flat = self._run(requests, records)
         return [Episodes(e.returns.reshape(r.population.shape),
                          e.lengths.reshape(r.population.shape),
-                         e.finished.reshape(r.population.shape), e.transitions)
-                for r, e in zip(requests, flat)]
+                         e.finished.reshape(r.population.shape),
+                         e.transitions if n else None)
+                for r, e, n in zip(requests, flat, records)]
 
     def __enter__(self) -> "_Backend":
         return self
@@ -225,21 +236,21 @@ class SerialEvaluator(_Backend):
         super().__init__(layer_sizes)
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
-    def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
+    def _run(self, requests: Sequence[Request], records: Sequence[int]) -> list[Episodes]:
         self.engine.set_terrains([r.terrain for r in requests])
         items = [(k, e) for k, r in enumerate(requests) for e in range(len(r.population))]
-        part = self.engine.run_jobs(_jobs(iter(items), [r.population for r in requests]),
-                                    record=record)
+        part = self.engine.run_jobs(_jobs(iter(items), [r.population for r in requests],
+                                          records))
         return _split([part], [len(r.population) for r in requests])
 
 
-def _jobs(items: Iterator[tuple[int, int]], populations: Sequence[Population]
-          ) -> Iterator[tuple[int, np.ndarray, int, int]]:
+def _jobs(items: Iterator[tuple[int, int]], populations: Sequence[Population],
+          records: Sequence[int]) -> Iterator[Job]:
     """Engine jobs for (request, episode) items, on the request's terrain; the engine's episode
     index packs both (`_encode`), so results can be split back per request."""
     for k, e in items:
         params, seed = populations[k].job(e)
-        yield _encode(k, e), params, seed, k
+        yield _encode(k, e), params, seed, k, e < records[k]
 
 
 # An engine job's index packs (request, episode): the request in the high bits.
@@ -299,10 +310,10 @@ def _items(call: int) -> Iterator[tuple[int, int]]:
 
 
 def _work(call: int, reliefs: Sequence[_Relief], populations: Sequence[Population],
-          record: bool, slots: int) -> tuple[np.ndarray, Episodes]:
+          records: Sequence[int], slots: int) -> tuple[np.ndarray, Episodes]:
     """Run this call's queue items until the end marker: (encoded indices, results)."""
     _engine.set_terrains(reliefs)
-    return _engine.run_jobs(_jobs(_items(call), populations), record=record, slots=slots)
+    return _engine.run_jobs(_jobs(_items(call), populations, records), slots=slots)
 
 
 class PoolEvaluator(_Backend):
@@ -341,7 +352,7 @@ class PoolEvaluator(_Backend):
             raise RuntimeError("a rollout worker process died (see its traceback above); the "
                                "evaluator is closed.") from err
 
-    def _run(self, requests: Sequence[Request], record: bool) -> list[Episodes]:
+    def _run(self, requests: Sequence[Request], records: Sequence[int]) -> list[Episodes]:
         if self._pool is None:
             raise RuntimeError("this evaluator is closed.")
         call = next(self._calls)
@@ -356,7 +367,7 @@ class PoolEvaluator(_Backend):
         reliefs = [_Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
                            float(r.terrain.size)) for r in requests]
         return _split(self._submit_all(_work, call, reliefs, [r.population for r in requests],
-                                       record, slots), sizes)
+                                       records, slots), sizes)
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and self._pool is not None:
