@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from epoet.config import AgentConfig, ConfigError, TerrainConfig
+from epoet.config import ConfigError, TerrainConfig
 from epoet.envs import ENV_ID, HexapodEnv
 from epoet.envs.model import TerrainMismatchError, action_to_targets, layout
 from epoet.envs.task import EpisodeState, HexapodTask, heading_deviation, roll_pitch
