@@ -26,7 +26,7 @@ from tensordict import TensorDict
 from torch import nn
 
 from epoet.config import compose, validate
-from epoet.rl.setup import batch_plan, make_env, set_threads
+from epoet.rl.setup import make_env, set_threads
 from epoet.rl.sac import SacLearner
 
 OBS_DIM, ACT_DIM, BUFFER = 53, 18, 10_000
@@ -115,7 +115,7 @@ def make_ours(threads: int | None) -> tuple[SacLearner, int]:
     cfg = validate(compose(overrides))
     threads = set_threads(cfg)
     env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=0)
-    agent = SacLearner(cfg.algo, env, batch_plan(cfg))
+    agent = SacLearner(cfg.algo, env, BUFFER)
     env.close()
     return agent, threads
 

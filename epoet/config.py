@@ -309,11 +309,12 @@ class BudgetConfig:
     score_scale: float
     transfer_interval: Optional[int]     # null: the algorithm's
     reproduce_interval: Optional[int]    # null: the algorithm's
+    sac_frames_per_iteration: Optional[int]  # ePOET-SAC; null: the algorithm's
 
     def __post_init__(self) -> None:
         _positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
                   "eval_every", "score_scale")
-        for name in ("transfer_interval", "reproduce_interval"):
+        for name in ("transfer_interval", "reproduce_interval", "sac_frames_per_iteration"):
             value = getattr(self, name)
             _check(value is None or value > 0, f"budget.{name} must be > 0 or null, got {value}.")
 
@@ -405,9 +406,20 @@ class GalleryConfig:
 RL_ACTIVATIONS = ("tanh", "relu", "elu")
 
 
+def _check_network(obj: Any) -> None:
+    """The checks of an RL network config (hidden sizes, activation, lr, discount)."""
+    _check(len(obj.hidden) > 0 and all(h > 0 for h in obj.hidden),
+           f"{_key(obj, 'hidden')} must be a non-empty list of positive sizes, got {obj.hidden}.")
+    _check(obj.activation in RL_ACTIVATIONS,
+           f"{_key(obj, 'activation')} must be one of {list(RL_ACTIVATIONS)}, got "
+           f"{obj.activation!r}.")
+    _positive(obj, "lr")
+    _check(0.0 < obj.gamma <= 1.0, f"{_key(obj, 'gamma')} must be in (0, 1], got {obj.gamma}.")
+
+
 @dataclass
 class RlConfig:
-    """What the three baselines share: the networks, the optimiser and the collector batch."""
+    """What PPO and VMPO share: the networks, the optimiser and the collector batch."""
 
     KEY: ClassVar[str] = "algo"
 
@@ -420,12 +432,8 @@ class RlConfig:
     obs_norm: bool                   # running observation normalisation (PPO and VMPO in the paper)
 
     def __post_init__(self) -> None:
-        _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
-               f"algo.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
-        _check(self.activation in RL_ACTIVATIONS,
-               f"algo.activation must be one of {list(RL_ACTIVATIONS)}, got {self.activation!r}.")
-        _positive(self, "lr", "frames_per_batch")
-        _check(0.0 < self.gamma <= 1.0, f"algo.gamma must be in (0, 1], got {self.gamma}.")
+        _check_network(self)
+        _positive(self, "frames_per_batch")
 
 
 @dataclass
@@ -479,33 +487,99 @@ class VmpoConfig(OnPolicyConfig):
 
 
 @dataclass
-class SacConfig(RlConfig):
-    """SAC with twin Q networks and automatic entropy tuning (paper Table 3)."""
+class SacLearnerConfig:
+    """SAC's networks, losses and replay (paper Table 3: conf/learner/sac.yaml), shared by
+    `algo=sac` and `algo=epoet_sac` (as `algo.sac`)."""
 
+    KEY: ClassVar[str] = "algo.sac"
+
+    hidden: list[int]
+    activation: str
+    lr: float                        # actor, critics and the entropy temperature
+    gamma: float
     batch_size: int
     tau: float                       # soft target update rate
     alpha_init: float
     target_entropy: Optional[float]  # None: -(action dimensions), the usual heuristic
     reward_scale: float
-    updates_per_batch: int           # gradient updates per collector batch
-    init_random_frames: int          # Table 3 pretrain_epoch 1: one batch of uniform actions
+    init_random_frames: int          # Table 3 pretrain_epoch 1: the first frames act uniformly
     buffer_size: int
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        _positive(self, "batch_size", "alpha_init", "reward_scale", "updates_per_batch",
-                  "buffer_size")
+        _check_network(self)
+        _positive(self, "batch_size", "alpha_init", "reward_scale", "buffer_size")
         _non_negative(self, "init_random_frames")
-        _check(0.0 < self.tau <= 1.0, f"algo.tau must be in (0, 1], got {self.tau}.")
+        _check(0.0 < self.tau <= 1.0, f"{_key(self, 'tau')} must be in (0, 1], got {self.tau}.")
         _check(self.buffer_size >= self.batch_size,
-               f"algo.buffer_size ({self.buffer_size}) must hold at least one batch "
-               f"(algo.batch_size={self.batch_size}).")
+               f"{_key(self, 'buffer_size')} ({self.buffer_size}) must hold at least one batch "
+               f"({_key(self, 'batch_size')}={self.batch_size}).")
+
+
+@dataclass
+class SacConfig(SacLearnerConfig):
+    """`algo=sac`: the learner on its own TorchRL collector (paper Table 3)."""
+
+    KEY: ClassVar[str] = "algo"
+
+    name: str
+    frames_per_batch: int            # the paper's trajectory_length
+    obs_norm: bool                   # false: the paper normalises for PPO and VMPO only
+    updates_per_batch: int           # gradient updates per collector batch
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(self, "frames_per_batch", "updates_per_batch")
+
+
+# --- ePOET-SAC (paper Section 3, Algorithms 1-3; REFERENCE.md section 7) ---------------------------
+
+SAC_TERRAINS = ("pool", "bowl")
+JOIN_MAPPINGS = ("distill", "random")
+
+
+@dataclass
+class DistillConfig:
+    """Behaviour cloning between the SAC actor and ES agents (epoet/poet/sac_bridge.py)."""
+
+    KEY: ClassVar[str] = "algo.distill"
+
+    states: int                      # replay states per distillation
+    epochs: int
+    batch: int
+    lr: float
+
+    def __post_init__(self) -> None:
+        _positive(self, "states", "epochs", "batch", "lr")
+
+
+@dataclass
+class EpoetSacConfig(PoetConfig):
+    """ePOET plus a SAC learner trained every iteration (Algorithm 1's red steps)."""
+
+    sac: SacLearnerConfig
+    distill: DistillConfig
+    frames_per_iteration: int        # SAC's own environment steps per ePOET iteration (Train_SAC)
+    updates_per_frame: float         # gradient updates per SAC frame (paper: 1)
+    es_episodes_per_pair: int        # ES-step episodes per active pair recorded into the replay
+    sac_terrain: str                 # pool: a sampled active environment; bowl: the reference's
+    mapping: str                     # the join's [256, 256] -> ES mapping: distill | random
+    join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
+    pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive(self, "frames_per_iteration", "join_every_transfers")
+        _non_negative(self, "updates_per_frame", "es_episodes_per_pair", "pretrain_iterations")
+        _check(self.sac_terrain in SAC_TERRAINS,
+               f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
+        _check(self.mapping in JOIN_MAPPINGS,
+               f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
 
 
 # --- composition and validation -------------------------------------------------------------------
 
-ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig, "ppo": PpoConfig, "sac": SacConfig,
-                                 "vmpo": VmpoConfig}  # conf/algo/<name>.yaml -> its schema
+ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig, "epoet_sac": EpoetSacConfig,
+                                 "ppo": PpoConfig, "sac": SacConfig, "vmpo": VmpoConfig}  # conf/algo/<name>.yaml -> its schema
 
 
 def register_configs() -> None:

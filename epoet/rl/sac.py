@@ -24,10 +24,10 @@ from tensordict import TensorDictBase
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
 
-from epoet.config import Config, SacConfig
+from epoet.config import Config, SacConfig, SacLearnerConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
 from epoet.rl.sac_loss import SacLoss, TwinQ
-from epoet.rl.setup import ACTIVATIONS, OBS, BatchPlan, make_actor, policy_key
+from epoet.rl.setup import ACTIVATIONS, OBS, make_actor, policy_key
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -37,9 +37,9 @@ SAMPLE_CHUNK = 50  # batches drawn from the replay buffer per call
 
 
 class SacLearner:
-    """SAC's networks, loss, optimiser, target updater and replay buffer."""
+    """SAC's networks, loss, optimiser, target updater and replay buffer (also ePOET-SAC's)."""
 
-    def __init__(self, algo: SacConfig, env: EnvBase, plan: BatchPlan) -> None:
+    def __init__(self, algo: SacLearnerConfig, env: EnvBase, capacity: int) -> None:
         self.actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=False,
                                 safe_tanh=False)
         obs_dim, act_dim = env.observation_spec[OBS].shape[-1], env.action_spec.shape[-1]
@@ -50,22 +50,24 @@ class SacLearner:
         self.tau = algo.tau
         self.optimizer = torch.optim.Adam(
             [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True)
-        # never more room than the run has frames: LazyTensorStorage allocates it all at once
-        self.buffer = TensorDictReplayBuffer(
-            storage=LazyTensorStorage(min(algo.buffer_size, plan.total_frames)))
+        # `capacity`: the run's frames at most, as LazyTensorStorage allocates it all at once
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity))
         self.keys = self.loss.in_keys
         self.reward_scale = algo.reward_scale
         self.batch_size = algo.batch_size
-        self.updates_per_batch = plan.scaled(algo.updates_per_batch, minimum=1)
 
-    def learn(self, batch: TensorDictBase) -> dict[str, float]:
-        """Store the batch, then `updates_per_batch` updates once the buffer holds a batch."""
-        data = batch.reshape(-1).select(*self.keys)  # what the loss reads, nothing more
+    def add(self, data: TensorDictBase) -> None:
+        """Store transitions (the loss's keys, nothing more), rewards times the reward scale."""
+        data = data.reshape(-1).select(*self.keys)
         data["next", "reward"] = data["next", "reward"] * self.reward_scale
         self.buffer.extend(data)
-        if len(self.buffer) < self.batch_size:
+
+    def learn(self, batch: TensorDictBase, updates: int) -> dict[str, float]:
+        """Store the batch, then `updates` updates once the buffer holds a batch."""
+        self.add(batch)
+        if len(self.buffer) < self.batch_size or updates == 0:
             return {}
-        return self.gradient_steps(self.updates_per_batch)
+        return self.gradient_steps(updates)
 
     def gradient_steps(self, n: int) -> dict[str, float]:
         """`n` updates on uniform samples from the buffer; returns the mean of `METRICS`.
@@ -110,11 +112,12 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
     """The `algo=sac` runner (see epoet.run.RUNNERS)."""
     algo: SacConfig = cfg.algo
     with TrainingRun(cfg, tracker, run_dir, resume) as run:
-        learner = SacLearner(algo, run.env, run.plan)
+        learner = SacLearner(algo, run.env, min(algo.buffer_size, run.plan.total_frames))
+        updates = run.plan.scaled(algo.updates_per_batch, minimum=1)
 
         collector = run.start(learner.actor, learner, algo.init_random_frames)
         for batch in run.batches(collector):
-            learned = learner.learn(batch)
+            learned = learner.learn(batch, updates)
             run.log(batch, learned)
             run.evaluate_if_due(learner.actor)
             run.checkpoint_if_due(learner)
