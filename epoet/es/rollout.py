@@ -103,22 +103,27 @@ def check_seeds(seeds: np.ndarray, name: str) -> np.ndarray:
 
 
 class _Recorder:
-    """Appends the active slots' transitions each step; only allocated when recording."""
+    """Appends the active slots' transitions each step; only allocated when recording.
+
+    Observations, actions and rewards are kept in float32, what SAC's replay stores: half the
+    memory and the bytes sent back from the workers."""
+
+    DTYPES = {"episode": np.int64, "obs": np.float32, "action": np.float32,
+              "reward": np.float32, "next_obs": np.float32, "terminated": bool}
 
     def __init__(self) -> None:
         # Each list starts with an empty array of the right shape, so a worker that ran no
         # episode still returns well-formed (0, ...) arrays.
         shapes = {"episode": (0,), "obs": (0, OBS_DIM), "action": (0, ACT_DIM), "reward": (0,),
                   "next_obs": (0, OBS_DIM), "terminated": (0,)}
-        dtypes = {"episode": np.int64, "terminated": bool}
-        self.chunks = {key: [np.zeros(shapes[key], dtypes.get(key, np.float64))]
-                       for key in TRANSITION_KEYS}
+        self.chunks = {key: [np.zeros(shapes[key], self.DTYPES[key])] for key in TRANSITION_KEYS}
 
     def add(self, rows: np.ndarray, episode: np.ndarray, obs: np.ndarray, action: np.ndarray,
             reward: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray) -> None:
         values = (episode, obs, action, reward, next_obs, terminated)
         for key, value in zip(TRANSITION_KEYS, values):
-            self.chunks[key].append(value[rows])  # fancy indexing copies: buffers get reused
+            # fancy indexing copies (buffers get reused); astype then only casts
+            self.chunks[key].append(value[rows].astype(self.DTYPES[key], copy=False))
 
     def result(self) -> dict[str, np.ndarray]:
         return _group_by_episode({key: np.concatenate(parts)

@@ -14,6 +14,8 @@ goes to the workers as one call, so no worker waits at a per-pair barrier.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, NamedTuple
@@ -84,6 +86,24 @@ class FineTune(NamedTuple):
     terrain: Terrain
     theta: np.ndarray
     ids: tuple[int, ...]
+
+
+class PhaseTimer:
+    """Wall time per named step of an iteration: `with timer("optimize"): ...`."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+
+    def metrics(self) -> dict[str, float]:
+        return {f"time/{name}": seconds for name, seconds in self.seconds.items()}
 
 
 class EPOET:
@@ -185,16 +205,14 @@ class EPOET:
 
     # --- one iteration ----------------------------------------------------------------------
     def iterate(self) -> dict[str, float]:
-        """Run iteration `self.iteration` and return its metrics."""
-        t = self.iteration
+        """Run iteration `self.iteration` and return its metrics (`time/<step>`: where the
+        iteration's wall time went)."""
         start, steps0 = time.perf_counter(), self.env_steps
-        metrics: dict[str, float] = {}
-        if t > 0 and t % self.reproduce_interval == 0:
-            metrics["admitted"] = float(self.reproduce())
-        metrics.update(self.optimize())
-        if len(self.active) > 1 and t % self.transfer_interval == 0:
-            metrics["transfers"] = float(self.transfer())
+        timer = PhaseTimer()
+        metrics = self.steps(self.iteration, timer)
         elapsed = time.perf_counter() - start
+        metrics.update(timer.metrics())
+        metrics.update(self.generation_scores())
         metrics.update({
             "best_score": max(p.score for p in self.active),
             "active_envs": float(len(self.active)),
@@ -207,28 +225,71 @@ class EPOET:
         self.iteration += 1
         return metrics
 
+    def steps(self, t: int, timer: PhaseTimer) -> dict[str, float]:
+        """Algorithm 1 without the SAC steps: reproduce, optimise, transfer."""
+        metrics: dict[str, float] = {}
+        if self.reproduce_due(t):
+            with timer("reproduce"):
+                metrics["admitted"] = float(self.reproduce())
+        with timer("optimize"):
+            metrics.update(self.optimize())
+        if self.transfer_due(t):
+            with timer("transfer"):
+                metrics["transfers"] = float(self.transfer())
+        return metrics
+
+    def reproduce_due(self, t: int) -> bool:
+        return t > 0 and t % self.reproduce_interval == 0
+
+    def transfer_due(self, t: int) -> bool:
+        return len(self.active) > 1 and t % self.transfer_interval == 0
+
     def optimize(self) -> dict[str, float]:
         """One ES step of every active pair on its own environment, then its evaluation."""
+        metrics, _ = self.es_step()
+        metrics.update(self.evaluate_pairs())
+        return metrics
+
+    def es_step(self, record: int = 0) -> tuple[dict[str, float], list[Episodes]]:
+        """One ES step of every active pair; the transitions of each pair's first `record`
+        episodes come back with its episodes."""
         t = self.iteration
         noise = [pair.es.sample_seeds() for pair in self.active]
         requests = [Request(self.terrain(pair.env),
                             Mirrored.of(pair.theta, seeds, pair.es.sigma,
-                                        self._seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t)))
+                                        self._seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t)),
+                            record=record)
                     for pair, seeds in zip(self.active, noise)]
         metrics: dict[str, float] = {}
-        for pair, seeds, episodes in zip(self.active, noise, self._run(requests)):
+        results = self._run(requests)
+        for pair, seeds, episodes in zip(self.active, noise, results):
             n = len(seeds)
             stats = pair.es.tell(seeds, episodes.returns[:n], episodes.returns[n:])
             prefix = f"pair{pair.env.index}"
             metrics.update({f"{prefix}/return_mean": float(episodes.returns.mean()),
                             f"{prefix}/return_max": float(episodes.returns.max()),
                             f"{prefix}/lr": stats["lr"], f"{prefix}/sigma": stats["sigma"]})
+        return metrics, results
+
+    def evaluate_pairs(self) -> dict[str, float]:
+        """Each active agent's score on its own environment this iteration."""
+        t = self.iteration
         scores = self._scores([self._eval_request(self.terrain(p.env), p.theta[None], Key.EVAL,
                                                   p.env.index, t) for p in self.active])
+        metrics: dict[str, float] = {}
         for pair, score in zip(self.active, scores):
             self._record(pair, float(score[0]))
             metrics[f"pair{pair.env.index}/score"] = pair.score
         return metrics
+
+    def generation_scores(self) -> dict[str, float]:
+        """`gen<g>/score`: the best active score of each environment generation (paper Figure
+        2's ePOET_gen<g> curves)."""
+        best: dict[int, float] = {}
+        for pair in self.active:
+            g = pair.env.generation
+            best[g] = max(best.get(g, -np.inf), pair.score)
+        return {f"gen{g}/score": score for g, score in sorted(best.items())}
 
     def _record(self, pair: Pair, score: float) -> None:
         pair.scores.append(score)
