@@ -21,6 +21,7 @@ from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
 #   train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict | None) -> Any
 RUNNERS: dict[str, str] = {
     "epoet": "epoet.poet.runner:train",
+    "epoet_sac": "epoet.poet.runner:train",
     "ppo": "epoet.rl.ppo:train",
     "sac": "epoet.rl.sac:train",
     "vmpo": "epoet.rl.vmpo:train",

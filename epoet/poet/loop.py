@@ -53,6 +53,16 @@ class Key(IntEnum):
     ADMIT = 15          # (iteration, slot, candidate + 1 or 0 for direct transfers)
     ADMIT_NOISE = 16    # (iteration, slot, candidate)
     ADMIT_SPAWN = 17    # (iteration, slot, candidate)
+    # ePOET-SAC (epoet_sac.py)
+    SAC_ENV = 18        # (iteration,): which active environment Train_SAC uses
+    SAC = 19            # (iteration,) or (iteration, 1) for distillation: torch's stream
+    SAC_SPAWN = 20      # (iteration,): starts of SAC's own episodes
+    SAC_BOWL = 21       # (iteration,): the bowl of `sac_terrain=bowl`
+    JOIN = 22           # (iteration,): the mapping's initial ES vector and its seeds
+    JOIN_EVAL = 23      # (iteration,): the mapped agent and the SAC actor on one terrain
+    CROSSOVER = 24      # (env, iteration): the coin flips of Algorithm 3
+    CROSSOVER_EVAL = 25  # (env, iteration): old and new agent on the same starts
+    PRETRAIN = 26       # (i,): the i-th pre-training Train_SAC
 
 
 @dataclass(frozen=True)
@@ -428,13 +438,19 @@ class EPOET:
     # --- open-endedness measure ------------------------------------------------------------------
     @property
     def annecs(self) -> int:
-        """Admitted environments (the root excluded) whose agent later reached the threshold."""
-        return sum(p.env.solved for p in self.active + self.archived if p.env.index > 0)
+        """Admitted environments (the root excluded) whose agent later reached the threshold.
+        The environment copies ePOET-SAC's joins pair with are not novel, so not counted."""
+        return sum(p.env.solved for p in self.active + self.archived
+                   if p.env.index > 0 and not p.sac_join)
+
+    def close(self) -> None:
+        """Release what the loop holds besides its evaluator (ePOET: nothing)."""
 
     # --- checkpointing ----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         def pair_state(p: Pair) -> dict[str, Any]:
-            return {"env": p.env, "es": p.es.state_dict(), "scores": list(p.scores)}
+            return {"env": p.env, "es": p.es.state_dict(), "scores": list(p.scores),
+                    "sac_join": p.sac_join}
         return {"iteration": self.iteration, "next_index": self.next_index,
                 "transfers": self.transfers, "env_steps": self.env_steps,
                 "active": [pair_state(p) for p in self.active],
@@ -444,7 +460,7 @@ class EPOET:
         def restore(s: dict[str, Any]) -> Pair:
             es = self._new_es(s["es"]["theta"], 0)
             es.load_state_dict(s["es"])
-            return Pair(env=s["env"], es=es, scores=list(s["scores"]))
+            return Pair(env=s["env"], es=es, scores=list(s["scores"]), sac_join=s["sac_join"])
         self.iteration = state["iteration"]
         self.next_index = state["next_index"]
         self.transfers = state["transfers"]

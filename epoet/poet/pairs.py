@@ -32,6 +32,7 @@ class Pair:
     env: Environment
     es: OpenAIES
     scores: list[float] = field(default_factory=list)   # evaluation score per iteration
+    sac_join: int = 0           # ePOET-SAC: k if the k-th join of the SAC actor made this pair
 
     @property
     def theta(self) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""`algo=epoet`: run the ePOET loop for the budget's iterations, tracked and resumable."""
+"""`algo=epoet` and `algo=epoet_sac`: run the loop for the budget's iterations, tracked and
+resumable."""
 from __future__ import annotations
 
 import time
@@ -8,9 +9,10 @@ from typing import Any
 import numpy as np
 
 from epoet.checkpoint import save_run_state
-from epoet.config import Config
+from epoet.config import Config, EpoetSacConfig
 from epoet.es.policy import LAYER_SIZES
-from epoet.es.workers import make_evaluator
+from epoet.es.workers import Evaluator, make_evaluator
+from epoet.poet.epoet_sac import EpoetSac, make_epoet_sac
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
 
@@ -19,33 +21,58 @@ def layer_sizes(cfg: Config) -> tuple[int, ...]:
     return (LAYER_SIZES[0], *cfg.algo.es.hidden, LAYER_SIZES[-1])
 
 
+def make_loop(cfg: Config, evaluator: Evaluator) -> EPOET:
+    """The configured algorithm's loop over the pool."""
+    budget = cfg.budget
+    common = {"seed": cfg.seed, "n_pairs": budget.n_pairs, "eval_episodes": budget.eval_episodes,
+              "score_scale": budget.score_scale, "layer_sizes": layer_sizes(cfg),
+              "transfer_interval": budget.transfer_interval,
+              "reproduce_interval": budget.reproduce_interval}
+    if isinstance(cfg.algo, EpoetSacConfig):
+        return make_epoet_sac(cfg, evaluator, **common)
+    return EPOET(cfg.algo, cfg.terrain, evaluator, **common)
+
+
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
     """Iterate until `budget.iterations`, checkpointing every `checkpoint_every` iterations."""
-    budget = cfg.budget
     sizes = layer_sizes(cfg)
     workers = cfg.workers.num if cfg.workers.num is not None else "local"
     with make_evaluator(cfg.agent, cfg.terrain, workers, cfg.workers.batch, sizes) as evaluator:
-        poet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
-                     eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                     layer_sizes=sizes, transfer_interval=budget.transfer_interval,
-                     reproduce_interval=budget.reproduce_interval)
-        if resume is not None:
-            poet.load_state_dict(resume["poet"])
-            print(f"[epoet] resumed at iteration {poet.iteration}", flush=True)
-        started = time.perf_counter()
-        while poet.iteration < budget.iterations:
-            metrics = poet.iterate()
-            tracker.log_metrics(poet.iteration - 1, metrics)
-            _progress(poet, metrics, budget.iterations, time.perf_counter() - started)
-            if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
-                save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
-        _log_pool(poet, run_dir, tracker, sizes)
+        poet = make_loop(cfg, evaluator)
+        try:
+            _iterate(poet, cfg, tracker, run_dir, resume)
+        finally:
+            poet.close()
     return poet
 
 
-def _progress(poet: EPOET, metrics: dict[str, float], total: int, elapsed: float) -> None:
-    extra = "".join(f" {k}={int(metrics[k])}" for k in ("admitted", "transfers") if k in metrics)
-    print(f"[epoet] it {poet.iteration}/{total} pairs={len(poet.active)} "
+def _iterate(poet: EPOET, cfg: Config, tracker: Tracker, run_dir: Path,
+             resume: dict[str, Any] | None) -> None:
+    budget = cfg.budget
+    if resume is not None:
+        poet.load_state_dict(resume["poet"])
+        print(f"[{cfg.algo.name}] resumed at iteration {poet.iteration}", flush=True)
+    started = time.perf_counter()
+    while poet.iteration < budget.iterations:
+        metrics = poet.iterate()
+        tracker.log_metrics(poet.iteration - 1, metrics)
+        _progress(cfg.algo.name, poet, metrics, budget.iterations, time.perf_counter() - started)
+        if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
+            save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
+    _log_pool(poet, run_dir, tracker, layer_sizes(cfg))
+    if isinstance(poet, EpoetSac):
+        poet.log_learner(run_dir, tracker)
+
+
+EVENTS = ("admitted", "transfers", "joined", "replaced")  # shown when an iteration has them
+
+
+def _progress(name: str, poet: EPOET, metrics: dict[str, float], total: int,
+              elapsed: float) -> None:
+    extra = "".join(f" {k}={int(metrics[k])}" for k in EVENTS if k in metrics)
+    if "sac/score" in metrics:
+        extra += f" sac_score={metrics['sac/score']:.1f}"
+    print(f"[{name}] it {poet.iteration}/{total} pairs={len(poet.active)} "
           f"archived={len(poet.archived)} best={metrics['best_score']:.1f} "
           f"annecs={poet.annecs} steps/s={metrics['steps_per_second']:,.0f} "
           f"elapsed={elapsed:.0f}s{extra}", flush=True)

@@ -98,13 +98,18 @@ class SacLearner:
         return out
 
     def state_dict(self) -> dict[str, Any]:
+        """Networks, optimiser and the replay buffer's filled rows only (in storage order, with
+        the write cursor), so a checkpoint grows with the data, not with the capacity."""
+        rows = self.buffer[:].exclude("index") if len(self.buffer) else None
         return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict(),
-                "buffer": self.buffer.state_dict()}
+                "replay": rows, "writer": self.buffer.writer.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.loss.load_state_dict(state["loss"])
         self.optimizer.load_state_dict(state["optimizer"])
-        self.buffer.load_state_dict(state["buffer"])
+        if state["replay"] is not None:
+            self.buffer.extend(state["replay"])  # rows 0..n-1, as they were stored
+        self.buffer.writer.load_state_dict(state["writer"])
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None

@@ -145,8 +145,10 @@ class _FinishedReader(BaseInfoDictReader):
         return self._spec
 
 
-def make_env(cfg: Config, *, obs_norm: bool, seed: int) -> TransformedEnv:
-    """The hexapod task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode.
+def make_env(cfg: Config, *, obs_norm: bool, seed: int, resample_terrain: bool = True
+             ) -> TransformedEnv:
+    """The hexapod task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode
+    (`resample_terrain=False`: the terrain last given to `hexapod(env).set_terrain`, ePOET-SAC).
 
     Episodes last at most agent.max_episode_steps (= budget.episode_steps). Adds
     `episode_reward` (RewardSum) and `step_count` (StepCounter) for episode statistics and, with
@@ -154,7 +156,8 @@ def make_env(cfg: Config, *, obs_norm: bool, seed: int) -> TransformedEnv:
     GymWrapper around the env object (not GymEnv on the registered id) keeps gymnasium's checker
     wrappers out of the per-step path.
     """
-    base = GymWrapper(HexapodEnv(agent=cfg.agent, terrain=cfg.terrain, resample_terrain=True))
+    base = GymWrapper(HexapodEnv(agent=cfg.agent, terrain=cfg.terrain,
+                                 resample_terrain=resample_terrain))
     base.set_info_dict_reader(_FinishedReader())
     transforms: list = [DoubleToFloat()]
     if obs_norm:

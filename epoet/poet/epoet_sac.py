@@ -1,0 +1,381 @@
+"""ePOET-SAC (paper Section 3): the ePOET loop with a SAC learner beside the pool.
+
+Each iteration is Algorithm 1 with its red steps:
+1. `reproduce` (every `reproduce_interval` iterations), as ePOET;
+2. `es_step` of every pair, the first `es_episodes_per_pair` episodes of each recorded in the
+   worker processes, then `evaluate_pairs`;
+3. `train_sac` (Algorithm 2): those ES transitions enter SAC's replay buffer (the shared replay),
+   SAC collects `frames_per_iteration` frames on an environment sampled from the active pool
+   and takes `updates_per_frame` gradient updates per frame;
+4. `transfer` (every `transfer_interval` iterations), as ePOET, then `update_actor_from_pool`:
+   if the best pool agent beats the SAC actor on its environment, the actor learns from it;
+5. `join` (t mod (4 N_transfer) = 4 N_transfer - 2): the SAC actor, mapped to the ES shape,
+   joins the pool as a new pair, and Algorithm 3's `crossover_with` runs against every other
+   active agent.
+
+Decisions the paper leaves open (README "ePOET-SAC"):
+- Sharing the machine: by turns. The workers run the ES step on every core, then SAC collects
+  and updates with torch on every core; `time/<step>` metrics show the split, and
+  `frames_per_iteration` / `updates_per_frame` set it.
+- SAC's episodes: each Train_SAC resets on the iteration's terrain of the sampled environment
+  (`sac_terrain=bowl`: a fresh bowl at the same S, the reference's behaviour) and runs whole
+  episodes there until its frames are spent; the episode still running is cut (a time limit:
+  SAC bootstraps through it).
+- SAC actor <-> ES agent: the shapes differ ([256, 256] vs [40, 40]), so the transfer step
+  distils the ES agent into the actor's mean, and the join maps the actor by `mapping`:
+  `distill` (behaviour cloning on replay states) or `random` (the paper's random selection).
+- The joined agent pairs with a copy of the environment SAC trained on (a new index, the same
+  CPPN genome); copies are not novel environments, so ANNECS does not count them.
+- Randomness: every SAC step re-seeds torch and the SAC env from keyed seeds (loop.Key), so a
+  resumed run needs no generator state and equals an uninterrupted one.
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torchrl.envs import EnvBase, ExplorationType
+from torchrl.envs.utils import set_exploration_type
+
+from epoet.config import Config, EpoetSacConfig, TerrainConfig
+from epoet.envs import HexapodEnv
+from epoet.es.policy import init_params
+from epoet.es.rollout import Episodes
+from epoet.es.workers import Evaluator
+from epoet.poet.loop import EPOET, Key, PhaseTimer
+from epoet.poet.pairs import Environment, Pair
+from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping
+from epoet.rl.policy_file import export_policy
+from epoet.rl.sac import SacLearner
+from epoet.rl.setup import OBS, episode_metrics, hexapod, make_env, set_threads
+from epoet.terrain import Terrain, make_terrain
+
+if TYPE_CHECKING:  # the tracking module imports mlflow
+    from epoet.tracking import Tracker
+
+
+@dataclass
+class ReplacedAgent:
+    """An agent that a crossover child replaced (Algorithm 3: "archive theta^m")."""
+
+    env: int
+    iteration: int
+    theta: np.ndarray
+    score: float
+
+
+class ReplayMix:
+    """Where the replay buffer's transitions came from (`es`: pool agents, `sac`: SAC's own).
+
+    The buffer is first-in first-out, so its contents are the last `capacity` rows added."""
+
+    SOURCES = ("es", "sac")
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.added = dict.fromkeys(self.SOURCES, 0)
+        self._chunks: deque[list] = deque()     # [source, rows] in the order added
+        self._held = 0
+
+    def add(self, source: str, rows: int) -> None:
+        self.added[source] += rows
+        self._chunks.append([source, rows])
+        self._held += rows
+        while self._held > self.capacity:       # the oldest rows were overwritten
+            drop = min(self._chunks[0][1], self._held - self.capacity)
+            self._chunks[0][1] -= drop
+            self._held -= drop
+            if not self._chunks[0][1]:
+                self._chunks.popleft()
+
+    def share(self, source: str) -> float:
+        """Fraction of the buffer's rows from `source`."""
+        return sum(n for s, n in self._chunks if s == source) / max(self._held, 1)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"added": dict(self.added), "chunks": [list(c) for c in self._chunks]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.added = dict(state["added"])
+        self._chunks = deque(list(c) for c in state["chunks"])
+        self._held = sum(n for _, n in self._chunks)
+
+
+class EpoetSac(EPOET):
+    """The ePOET pool, a SAC learner and the steps that move agents between them."""
+
+    def __init__(self, algo: EpoetSacConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
+                 sac_env: EnvBase, capacity: int, frames_per_iteration: int,
+                 **poet: Any) -> None:
+        super().__init__(algo, terrain, evaluator, **poet)
+        self.cfg: EpoetSacConfig = algo
+        torch.manual_seed(self._seed(Key.SAC))        # the networks' initial weights
+        self.sac_env = sac_env
+        self.learner = SacLearner(algo.sac, sac_env, capacity)
+        self.actor_net = self.learner.loss.policy_net  # obs -> (loc, scale)
+        # A plain env for the SAC actor's deterministic scores: reset(seed=s) gives the spawn
+        # of the workers' episodes with spawn seed s, so both kinds of agent share the starts.
+        self.score_env = HexapodEnv(agent=hexapod(sac_env).agent_cfg, terrain=terrain)
+        self.frames_per_iteration = frames_per_iteration
+        self.updates_per_iteration = round(frames_per_iteration * algo.updates_per_frame)
+        self.mix = ReplayMix(capacity)
+        self.joins = 0
+        self.replaced: list[ReplacedAgent] = []
+
+    # --- one iteration: Algorithm 1 ------------------------------------------------------------
+    def steps(self, t: int, timer: PhaseTimer) -> dict[str, float]:
+        metrics: dict[str, float] = {}
+        if t == 0 and self.cfg.pretrain_iterations:
+            with timer("pretrain"):
+                metrics.update(self.pretrain())
+        if self.reproduce_due(t):
+            with timer("reproduce"):
+                metrics["admitted"] = float(self.reproduce())
+        with timer("optimize"):
+            es_metrics, episodes = self.es_step(record=self.cfg.es_episodes_per_pair)
+            metrics.update(es_metrics)
+            metrics.update(self.evaluate_pairs())
+        with timer("sac"):
+            self.add_to_replay(episodes)
+            metrics.update(self.train_sac(t))
+        if self.transfer_due(t):
+            with timer("transfer"):
+                metrics["transfers"] = float(self.transfer())
+                metrics.update(self.update_actor_from_pool(t))
+        if self.join_due(t):
+            with timer("join"):
+                metrics.update(self.join(t))
+        metrics.update({"sac/buffer_size": float(len(self.learner.buffer)),
+                        "sac/es_transitions": float(self.mix.added["es"]),
+                        "sac/own_transitions": float(self.mix.added["sac"]),
+                        "sac/es_share": self.mix.share("es")})
+        return metrics
+
+    def join_due(self, t: int) -> bool:
+        """Algorithm 1: t > 0 and t mod (k N_transfer) = k N_transfer - 2 (k = 4: 58, 118...)."""
+        period = self.cfg.join_every_transfers * self.transfer_interval
+        return t > 0 and t % period == period - 2
+
+    # --- the shared replay and Train_SAC (Algorithm 2) ---------------------------------------
+    def add_to_replay(self, episodes: list[Episodes]) -> None:
+        """The recorded ES transitions (float32, from the workers) into SAC's replay buffer."""
+        recorded = [e.transitions for e in episodes if e.transitions is not None]
+        if not recorded:
+            return
+        t = {k: np.concatenate([r[k] for r in recorded]) for k in recorded[0]}
+        n = len(t["reward"])
+        self.learner.add(TensorDict({
+            OBS: torch.from_numpy(t["obs"]), "action": torch.from_numpy(t["action"]),
+            "next": {OBS: torch.from_numpy(t["next_obs"]),
+                     "reward": torch.from_numpy(t["reward"])[:, None],
+                     "terminated": torch.from_numpy(t["terminated"])[:, None]}},
+            batch_size=[n]))
+        self.mix.add("es", n)
+
+    def sac_pair(self, t: int) -> Pair:
+        """The active pair whose environment SAC uses at iteration t (paper: sampled)."""
+        rng = np.random.default_rng(self._seed(Key.SAC_ENV, t))
+        return self.active[int(rng.integers(len(self.active)))]
+
+    def train_sac(self, t: int) -> dict[str, float]:
+        """Train_SAC on the sampled environment's terrain (or a bowl, `sac_terrain=bowl`)."""
+        pair = self.sac_pair(t)
+        if self.cfg.sac_terrain == "bowl":
+            terrain = make_terrain(dataclasses.replace(self.terrain_cfg, kind="bowl"),
+                                   seed=self._seed(Key.SAC_BOWL, t), iteration=t)
+        else:
+            terrain = self.terrain(pair.env)
+        metrics = self._train_sac(terrain, self._seed(Key.SAC, t), self._seed(Key.SAC_SPAWN, t))
+        metrics["sac/env"] = float(pair.env.index)
+        return metrics
+
+    def pretrain(self) -> dict[str, float]:
+        """The reference's pre-training: Train_SAC iterations on the root environment before
+        iteration 0 (0 by default: Algorithm 1 has none)."""
+        metrics: dict[str, float] = {}
+        for i in range(self.cfg.pretrain_iterations):
+            metrics = self._train_sac(self.terrain(self.active[0].env),
+                                      self._seed(Key.PRETRAIN, i, 0),
+                                      self._seed(Key.PRETRAIN, i, 1))
+        return metrics
+
+    def _train_sac(self, terrain: Terrain, torch_seed: int, spawn_seed: int
+                   ) -> dict[str, float]:
+        """`frames_per_iteration` frames of the stochastic actor (uniform actions while fewer
+        than `init_random_frames` were collected) on `terrain`, then the gradient updates."""
+        hexapod(self.sac_env).set_terrain(terrain)
+        torch.manual_seed(torch_seed)
+        self.sac_env.set_seed(spawn_seed)
+        explore = self.mix.added["sac"] >= self.cfg.sac.init_random_frames
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
+            data = self.sac_env.rollout(self.frames_per_iteration,
+                                        policy=self.learner.actor if explore else None,
+                                        break_when_any_done=False)
+        self.learner.add(data)
+        self.mix.add("sac", data.numel())
+        self.env_steps += data.numel()
+        metrics = {f"sac/{k}": v for k, v in episode_metrics(data).items()}
+        if len(self.learner.buffer) >= self.learner.batch_size and self.updates_per_iteration:
+            learned = self.learner.gradient_steps(self.updates_per_iteration)
+            metrics.update({f"sac/{k}": v for k, v in learned.items()})
+        return metrics
+
+    # --- SAC actor <-> pool ----------------------------------------------------------------------
+    def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
+        """Mean return of the SAC actor's deterministic policy, tanh(loc(s)), on `terrain`,
+        one episode per spawn seed."""
+        env, returns = self.score_env, []
+        with torch.no_grad():
+            for seed in spawn_seeds:
+                obs, _ = env.reset(seed=int(seed), options={"terrain": terrain})
+                total, done = 0.0, False
+                while not done:
+                    loc, _ = self.actor_net(torch.as_tensor(obs, dtype=torch.float32))
+                    obs, reward, terminated, truncated, info = env.step(torch.tanh(loc).numpy())
+                    total += reward
+                    done = terminated or truncated
+                self.env_steps += info["steps"]
+                returns.append(total)
+        return float(np.mean(returns))
+
+    def replay_states(self, torch_seed: int) -> np.ndarray:
+        """`distill.states` observations drawn uniformly from the replay buffer."""
+        torch.manual_seed(torch_seed)
+        return self.learner.buffer.sample(self.cfg.distill.states)[OBS].numpy()
+
+    def _distill_kwargs(self, seed: int) -> dict[str, Any]:
+        d = self.cfg.distill
+        return {"epochs": d.epochs, "batch": d.batch, "lr": d.lr, "seed": seed}
+
+    def update_actor_from_pool(self, t: int) -> dict[str, float]:
+        """Algorithm 1's "SAC_Actor = theta_top" when the best pool agent beats the actor on that
+        agent's environment (same starts as its evaluation). A [40, 40] agent cannot be copied
+        into the [256, 256] actor: the actor's mean is distilled from it on replay states."""
+        top = max(self.active, key=lambda p: p.score)
+        sac_score = self.actor_score(
+            self.terrain(top.env), self._seeds(self.eval_episodes, Key.EVAL, top.env.index, t))
+        metrics = {"sac/score": sac_score, "sac/top_score": top.score,
+                   "sac/updated_from_pool": float(sac_score < top.score)}
+        if sac_score < top.score:
+            metrics["sac/distill_error"] = distill_into_actor(
+                self.actor_net, top.theta, self.replay_states(self._seed(Key.SAC, t, 1)),
+                self.layer_sizes, **self._distill_kwargs(self._seed(Key.SAC, t, 2)))
+        return metrics
+
+    def map_actor(self, t: int) -> tuple[np.ndarray, float]:
+        """The SAC actor as an ES vector (`mapping`), and the distillation's action error (NaN
+        for the random mapping)."""
+        if self.cfg.mapping == "random":
+            rng = np.random.default_rng(self._seed(Key.JOIN, t))
+            return random_mapping(self.actor_net, self.layer_sizes, rng), float("nan")
+        init = init_params(self._seed(Key.JOIN, t, 0), self.layer_sizes)
+        return distill_into_es(self.actor_net, self.replay_states(self._seed(Key.JOIN, t, 1)),
+                               self.layer_sizes, init,
+                               **self._distill_kwargs(self._seed(Key.JOIN, t, 2)))
+
+    def join(self, t: int) -> dict[str, float]:
+        """The SAC actor joins the pool as a new pair, then crosses over with every other active
+        agent. Logs the mapped agent's score next to the SAC actor's on the same terrain and
+        starts: the gap is what the mapping loses (the paper's stated limitation)."""
+        home = self.sac_pair(t)
+        terrain = self.terrain(home.env)
+        theta, error = self.map_actor(t)
+        mapped = float(self._scores([self._eval_request(terrain, theta[None], Key.JOIN_EVAL,
+                                                        t)])[0][0])
+        sac_score = self.actor_score(terrain, self._seeds(self.eval_episodes, Key.JOIN_EVAL, t))
+        others = list(self.active)
+        self.joins += 1
+        env = Environment(index=self.next_index, genome=home.env.genome,
+                          generation=home.env.generation, parent=home.env.index, created_at=t)
+        pair = self._admit(env, theta)
+        pair.sac_join = self.joins
+        self._terrains[(env.index, t)] = terrain
+        self._record(pair, mapped)
+        outcome = self.crossover_with([p for p in others if p in self.active], theta)
+        metrics = {"joined": float(self.joins), "join/env": float(env.index),
+                   "join/sac_score": sac_score, "join/mapped_score": mapped,
+                   "join/mapping_error": error,
+                   "replaced": float(sum(new > old for old, new in outcome.values()))}
+        for index, (old, new) in outcome.items():
+            metrics[f"crossover/env{index}_old"] = old
+            metrics[f"crossover/env{index}_new"] = new
+            metrics[f"crossover/env{index}_replaced"] = float(new > old)
+        return metrics
+
+    def crossover_with(self, pairs: list[Pair], donor: np.ndarray
+                       ) -> dict[int, tuple[float, float]]:
+        """Algorithm 3: each agent and its crossover with `donor` are rolled out from the same
+        starts on the agent's environment; the child replaces the agent only if its return is
+        higher, and the original is archived. Returns {env index: (old, new) return}."""
+        t = self.iteration
+        children = [crossover(p.theta, donor,
+                              np.random.default_rng(self._seed(Key.CROSSOVER, p.env.index, t)))
+                    for p in pairs]
+        scores = self._scores([self._eval_request(self.terrain(p.env), np.stack([p.theta, child]),
+                                                  Key.CROSSOVER_EVAL, p.env.index, t)
+                               for p, child in zip(pairs, children)])
+        outcome = {}
+        for pair, child, (old, new) in zip(pairs, children, scores):
+            outcome[pair.env.index] = (float(old), float(new))
+            if new > old:
+                self.replaced.append(ReplacedAgent(pair.env.index, t, pair.theta.copy(),
+                                                   float(old)))
+                pair.es.reset(child)
+                pair.scores.pop()  # the child's score stands for this iteration
+                self._record(pair, float(new))
+        return outcome
+
+    # --- per-generation curves, artifacts, checkpoints -------------------------------------
+    def generation_scores(self) -> dict[str, float]:
+        """`gen<k>/score`: the best active score of the pairs of the k-th join (gen0: the ES
+        lineage), the paper's Figure 2b ePOET-SAC_gen<k> curves."""
+        best: dict[int, float] = {}
+        for pair in self.active:
+            best[pair.sac_join] = max(best.get(pair.sac_join, -np.inf), pair.score)
+        return {f"gen{k}/score": score for k, score in sorted(best.items())}
+
+    def log_learner(self, run_dir: Path, tracker: Tracker) -> None:
+        """Artifacts: the SAC actor as a policy file and the agents crossover replaced."""
+        sac = self.cfg.sac
+        tracker.log_artifact(export_policy(run_dir / "sac_policy.pt", self.learner.actor,
+                                           self.sac_env, sac.hidden, sac.activation))
+        if self.replaced:
+            folder = run_dir / "replaced"
+            folder.mkdir(exist_ok=True)
+            for agent in self.replaced:
+                np.savez(folder / f"env{agent.env}_it{agent.iteration}.npz", theta=agent.theta,
+                         score=agent.score, layer_sizes=np.array(self.layer_sizes))
+            tracker.log_artifact(folder, "replaced")
+
+    def close(self) -> None:
+        self.sac_env.close()
+        self.score_env.close()
+
+    def state_dict(self) -> dict[str, Any]:
+        return {**super().state_dict(), "sac": self.learner.state_dict(),
+                "mix": self.mix.state_dict(), "joins": self.joins,
+                "replaced": [dataclasses.asdict(a) for a in self.replaced]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        super().load_state_dict(state)
+        self.learner.load_state_dict(state["sac"])
+        self.mix.load_state_dict(state["mix"])
+        self.joins = state["joins"]
+        self.replaced = [ReplacedAgent(**a) for a in state["replaced"]]
+
+
+def make_epoet_sac(cfg: Config, evaluator: Evaluator, **poet: Any) -> EpoetSac:
+    """The `algo=epoet_sac` loop: torch threads as the workers (they take turns), SAC's env."""
+    set_threads(cfg)
+    frames = cfg.budget.sac_frames_per_iteration or cfg.algo.frames_per_iteration
+    sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
+    # The whole capacity: LazyTensorStorage's rows take memory only once written, and
+    # checkpoints hold the filled rows only (SacLearner.state_dict).
+    return EpoetSac(cfg.algo, cfg.terrain, evaluator, sac_env=sac_env,
+                    capacity=cfg.algo.sac.buffer_size, frames_per_iteration=frames, **poet)
