@@ -105,11 +105,11 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
     learner_type = type(straight.learner)
     learn, calls = learner_type.learn, []
 
-    def dying_learn(self, batch):
+    def dying_learn(self, batch, *args):
         calls.append(1)
         if len(calls) == 3:
             raise Killed()
-        return learn(self, batch)
+        return learn(self, batch, *args)
 
     monkeypatch.setattr(learner_type, "learn", dying_learn)
     with pytest.raises(Killed):

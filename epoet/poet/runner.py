@@ -72,6 +72,9 @@ def _progress(name: str, poet: EPOET, metrics: dict[str, float], total: int,
     extra = "".join(f" {k}={int(metrics[k])}" for k in EVENTS if k in metrics)
     if "sac/score" in metrics:
         extra += f" sac_score={metrics['sac/score']:.1f}"
+    if "join/mapped_score" in metrics:
+        extra += (f" join: {poet.cfg.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
+                  f" vs the SAC actor's {metrics['join/sac_score']:.1f}")
     print(f"[{name}] it {poet.iteration}/{total} pairs={len(poet.active)} "
           f"archived={len(poet.archived)} best={metrics['best_score']:.1f} "
           f"annecs={poet.annecs} steps/s={metrics['steps_per_second']:,.0f} "
