@@ -578,8 +578,9 @@ class EpoetSacConfig(PoetConfig):
 
 # --- composition and validation -------------------------------------------------------------------
 
+# conf/algo/<name>.yaml -> its schema
 ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig, "epoet_sac": EpoetSacConfig,
-                                 "ppo": PpoConfig, "sac": SacConfig, "vmpo": VmpoConfig}  # conf/algo/<name>.yaml -> its schema
+                                 "ppo": PpoConfig, "sac": SacConfig, "vmpo": VmpoConfig}
 
 
 def register_configs() -> None:

@@ -50,7 +50,8 @@ class SacLearner:
         self.tau = algo.tau
         self.optimizer = torch.optim.Adam(
             [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True)
-        # `capacity`: the run's frames at most, as LazyTensorStorage allocates it all at once
+        # LazyTensorStorage reserves all `capacity` rows at the first write; memory becomes
+        # resident as rows are written
         self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity))
         self.keys = self.loss.in_keys
         self.reward_scale = algo.reward_scale
