@@ -33,8 +33,8 @@ class Counting:
     def __init__(self, evaluator: Evaluator, settle_steps: int) -> None:
         self.evaluator, self.settle_steps, self.physics_steps = evaluator, settle_steps, 0
 
-    def run(self, requests: list[Request], *, record: bool = False):
-        episodes = self.evaluator.run(requests, record=record)
+    def run(self, requests: list[Request]):
+        episodes = self.evaluator.run(requests)
         self.physics_steps += sum(int(e.lengths.sum()) + e.lengths.size * self.settle_steps
                                   for e in episodes)
         return episodes

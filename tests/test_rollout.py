@@ -110,7 +110,8 @@ def test_one_and_two_workers_give_identical_results(terrain):
             make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=2) as two:
         (returns,) = [e.returns for e in one.run([es])]
         np.testing.assert_array_equal(two.run([es])[0].returns, returns)
-        (ev1,), (ev2,) = one.run([evaluation], record=True), two.run([evaluation], record=True)
+        evaluation = evaluation._replace(record=len(evaluation.population))  # record them all
+        (ev1,), (ev2,) = one.run([evaluation]), two.run([evaluation])
         assert ev1.returns.shape == (2, 2)
         np.testing.assert_array_equal(ev2.returns, ev1.returns)
         for key, value in ev1.transitions.items():
@@ -142,11 +143,12 @@ def test_one_call_of_many_requests_equals_one_call_each(terrain):
                                              np.array([4, 5, 6]))),
                 Request(other, Agents.of(np.stack([theta, -theta]), np.array([7, 8, 9]))),
                 Request(terrain, Agents.of(theta[None], np.array([10])))]
+    requests = [r._replace(record=len(r.population)) for r in requests]  # record them all
     with make_evaluator(AGENT, TERRAIN_CFG, workers=1, batch=2) as one, \
             make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=4) as two:
-        separate = [one.run([r], record=True)[0] for r in requests]
+        separate = [one.run([r])[0] for r in requests]
         for evaluator in (one, two):
-            together = evaluator.run(requests, record=True)
+            together = evaluator.run(requests)
             assert [e.returns.shape for e in together] == [(6,), (2, 3), (1, 1)]
             for got, want in zip(together, separate):
                 np.testing.assert_array_equal(got.returns, want.returns)

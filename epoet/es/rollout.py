@@ -103,7 +103,8 @@ def check_seeds(seeds: np.ndarray, name: str) -> np.ndarray:
 
 
 class _Recorder:
-    """Appends the active slots' transitions each step; only allocated when recording.
+    """Appends the recorded slots' transitions each step; made when the first recorded episode
+    starts (which adds rows at its first step).
 
     Observations, actions and rewards are kept in float32, what SAC's replay stores: half the
     memory and the bytes sent back from the workers."""
@@ -112,17 +113,14 @@ class _Recorder:
               "reward": np.float32, "next_obs": np.float32, "terminated": bool}
 
     def __init__(self) -> None:
-        # Each list starts with an empty array of the right shape, so a worker that ran no
-        # episode still returns well-formed (0, ...) arrays.
-        shapes = {"episode": (0,), "obs": (0, OBS_DIM), "action": (0, ACT_DIM), "reward": (0,),
-                  "next_obs": (0, OBS_DIM), "terminated": (0,)}
-        self.chunks = {key: [np.zeros(shapes[key], self.DTYPES[key])] for key in TRANSITION_KEYS}
+        self.chunks: dict[str, list[np.ndarray]] = {key: [] for key in TRANSITION_KEYS}
 
     def add(self, rows: np.ndarray, episode: np.ndarray, obs: np.ndarray, action: np.ndarray,
             reward: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray) -> None:
         values = (episode, obs, action, reward, next_obs, terminated)
         for key, value in zip(TRANSITION_KEYS, values):
-            # fancy indexing copies (buffers get reused); astype then only casts
+            # fancy indexing copies the rows (the engine reuses its buffers); float64 fields
+            # are then cast to float32 (a second, row-sized copy)
             self.chunks[key].append(value[rows].astype(self.DTYPES[key], copy=False))
 
     def result(self) -> dict[str, np.ndarray]:
@@ -232,7 +230,7 @@ class RolloutEngine:
         results: list[tuple[int, float, int, bool]] = []
 
         self._start(run, range(width))
-        active = self._active(run)
+        active, recorded = self._active(run)
         while active:
             run.policy(obs, out=actions)
             action_to_targets(actions, out=ctrl)
@@ -246,8 +244,6 @@ class RolloutEngine:
             # one numpy call over all rows is cheaper than selecting the active ones every step.
             reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state)
             np.add(run.returns, reward, out=run.returns, where=run.running)
-            recorded = np.flatnonzero(run.running & run.recording) \
-                if run.recorder is not None else ()
             if len(recorded):
                 before = obs.copy()
             self.task.observe(qpos, qvel, sensor, obs)
@@ -262,12 +258,15 @@ class RolloutEngine:
                 run.running[ended] = False
                 run.episode[ended] = -1
                 self._start(run, ended)
-                active = self._active(run)
+                active, recorded = self._active(run)
         return self._collect(results, run.recorder)
 
-    def _active(self, run: _Run) -> list[tuple]:
-        """(model, *slot bindings) of every running slot."""
-        return [(self._slot_model[i], *self._slots[i]) for i in np.flatnonzero(run.running)]
+    def _active(self, run: _Run) -> tuple[list[tuple], np.ndarray]:
+        """(model, *slot bindings) of every running slot, and the running slots whose episode
+        is recorded (both change only when episodes start or end)."""
+        running = np.flatnonzero(run.running)
+        return ([(self._slot_model[i], *self._slots[i]) for i in running],
+                running[run.recording[running]])
 
     def _start(self, run: _Run, slots: Iterable[int]) -> None:
         """Spawn the next jobs into free `slots`; slots left without a job stay idle."""

@@ -166,7 +166,7 @@ class Evaluator(Protocol):
 
     workers: int
 
-    def run(self, requests: Sequence[Request], *, record: bool = False) -> list[Episodes]: ...
+    def run(self, requests: Sequence[Request]) -> list[Episodes]: ...
 
     def close(self) -> None: ...
 
@@ -187,16 +187,16 @@ class _Backend(ABC):
         self.num_params = num_params(layer_sizes)
 
     @abstractmethod
-    def _run(self, requests: Sequence[Request], records: Sequence[int]) -> list[Episodes]:
+    def _run(self, requests: Sequence[Request]) -> list[Episodes]:
         """All episodes of every request, one flat `Episodes` per request in population order;
-        request k's first `records[k]` episodes recorded."""
+        each request's first `record` episodes recorded."""
 
-    def run(self, requests: Sequence[Request], *, record: bool = False) -> list[Episodes]:
+    def run(self, requests: Sequence[Request]) -> list[Episodes]:
         """Every request's episodes in one call; results shaped as each `population.shape`.
 
-        `record=True` records every episode of every request, else each request's first
-        `request.record`. Transitions stay flat per request, their `episode` the flat index;
-        a request with none recorded has `transitions` None.
+        Each request's first `request.record` episodes are recorded. Transitions stay flat per
+        request, their `episode` the flat index; a request with none recorded has `transitions`
+        None.
         """
         requests = [Request(*r) for r in requests]
         for r in requests:
@@ -207,14 +207,10 @@ class _Backend(ABC):
                 raise ValueError("every request needs at least one episode.")
         if not requests:
             return []
-        records = [len(r.population) if record else min(max(r.record, 0), len(r.population))
-                   for r in requests]
-        flat = self._run(requests, records)
         return [Episodes(e.returns.reshape(r.population.shape),
                          e.lengths.reshape(r.population.shape),
-                         e.finished.reshape(r.population.shape),
-                         e.transitions if n else None)
-                for r, e, n in zip(requests, flat, records)]
+                         e.finished.reshape(r.population.shape), e.transitions)
+                for r, e in zip(requests, self._run(requests))]
 
     def __enter__(self) -> "_Backend":
         return self
@@ -236,11 +232,11 @@ class SerialEvaluator(_Backend):
         super().__init__(layer_sizes)
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
-    def _run(self, requests: Sequence[Request], records: Sequence[int]) -> list[Episodes]:
+    def _run(self, requests: Sequence[Request]) -> list[Episodes]:
         self.engine.set_terrains([r.terrain for r in requests])
         items = [(k, e) for k, r in enumerate(requests) for e in range(len(r.population))]
         part = self.engine.run_jobs(_jobs(iter(items), [r.population for r in requests],
-                                          records))
+                                          [r.record for r in requests]))
         return _split([part], [len(r.population) for r in requests])
 
 
@@ -273,9 +269,9 @@ def _split(parts: Sequence[tuple[np.ndarray, Episodes]], sizes: Sequence[int]
             rows = (index >> _SHIFT) == k
             part = Episodes(episodes.returns[rows], episodes.lengths[rows],
                             episodes.finished[rows])
-            if episodes.transitions is not None:
-                t = episodes.transitions
-                keep = (t["episode"] >> _SHIFT) == k
+            t = episodes.transitions
+            keep = None if t is None else (t["episode"] >> _SHIFT) == k
+            if keep is not None and keep.any():
                 part.transitions = {**{key: v[keep] for key, v in t.items()},
                                     "episode": t["episode"][keep] & mask}
             mine.append((index[rows] & mask, part))
@@ -352,7 +348,7 @@ class PoolEvaluator(_Backend):
             raise RuntimeError("a rollout worker process died (see its traceback above); the "
                                "evaluator is closed.") from err
 
-    def _run(self, requests: Sequence[Request], records: Sequence[int]) -> list[Episodes]:
+    def _run(self, requests: Sequence[Request]) -> list[Episodes]:
         if self._pool is None:
             raise RuntimeError("this evaluator is closed.")
         call = next(self._calls)
@@ -367,7 +363,7 @@ class PoolEvaluator(_Backend):
         reliefs = [_Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
                            float(r.terrain.size)) for r in requests]
         return _split(self._submit_all(_work, call, reliefs, [r.population for r in requests],
-                                       records, slots), sizes)
+                                       [r.record for r in requests], slots), sizes)
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and self._pool is not None:
