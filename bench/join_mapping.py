@@ -19,7 +19,6 @@ import numpy as np
 from epoet.checkpoint import find_checkpoint, load_checkpoint
 from epoet.config import load
 from epoet.es.workers import make_evaluator
-from epoet.poet.loop import Key
 from epoet.poet.runner import layer_sizes, make_loop
 
 SEEDS = 3
@@ -36,16 +35,12 @@ def main(run_dir: str, overrides: list[str]) -> None:
         gaps: dict[str, list[float]] = {"distill": [], "random": []}
         for pair in poet.active:
             terrain = poet.terrain(pair.env, t)
-            sac = poet.actor_score(terrain, poet._seeds(cfg.budget.eval_episodes, Key.JOIN_EVAL,
-                                                        pair.env.index))
             for mapping in gaps:
-                poet.cfg.mapping = mapping
-                thetas = np.stack([poet.map_actor(t + k)[0] for k in range(SEEDS)])
-                scores = poet._scores([poet._eval_request(terrain, thetas, Key.JOIN_EVAL,
-                                                          pair.env.index)])[0]
-                gaps[mapping] += list(np.abs(scores - sac))
-                print(f"env{pair.env.index}: SAC actor {sac:8.1f}  {mapping:7s} "
-                      + " ".join(f"{s:8.1f}" for s in scores), flush=True)
+                runs = [poet.map_and_score(t + k, terrain, mapping, pair.env.index)
+                        for k in range(SEEDS)]
+                gaps[mapping] += [abs(m.score - m.sac_score) for m in runs]
+                print(f"env{pair.env.index}: SAC actor {runs[0].sac_score:8.1f}  {mapping:7s} "
+                      + " ".join(f"{m.score:8.1f}" for m in runs), flush=True)
         poet.close()
     print(f"gap distill = {np.mean(gaps['distill']):.1f} random = {np.mean(gaps['random']):.1f}")
 

@@ -1,7 +1,8 @@
 """Gradient updates per second: our SAC update vs the same update in plain PyTorch.
 
 "Ours" is exactly the runner's code path, `epoet.rl.sac.SacLearner.gradient_steps`: uniform
-samples from its TorchRL replay buffer, TorchRL's SACLoss, the agent's optimiser, SoftUpdate.
+samples from its TorchRL replay buffer, our SacLoss (epoet/rl/sac_loss.py), the learner's fused
+Adam and its soft target update.
 "Plain" is a CleanRL-style SAC written below: twin Q networks, a tanh-Gaussian actor, automatic
 entropy tuning and a soft target update, one Adam per part (CleanRL's layout). Same sizes:
 batch 256, [256, 256] ReLU, 53-dim observations, 18-dim actions. Rounds alternate between the
@@ -107,7 +108,7 @@ class PlainSac:
 
 
 def make_ours(threads: int | None) -> tuple[SacLearner, int]:
-    """The runner's SAC agent from the `algo=sac` config; torch threads set as the runner does
+    """The runner's SAC learner from the `algo=sac` config; torch threads set as the runner does
     (`workers.num`, default: the cores this process may use). Returns it and the thread count."""
     overrides = ["algo=sac", f"budget.frames={BUFFER}"]
     if threads is not None:
@@ -115,9 +116,9 @@ def make_ours(threads: int | None) -> tuple[SacLearner, int]:
     cfg = validate(compose(overrides))
     threads = set_threads(cfg)
     env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=0)
-    agent = SacLearner(cfg.algo, env, BUFFER)
+    learner = SacLearner(cfg.algo, env)
     env.close()
-    return agent, threads
+    return learner, threads
 
 
 def random_transitions(n: int) -> TensorDict:

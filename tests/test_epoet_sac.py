@@ -14,7 +14,6 @@ from epoet.checkpoint import load_checkpoint
 from epoet.config import ConfigError, load
 from epoet.es.workers import make_evaluator
 from epoet.poet.epoet_sac import EpoetSac, ReplayMix
-from epoet.poet.loop import Key
 from epoet.poet.runner import layer_sizes, make_loop
 from epoet.poet.sac_bridge import distill_into_actor
 from epoet.run import run
@@ -156,7 +155,8 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
     """The join's mapping on a fixed terrain: the distilled ES agent scores closer to the SAC
     actor than the paper's random parameter selection. The actor is first taught a distinctive
     gait (a random ES agent's, strong actions), so "close" means "does what the actor does"."""
-    poet, evaluator = _loop(["budget.episode_steps=150", "algo.distill.states=4096",
+    poet, evaluator = _loop(["budget.episode_steps=150", "budget.eval_episodes=3",
+                             "algo.distill.states=4096",
                              "algo.distill.epochs=20", "algo.sac.hidden=[64,64]",
                              "algo.es.hidden=[40,40]", "budget.n_pairs=8"])
     gaps = {"distill": [], "random": []}
@@ -168,15 +168,10 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
         distill_into_actor(poet.actor_net, teacher, poet.replay_states(1), poet.layer_sizes,
                            epochs=30, batch=128, lr=1e-3, seed=0)
         terrain = poet.terrain(poet.active[0].env)
-        seeds = poet._seeds(3, Key.JOIN_EVAL, 0)
-        sac = poet.actor_score(terrain, seeds)
         for mapping in gaps:
-            poet.cfg.mapping = mapping
             for t in range(3):
-                theta, _ = poet.map_actor(t)
-                mapped = poet._scores([poet._eval_request(terrain, theta[None], Key.JOIN_EVAL,
-                                                          0)])[0][0]
-                gaps[mapping].append(abs(mapped - sac))
+                mapped = poet.map_and_score(t, terrain, mapping, 0)
+                gaps[mapping].append(abs(mapped.score - mapped.sac_score))
     poet.close()
     assert np.mean(gaps["distill"]) < 0.5 * np.mean(gaps["random"]), gaps
 

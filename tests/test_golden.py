@@ -44,7 +44,7 @@ def final_parameters(algo: str, run_dir: Path) -> np.ndarray:
     if algo == "epoet":
         pairs = state["poet"]["active"] + state["poet"]["archived"]
         return np.concatenate([p["es"]["theta"] for p in pairs])
-    params = state["agent"]["loss"]
+    params = state["learner"]["loss"]
     return np.concatenate([params[k].detach().double().numpy().ravel() for k in sorted(params)
                            if isinstance(params[k], torch.Tensor) and params[k].is_floating_point()])
 

@@ -1,4 +1,4 @@
-"""Tests of the V-MPO loss (epoet.rl.vmpo) against the equations of Song et al. (2019)."""
+"""Tests of the V-MPO loss (epoet.rl.vmpo_loss) against the equations of Song et al. (2019)."""
 
 import math
 

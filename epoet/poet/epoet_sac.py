@@ -35,7 +35,7 @@ import dataclasses
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import torch
@@ -44,7 +44,6 @@ from torchrl.envs import EnvBase, ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config, EpoetSacConfig, TerrainConfig
-from epoet.envs import HexapodEnv
 from epoet.es.policy import init_params
 from epoet.es.rollout import Episodes
 from epoet.es.workers import Evaluator
@@ -68,6 +67,16 @@ class ReplacedAgent:
     iteration: int
     theta: np.ndarray
     score: float
+
+
+class Mapped(NamedTuple):
+    """The SAC actor mapped to an ES vector, with the mapped agent's and the actor's scores on
+    one terrain from the same starts (their gap: what the mapping loses)."""
+
+    theta: np.ndarray
+    error: float            # distillation's mean squared action error; NaN for `random`
+    score: float
+    sac_score: float
 
 
 class ReplayMix:
@@ -111,20 +120,21 @@ class EpoetSac(EPOET):
     """The ePOET pool, a SAC learner and the steps that move agents between them."""
 
     def __init__(self, algo: EpoetSacConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
-                 sac_env: EnvBase, capacity: int, frames_per_iteration: int,
+                 sac_env: EnvBase, frames_per_iteration: int,
                  **poet: Any) -> None:
         super().__init__(algo, terrain, evaluator, **poet)
         self.cfg: EpoetSacConfig = algo
         torch.manual_seed(self._seed(Key.SAC))        # the networks' initial weights
         self.sac_env = sac_env
-        self.learner = SacLearner(algo.sac, sac_env, capacity)
+        self.learner = SacLearner(algo.sac, sac_env)
         self.actor_net = self.learner.loss.policy_net  # obs -> (loc, scale)
-        # A plain env for the SAC actor's deterministic scores: reset(seed=s) gives the spawn
-        # of the workers' episodes with spawn seed s, so both kinds of agent share the starts.
-        self.score_env = HexapodEnv(agent=hexapod(sac_env).agent_cfg, terrain=terrain)
+        # The SAC actor's deterministic scores step SAC's gym env directly (every Train_SAC
+        # resets it): reset(seed=s) gives the spawn of the workers' episodes with spawn seed s,
+        # so both kinds of agent share the starts.
+        self.score_env = hexapod(sac_env)
         self.frames_per_iteration = frames_per_iteration
         self.updates_per_iteration = round(frames_per_iteration * algo.updates_per_frame)
-        self.mix = ReplayMix(capacity)
+        self.mix = ReplayMix(algo.sac.buffer_size)
         self.joins = 0
         self.replaced: list[ReplacedAgent] = []
 
@@ -217,14 +227,10 @@ class EpoetSac(EPOET):
             data = self.sac_env.rollout(self.frames_per_iteration,
                                         policy=self.learner.actor if explore else None,
                                         break_when_any_done=False)
-        self.learner.add(data)
+        learned = self.learner.learn(data, self.updates_per_iteration)
         self.mix.add("sac", data.numel())
         self.env_steps += data.numel()
-        metrics = {f"sac/{k}": v for k, v in episode_metrics(data).items()}
-        if len(self.learner.buffer) >= self.learner.batch_size and self.updates_per_iteration:
-            learned = self.learner.gradient_steps(self.updates_per_iteration)
-            metrics.update({f"sac/{k}": v for k, v in learned.items()})
-        return metrics
+        return {f"sac/{k}": v for k, v in {**episode_metrics(data), **learned}.items()}
 
     # --- SAC actor <-> pool ----------------------------------------------------------------------
     def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
@@ -268,10 +274,10 @@ class EpoetSac(EPOET):
                 self.layer_sizes, **self._distill_kwargs(self._seed(Key.SAC, t, 2)))
         return metrics
 
-    def map_actor(self, t: int) -> tuple[np.ndarray, float]:
-        """The SAC actor as an ES vector (`mapping`), and the distillation's action error (NaN
+    def map_actor(self, t: int, mapping: str) -> tuple[np.ndarray, float]:
+        """The SAC actor as an ES vector by `mapping`, and the distillation's action error (NaN
         for the random mapping)."""
-        if self.cfg.mapping == "random":
+        if mapping == "random":
             rng = np.random.default_rng(self._seed(Key.JOIN, t))
             return random_mapping(self.actor_net, self.layer_sizes, rng), float("nan")
         init = init_params(self._seed(Key.JOIN, t, 0), self.layer_sizes)
@@ -279,28 +285,34 @@ class EpoetSac(EPOET):
                                self.layer_sizes, init,
                                **self._distill_kwargs(self._seed(Key.JOIN, t, 2)))
 
+    def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
+        """Map the SAC actor (random draws keyed by t), then score the mapped agent and the
+        actor on `terrain` from the same starts (keyed by `ids`)."""
+        theta, error = self.map_actor(t, mapping)
+        score = float(self._scores([self._eval_request(terrain, theta[None], Key.JOIN_EVAL,
+                                                       *ids)])[0][0])
+        sac_score = self.actor_score(terrain, self._seeds(self.eval_episodes, Key.JOIN_EVAL,
+                                                          *ids))
+        return Mapped(theta, error, score, sac_score)
+
     def join(self, t: int) -> dict[str, float]:
         """The SAC actor joins the pool as a new pair, then crosses over with every other active
         agent. Logs the mapped agent's score next to the SAC actor's on the same terrain and
         starts: the gap is what the mapping loses (the paper's stated limitation)."""
         home = self.sac_pair(t)
         terrain = self.terrain(home.env)
-        theta, error = self.map_actor(t)
-        mapped = float(self._scores([self._eval_request(terrain, theta[None], Key.JOIN_EVAL,
-                                                        t)])[0][0])
-        sac_score = self.actor_score(terrain, self._seeds(self.eval_episodes, Key.JOIN_EVAL, t))
-        others = list(self.active)
+        mapped = self.map_and_score(t, terrain, self.cfg.mapping, t)
         self.joins += 1
         env = Environment(index=self.next_index, genome=home.env.genome,
                           generation=home.env.generation, parent=home.env.index, created_at=t)
-        pair = self._admit(env, theta)
+        pair = self._admit(env, mapped.theta)
         pair.sac_join = self.joins
         self._terrains[(env.index, t)] = terrain
-        self._record(pair, mapped)
-        outcome = self.crossover_with([p for p in others if p in self.active], theta)
+        self._record(pair, mapped.score)
+        outcome = self.crossover_with([p for p in self.active if p is not pair], mapped.theta)
         metrics = {"joined": float(self.joins), "join/env": float(env.index),
-                   "join/sac_score": sac_score, "join/mapped_score": mapped,
-                   "join/mapping_error": error,
+                   "join/sac_score": mapped.sac_score, "join/mapped_score": mapped.score,
+                   "join/mapping_error": mapped.error,
                    "replaced": float(sum(new > old for old, new in outcome.values()))}
         for index, (old, new) in outcome.items():
             metrics[f"crossover/env{index}_old"] = old
@@ -331,17 +343,15 @@ class EpoetSac(EPOET):
                 self._record(pair, float(new))
         return outcome
 
-    # --- per-generation curves, artifacts, checkpoints -------------------------------------
-    def generation_scores(self) -> dict[str, float]:
-        """`gen<k>/score`: the best active score of the pairs of the k-th join (gen0: the ES
-        lineage), the paper's Figure 2b ePOET-SAC_gen<k> curves."""
-        best: dict[int, float] = {}
-        for pair in self.active:
-            best[pair.sac_join] = max(best.get(pair.sac_join, -np.inf), pair.score)
-        return {f"gen{k}/score": score for k, score in sorted(best.items())}
+    # --- generation curves, artifacts, checkpoints ------------------------------------------
+    def lineage(self, pair: Pair) -> int:
+        """The k-th join made the pair (0: the ES lineage), the paper's Figure 2b
+        ePOET-SAC_gen<k> curves."""
+        return pair.sac_join
 
-    def log_learner(self, run_dir: Path, tracker: Tracker) -> None:
-        """Artifacts: the SAC actor as a policy file and the agents crossover replaced."""
+    def log_artifacts(self, run_dir: Path, tracker: Tracker) -> None:
+        """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
+        super().log_artifacts(run_dir, tracker)
         sac = self.cfg.sac
         tracker.log_artifact(export_policy(run_dir / "sac_policy.pt", self.learner.actor,
                                            self.sac_env, sac.hidden, sac.activation))
@@ -355,7 +365,6 @@ class EpoetSac(EPOET):
 
     def close(self) -> None:
         self.sac_env.close()
-        self.score_env.close()
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "sac": self.learner.state_dict(),
@@ -375,7 +384,5 @@ def make_epoet_sac(cfg: Config, evaluator: Evaluator, **poet: Any) -> EpoetSac:
     set_threads(cfg)
     frames = cfg.budget.sac_frames_per_iteration or cfg.algo.frames_per_iteration
     sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
-    # The whole capacity: LazyTensorStorage's rows take memory only once written, and
-    # checkpoints hold the filled rows only (SacLearner.state_dict).
     return EpoetSac(cfg.algo, cfg.terrain, evaluator, sac_env=sac_env,
-                    capacity=cfg.algo.sac.buffer_size, frames_per_iteration=frames, **poet)
+                    frames_per_iteration=frames, **poet)

@@ -18,7 +18,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, NamedTuple
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from epoet.es.workers import Agents, Evaluator, Mirrored, Request
 from epoet.poet.novelty import pata_ec, rank_by_novelty
 from epoet.poet.pairs import Environment, Pair
 from epoet.terrain import CppnMutationError, Terrain, make_terrain, mutate_genome, new_genome
+
+if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
+    from epoet.tracking import Tracker
 
 
 class Key(IntEnum):
@@ -295,13 +299,17 @@ class EPOET:
         return metrics
 
     def generation_scores(self) -> dict[str, float]:
-        """`gen<g>/score`: the best active score of each environment generation (paper Figure
-        2's ePOET_gen<g> curves)."""
+        """`gen<g>/score`: the best active score of each lineage g (paper Figure 2's
+        <algorithm>_gen<g> curves)."""
         best: dict[int, float] = {}
         for pair in self.active:
-            g = pair.env.generation
+            g = self.lineage(pair)
             best[g] = max(best.get(g, -np.inf), pair.score)
         return {f"gen{g}/score": score for g, score in sorted(best.items())}
+
+    def lineage(self, pair: Pair) -> int:
+        """ePOET's generations: the environment's (root 0, a child its parent's + 1)."""
+        return pair.env.generation
 
     def _record(self, pair: Pair, score: float) -> None:
         pair.scores.append(score)
@@ -447,6 +455,24 @@ class EPOET:
 
     def close(self) -> None:
         """Release what the loop holds besides its evaluator (ePOET: nothing)."""
+
+    def log_artifacts(self, run_dir: Path, tracker: Tracker) -> None:
+        """Each environment's terrain (npz + PNG) and each agent's final parameters."""
+        terrains, policies = run_dir / "terrains", run_dir / "policies"
+        terrains.mkdir(exist_ok=True)
+        policies.mkdir(exist_ok=True)
+        for status, pairs in (("active", self.active), ("archived", self.archived)):
+            for pair in pairs:
+                name = f"env{pair.env.index}"
+                terrain = self.terrain(pair.env, self.iteration - 1)  # the last one trained on
+                terrain.save(terrains / f"{name}.npz")
+                terrain.to_png(terrains / f"{name}.png")
+                np.savez(policies / f"{name}.npz", theta=pair.theta,
+                         layer_sizes=np.array(self.layer_sizes), score=pair.score,
+                         status=status, generation=pair.env.generation,
+                         parent=-1 if pair.env.parent is None else pair.env.parent)
+        tracker.log_artifact(terrains, "terrains")
+        tracker.log_artifact(policies, "policies")
 
     # --- checkpointing ----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:

@@ -6,13 +6,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from epoet.checkpoint import save_run_state
 from epoet.config import Config, EpoetSacConfig
 from epoet.es.policy import LAYER_SIZES
 from epoet.es.workers import Evaluator, make_evaluator
-from epoet.poet.epoet_sac import EpoetSac, make_epoet_sac
+from epoet.poet.epoet_sac import make_epoet_sac
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
 
@@ -59,9 +57,7 @@ def _iterate(poet: EPOET, cfg: Config, tracker: Tracker, run_dir: Path,
         _progress(cfg.algo.name, poet, metrics, budget.iterations, time.perf_counter() - started)
         if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
             save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
-    _log_pool(poet, run_dir, tracker, layer_sizes(cfg))
-    if isinstance(poet, EpoetSac):
-        poet.log_learner(run_dir, tracker)
+    poet.log_artifacts(run_dir, tracker)
 
 
 EVENTS = ("admitted", "transfers", "joined", "replaced")  # shown when an iteration has them
@@ -79,21 +75,3 @@ def _progress(name: str, poet: EPOET, metrics: dict[str, float], total: int,
           f"archived={len(poet.archived)} best={metrics['best_score']:.1f} "
           f"annecs={poet.annecs} steps/s={metrics['steps_per_second']:,.0f} "
           f"elapsed={elapsed:.0f}s{extra}", flush=True)
-
-
-def _log_pool(poet: EPOET, run_dir: Path, tracker: Tracker, sizes: tuple[int, ...]) -> None:
-    """Artifacts: each environment's terrain (npz + PNG) and each agent's final parameters."""
-    terrains, policies = run_dir / "terrains", run_dir / "policies"
-    terrains.mkdir(exist_ok=True)
-    policies.mkdir(exist_ok=True)
-    for status, pairs in (("active", poet.active), ("archived", poet.archived)):
-        for pair in pairs:
-            name = f"env{pair.env.index}"
-            terrain = poet.terrain(pair.env, poet.iteration - 1)  # the last one trained on
-            terrain.save(terrains / f"{name}.npz")
-            terrain.to_png(terrains / f"{name}.png")
-            np.savez(policies / f"{name}.npz", theta=pair.theta, layer_sizes=np.array(sizes),
-                     score=pair.score, status=status, generation=pair.env.generation,
-                     parent=-1 if pair.env.parent is None else pair.env.parent)
-    tracker.log_artifact(terrains, "terrains")
-    tracker.log_artifact(policies, "policies")

@@ -104,8 +104,8 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
         critic = make_value(run.env, algo.hidden, algo.activation)
         learner = OnPolicyLearner(algo, run.plan, actor, critic, make_loss(algo, actor, critic))
 
-        collector = run.start(actor, learner)
-        for batch in run.batches(collector):
+        run.start(actor, learner)
+        for batch in run.batches():
             learned = learner.learn(batch)
             run.log(batch, learned)
             run.evaluate_if_due(actor)

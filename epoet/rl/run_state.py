@@ -6,8 +6,8 @@ step of that loop calls:
 
     with TrainingRun(cfg, tracker, run_dir, resume) as run:     # seeds, envs, counters
         ... build networks, loss, optimiser ...
-        collector = run.start(actor, learner)                   # restores a resumed run
-        for batch in run.batches(collector):                    # collect
+        run.start(actor, learner)                               # restores a resumed run
+        for batch in run.batches():                             # collect
             learned = learner.learn(batch)                      # learn
             run.log(batch, learned)                             # log
             run.evaluate_if_due(actor)                          # evaluate
@@ -138,8 +138,8 @@ class TrainingRun:
     # --- start ------------------------------------------------------------------------------------
 
     def start(self, actor: ProbabilisticActor, learner: Learner,
-              init_random_frames: int = 0) -> Collector:
-        """The collector of `actor`, with a resumed run's state restored; evaluates at frame 0.
+              init_random_frames: int = 0) -> None:
+        """Make the collector of `actor`, restore a resumed run's state, evaluate at frame 0.
 
         `init_random_frames` (from the config, scaled to the batch) of uniform random actions
         come first; none are left after a resume that is past them.
@@ -150,7 +150,7 @@ class TrainingRun:
             # After the collector's construction, which resets the env and may draw random
             # numbers; then a new episode starts exactly as the interrupted run's did right
             # after writing the checkpoint.
-            learner.load_state_dict(self.resume["agent"])
+            learner.load_state_dict(self.resume["learner"])
             if self.obs_stats is not None:
                 self.obs_stats.load_state_dict(self.resume["obs_norm"])
             _set_rng_state(self.env, self.resume["rng"])
@@ -159,13 +159,12 @@ class TrainingRun:
                              unit="frame", desc=self.cfg.algo.name, disable=None,
                              dynamic_ncols=True)
         self.evaluate_if_due(actor)
-        return self.collector
 
     # --- the loop's steps -------------------------------------------------------------------------
 
-    def batches(self, collector: Collector) -> Iterator[TensorDictBase]:
+    def batches(self) -> Iterator[TensorDictBase]:
         """Collector batches until the budget's frames are collected."""
-        stream = iter(collector)
+        stream = iter(self.collector)
         while self.state.batches < self.plan.batches:
             self._batch_start = time.perf_counter()
             yield next(stream)
@@ -241,6 +240,6 @@ class TrainingRun:
 
     def _checkpoint(self, learner: Learner) -> None:
         save_run_state(self.run_dir, self.tracker, self.cfg, {
-            "loop": dataclasses.asdict(self.state), "agent": learner.state_dict(),
+            "loop": dataclasses.asdict(self.state), "learner": learner.state_dict(),
             "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
             "rng": _rng_state(self.env), "seeds": dataclasses.asdict(self.seeds)})

@@ -39,7 +39,7 @@ SAMPLE_CHUNK = 50  # batches drawn from the replay buffer per call
 class SacLearner:
     """SAC's networks, loss, optimiser, target updater and replay buffer (also ePOET-SAC's)."""
 
-    def __init__(self, algo: SacLearnerConfig, env: EnvBase, capacity: int) -> None:
+    def __init__(self, algo: SacLearnerConfig, env: EnvBase) -> None:
         self.actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=False,
                                 safe_tanh=False)
         obs_dim, act_dim = env.observation_spec[OBS].shape[-1], env.action_spec.shape[-1]
@@ -50,9 +50,9 @@ class SacLearner:
         self.tau = algo.tau
         self.optimizer = torch.optim.Adam(
             [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True)
-        # LazyTensorStorage reserves all `capacity` rows at the first write; memory becomes
-        # resident as rows are written
-        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity))
+        # LazyTensorStorage reserves all rows at the first write; memory becomes resident as
+        # rows are written, and checkpoints hold the written rows only (state_dict)
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(algo.buffer_size))
         self.keys = self.loss.in_keys
         self.reward_scale = algo.reward_scale
         self.batch_size = algo.batch_size
@@ -118,11 +118,11 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
     """The `algo=sac` runner (see epoet.run.RUNNERS)."""
     algo: SacConfig = cfg.algo
     with TrainingRun(cfg, tracker, run_dir, resume) as run:
-        learner = SacLearner(algo, run.env, min(algo.buffer_size, run.plan.total_frames))
+        learner = SacLearner(algo, run.env)
         updates = run.plan.scaled(algo.updates_per_batch, minimum=1)
 
-        collector = run.start(learner.actor, learner, algo.init_random_frames)
-        for batch in run.batches(collector):
+        run.start(learner.actor, learner, algo.init_random_frames)
+        for batch in run.batches():
             learned = learner.learn(batch, updates)
             run.log(batch, learned)
             run.evaluate_if_due(learner.actor)

@@ -1,7 +1,7 @@
 """Setup the three baselines share, in the role of sota-implementations' `utils.py`: the compute
 plan, seeds, the environment and its observation normaliser, the networks, evaluation and the
-collector. Each algorithm's loop and update live in its own file (ppo.py, sac.py, vmpo.py); a
-run's bookkeeping (counters, checkpoints, resume) in run_state.py; the exported policy in
+collector. PPO's and SAC's loops and updates live in their own files (ppo.py, sac.py; vmpo.py
+runs PPO's loop with the V-MPO loss of vmpo_loss.py); a run's bookkeeping (counters, checkpoints, resume) in run_state.py; the exported policy in
 policy_file.py.
 
 Data flow of one run:
