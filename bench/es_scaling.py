@@ -36,8 +36,8 @@ def main() -> None:
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
     rng = np.random.default_rng(0)
     theta = init_params(0)
-    es = Request(terrain, Mirrored.of(theta, rng.integers(0, 2**62, args.pairs), 0.02,
-                                      rng.integers(0, 2**62, args.pairs)))
+    es = Request(terrain, Mirrored.of(theta, rng.integers(0, 2**62, args.pairs),
+                                      paper.algo.es.sigma, rng.integers(0, 2**62, args.pairs)))
 
     def es_step(evaluator: Evaluator) -> tuple[float, np.ndarray]:
         start = time.perf_counter()

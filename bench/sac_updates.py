@@ -26,11 +26,12 @@ import torch.nn.functional as F
 from tensordict import TensorDict
 from torch import nn
 
-from epoet.config import compose, validate
-from epoet.rl.setup import make_env, set_threads
+from epoet.config import load
+from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.rl.sac import SacLearner
+from epoet.rl.setup import make_env, set_threads
 
-OBS_DIM, ACT_DIM, BUFFER = 53, 18, 10_000
+BUFFER = 10_000
 
 
 class PlainActor(nn.Module):
@@ -113,7 +114,7 @@ def make_ours(threads: int | None) -> tuple[SacLearner, int]:
     overrides = ["algo=sac", f"budget.frames={BUFFER}"]
     if threads is not None:
         overrides.append(f"workers.num={threads}")
-    cfg = validate(compose(overrides))
+    cfg = load(overrides)
     threads = set_threads(cfg)
     env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=0)
     learner = SacLearner(cfg.algo, env)

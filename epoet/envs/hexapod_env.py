@@ -39,7 +39,7 @@ def _plain(value: Any) -> dict:
         return {}
     if isinstance(value, DictConfig):
         return OmegaConf.to_container(value, resolve=True)
-    if isinstance(value, (AgentConfig, TerrainConfig)):
+    if isinstance(value, TerrainConfig):  # a dataclass terrain with a dict agent
         return asdict(value)
     return dict(value)
 

@@ -127,11 +127,7 @@ class OpenAIES:
     def __init__(self, theta: np.ndarray, seed: int | np.random.Generator, cfg: EsConfig,
                  n_pairs: int) -> None:
         self.n_pairs = n_pairs
-        self.lr_init, self.lr_decay, self.lr_floor = cfg.lr, cfg.lr_decay, cfg.lr_floor
-        self.sigma_init, self.sigma_decay, self.sigma_floor = cfg.sigma, cfg.sigma_decay, \
-            cfg.sigma_floor
-        self.l2_coeff = cfg.l2_coeff
-        self.beta1, self.beta2, self.adam_eps = ADAM_BETA1, ADAM_BETA2, ADAM_EPS
+        self.cfg = cfg
         self.rng = np.random.default_rng(seed)
         self.reset(theta)
 
@@ -145,8 +141,8 @@ class OpenAIES:
         self.m = np.zeros_like(self.theta)
         self.v = np.zeros_like(self.theta)
         self.t = 0
-        self.lr = self.lr_init
-        self.sigma = self.sigma_init
+        self.lr = self.cfg.lr
+        self.sigma = self.cfg.sigma
 
     def sample_seeds(self) -> np.ndarray:
         """n_pairs perturbation seeds (int64) from this optimiser's own Generator."""
@@ -161,8 +157,8 @@ class OpenAIES:
             raise ValueError(f"theta has {theta.size} parameters, the optimiser "
                              f"{self.num_params}.")
         g = es_gradient(seeds, returns_pos, returns_neg, self.sigma, self.num_params)
-        new_theta, m, v, t = adam_step(theta, -g + self.l2_coeff * theta, self.m, self.v, self.t,
-                                       self.lr, self.beta1, self.beta2, self.adam_eps)
+        new_theta, m, v, t = adam_step(theta, -g + self.cfg.l2_coeff * theta, self.m, self.v,
+                                       self.t, self.lr, ADAM_BETA1, ADAM_BETA2, ADAM_EPS)
         return new_theta, m, v, t, g
 
     def tell(self, seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray
@@ -180,8 +176,8 @@ class OpenAIES:
             "theta_norm": float(np.linalg.norm(new_theta)),
         }
         self.theta = new_theta
-        self.lr = max(self.lr * self.lr_decay, self.lr_floor)
-        self.sigma = max(self.sigma * self.sigma_decay, self.sigma_floor)
+        self.lr = max(self.lr * self.cfg.lr_decay, self.cfg.lr_floor)
+        self.sigma = max(self.sigma * self.cfg.sigma_decay, self.cfg.sigma_floor)
         return stats
 
     def propose(self, seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray,
