@@ -1,0 +1,314 @@
+"""The fixed evaluation suite: 32 CPPN terrains at four difficulty levels (paper Section 4).
+
+The paper evaluates every agent on 32 terrains taken from a separate ePOET run (4 reproduction
+rounds x 8 children). Here the suite comes from a deterministic procedure of the same shape that
+needs no agent: `children` lineages start from one root genome, and each reproduction round
+mutates every lineage's last terrain once more, with S rising round by round. A lineage keeps
+the first mutation whose course roughness falls in the round's level (round r aims at level r,
+the way ePOET's minimal criterion keeps children that are neither too easy nor too hard); when
+none of `max_tries` mutations does, it keeps the one closest to that level and its level is
+whatever its roughness says.
+
+Difficulty is the terrain's **course roughness**: the variance of the 5 x 5 height patch (metres)
+under each cell, averaged over the straight course the robot walks (x from the agent's start_x
+to finish_x, |y| <= the spawn footprint). The buckets are the reference's (REFERENCE.md section
+9): easy < 0.001 <= medium < 0.01 <= hard < 0.1 <= extreme. The reference read the variance
+under the robot along its own path; a fixed course makes the level a property of the terrain,
+the same for every agent.
+
+Suite folder format (any folder in this format can be evaluated, `suite=<folder>`):
+- `suite.json`: {"format": "epoet-suite/1", "size": metres per side, "grid": samples per side,
+  "course": {"start_x", "finish_x", "half_width"}, "terrains": [{"name", "max_height", and
+  optionally "level", "roughness", "round", "lineage", "seed", "generation"}, ...]};
+  a terrain without "level" gets it from its roughness along "course".
+- `heights.npz`: one (grid, grid) array per terrain name with heights in [0, 1] (uint16 as
+  q / 65535, or float); height 1 stands for the terrain's max_height metres.
+- `genomes.npz` (optional): each terrain's pickled neat genome as uint8, for provenance.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pickle
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import hydra
+from omegaconf import DictConfig
+
+from epoet.cli import fail, run_hydra_app
+from epoet.config import CONF_DIR, AgentConfig, ConfigError, SuiteConfig, TerrainConfig, validate
+from epoet.envs.model import patch_variance
+from epoet.envs.spawn import FOOTPRINT
+from epoet.files import atomic_write
+from epoet.terrain.cppn import CppnMutationError
+from epoet.terrain.generate import make_terrain, mutate_terrain
+from epoet.terrain.terrain import Terrain
+
+SUITE_FORMAT = "epoet-suite/1"
+SHIPPED = Path(__file__).resolve().parent.parent / "suite"
+LEVELS = ("easy", "medium", "hard", "extreme")
+LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)   # m^2 of patch variance between consecutive levels
+_QUANT = 65535
+
+
+class SuiteError(ValueError):
+    """A suite folder that cannot be used; the message names the folder and the problem."""
+
+
+@dataclass(frozen=True)
+class Course:
+    """The strip the robot walks: x from start_x to finish_x, |y| <= half_width (metres)."""
+
+    start_x: float
+    finish_x: float
+    half_width: float
+
+    @classmethod
+    def of(cls, agent: AgentConfig) -> Course:
+        return cls(agent.start_x, agent.finish_x, FOOTPRINT)
+
+    def roughness(self, heightmap: np.ndarray, max_height: float, size: float) -> float:
+        """Mean 5 x 5 patch variance of the heights (metres) over the course's cells."""
+        n = heightmap.shape[0]
+        axis = np.linspace(-size / 2, size / 2, n)
+        rows = np.abs(axis) <= self.half_width
+        cols = (axis >= self.start_x) & (axis <= self.finish_x)
+        return float(patch_variance(heightmap * max_height)[np.ix_(rows, cols)].mean())
+
+
+def level_of(roughness: float) -> str:
+    return LEVELS[int(np.searchsorted(LEVEL_BOUNDS, roughness, side="right"))]
+
+
+def _miss(roughness: float, level: str) -> float:
+    """How far (in log10 units) a roughness lies outside a level's band; 0 inside it."""
+    k = LEVELS.index(level)
+    lo = LEVEL_BOUNDS[k - 1] if k > 0 else 0.0
+    hi = LEVEL_BOUNDS[k] if k < len(LEVEL_BOUNDS) else math.inf
+    r = max(roughness, 1e-12)
+    return max(0.0, math.log10(lo) - math.log10(r) if lo > 0 else 0.0,
+               math.log10(r) - math.log10(hi) if hi < math.inf else 0.0)
+
+
+@dataclass(frozen=True)
+class SuiteTerrain:
+    """One suite terrain: what the env needs (heightmap, max_height, size) and its label."""
+
+    name: str
+    level: str
+    roughness: float
+    heightmap: np.ndarray
+    max_height: float
+    size: float
+    info: dict[str, Any] = dataclasses.field(default_factory=dict)  # round, lineage, seed, ...
+
+
+@dataclass(frozen=True)
+class Suite:
+    folder: Path
+    terrains: list[SuiteTerrain]
+
+    def by_name(self, name: str) -> SuiteTerrain:
+        for terrain in self.terrains:
+            if terrain.name == name:
+                return terrain
+        raise SuiteError(f"suite {self.folder} has no terrain {name!r} (it has "
+                         f"{self.terrains[0].name} .. {self.terrains[-1].name}).")
+
+    def level_counts(self) -> dict[str, int]:
+        return {level: sum(t.level == level for t in self.terrains) for level in LEVELS}
+
+
+def quantize(heightmap: np.ndarray) -> np.ndarray:
+    return np.rint(np.clip(heightmap, 0.0, 1.0) * _QUANT).astype(np.uint16)
+
+
+def _dequantize(q: np.ndarray) -> np.ndarray:
+    return q.astype(np.float64) / _QUANT if q.dtype == np.uint16 else q.astype(np.float64)
+
+
+# --- generation -----------------------------------------------------------------------------
+
+def _at_height(cfg: TerrainConfig, max_height: float) -> TerrainConfig:
+    """The terrain config with S fixed at `max_height` (the bowl part's level depends on S)."""
+    return dataclasses.replace(cfg, max_height=max_height, max_height_step=0.0)
+
+
+def generate(cfg: SuiteConfig, progress: bool = False) -> tuple[list[Terrain], list[dict]]:
+    """The suite's terrains (heightmaps already quantised as stored) and their index entries."""
+    course = Course.of(cfg.agent)
+    # Each (round, lineage) draws its mutation seeds from its own key, so a suite with fewer
+    # rounds or lineages is an exact prefix of a bigger one.
+    root_seed = int(np.random.SeedSequence(cfg.seed).generate_state(1)[0])
+    root = make_terrain(_at_height(cfg.terrain, cfg.max_heights[0]), root_seed)
+    parents = [root] * cfg.children
+    terrains, entries = [], []
+    for rnd, height in enumerate(cfg.max_heights):
+        target = LEVELS[min(rnd, len(LEVELS) - 1)]
+        tcfg = _at_height(cfg.terrain, height)
+        for lineage in range(cfg.children):
+            tries = np.random.SeedSequence(cfg.seed, spawn_key=(rnd, lineage)).generate_state(
+                cfg.max_tries).tolist()
+            child, rough = _search(parents[lineage], tcfg, course, target, tries)
+            parents[lineage] = child
+            name = f"r{rnd}l{lineage}"
+            terrains.append(child)
+            entries.append({"name": name, "level": level_of(rough), "roughness": rough,
+                            "max_height": height, "round": rnd, "lineage": lineage,
+                            "target": target, "seed": child.seed,
+                            "generation": child.generation})
+            if progress:
+                print(f"  {name}: S={height:.2f} m roughness={rough:.5f} -> {level_of(rough)} "
+                      f"(aimed at {target})", flush=True)
+    return terrains, entries
+
+
+def _search(parent: Terrain, cfg: TerrainConfig, course: Course, target: str,
+            seeds: list[int]) -> tuple[Terrain, float]:
+    """Mutate until a child lands in `target`; otherwise climb towards it from the closest."""
+    best: tuple[float, Terrain, float] | None = None
+    current = parent
+    for seed in seeds:
+        try:
+            child = mutate_terrain(current, cfg, seed)
+        except CppnMutationError:
+            continue
+        child = dataclasses.replace(child, heightmap=_dequantize(quantize(child.heightmap)))
+        rough = course.roughness(child.heightmap, child.max_height, child.size)
+        miss = _miss(rough, target)
+        if best is None or miss < best[0]:
+            best = (miss, child, rough)
+            current = child
+        if miss == 0.0:
+            break
+    if best is None:
+        raise CppnMutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} "
+                                f"tries.")
+    return best[1], best[2]
+
+
+def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict],
+                course: Course) -> None:
+    """Write the three files, each atomically (a failed write leaves the old file)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    size = terrains[0].size
+    index = {"format": SUITE_FORMAT, "size": size, "grid": terrains[0].grid,
+             "course": dataclasses.asdict(course), "levels": dict(zip(LEVELS[1:], LEVEL_BOUNDS)),
+             "terrains": entries}
+    with atomic_write(folder / "heights.npz") as f:
+        np.savez_compressed(f, **{e["name"]: quantize(t.heightmap)
+                                  for t, e in zip(terrains, entries)})
+    with atomic_write(folder / "genomes.npz") as f:
+        np.savez_compressed(f, **{e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)
+                                  for t, e in zip(terrains, entries)})
+    with atomic_write(folder / "suite.json") as f:
+        f.write((json.dumps(index, indent=1) + "\n").encode())
+
+
+def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> list[str]:
+    """What differs between generated terrains and the first ones in `folder` (empty: bit for
+    bit; a suite made with fewer rounds is compared with the folder's first rounds)."""
+    load_suite(folder)  # a malformed folder fails here, with its own message
+    index = json.loads((folder / "suite.json").read_text())
+    stored = index["terrains"][:len(entries)]
+    if [e["name"] for e in stored] != [e["name"] for e in entries]:
+        return [f"terrain names differ: {[e['name'] for e in stored]}"]
+    found = []
+    if stored != json.loads(json.dumps(entries)):
+        found.append("suite.json entries differ")
+    with np.load(folder / "heights.npz") as heights, np.load(folder / "genomes.npz") as genomes:
+        for terrain, entry in zip(terrains, entries):
+            name = entry["name"]
+            if not np.array_equal(heights[name], quantize(terrain.heightmap)):
+                found.append(f"{name}: heights differ")
+            if genomes[name].tobytes() != pickle.dumps(terrain.genome):
+                found.append(f"{name}: genome differs")
+    return found
+
+
+# --- loading --------------------------------------------------------------------------------
+
+def load_suite(folder: str | Path | None = None) -> Suite:
+    """Read and check a suite folder (None: the shipped one); SuiteError names any problem."""
+    folder = SHIPPED if folder is None else Path(folder)
+    if not (folder / "suite.json").is_file():
+        raise SuiteError(f"{folder} is not a suite folder: it has no suite.json.")
+    if not (folder / "heights.npz").is_file():
+        raise SuiteError(f"suite {folder} has no heights.npz.")
+    try:
+        index = json.loads((folder / "suite.json").read_text())
+        if index.get("format") != SUITE_FORMAT:
+            raise ValueError(f"format is {index.get('format')!r}, not {SUITE_FORMAT!r}")
+        size, grid = float(index["size"]), int(index["grid"])
+        course = Course(**index.get("course", {"start_x": -6.0, "finish_x": 6.0,
+                                               "half_width": FOOTPRINT}))
+        terrains = []
+        with np.load(folder / "heights.npz", allow_pickle=False) as heights:
+            for entry in index["terrains"]:
+                name, height = str(entry["name"]), float(entry["max_height"])
+                if name not in heights:
+                    raise ValueError(f"heights.npz has no array {name!r}")
+                hm = _dequantize(heights[name])
+                if hm.shape != (grid, grid) or not (hm.min() >= 0.0 and hm.max() <= 1.0):
+                    raise ValueError(f"{name} must be a ({grid}, {grid}) array in [0, 1], got "
+                                     f"shape {hm.shape}")
+                if not height >= 0.0:
+                    raise ValueError(f"{name} has max_height {height}")
+                hm.setflags(write=False)
+                rough = course.roughness(hm, height, size)
+                level = entry.get("level") or level_of(rough)
+                if level not in LEVELS:
+                    raise ValueError(f"{name} has level {level!r}, not one of {list(LEVELS)}")
+                info = {k: v for k, v in entry.items()
+                        if k not in ("name", "level", "roughness", "max_height")}
+                terrains.append(SuiteTerrain(name, level, rough, hm, height, size, info))
+    except SuiteError:
+        raise
+    except Exception as err:  # json, zip, missing keys, wrong shapes
+        raise SuiteError(f"suite {folder} is malformed: {str(err).splitlines()[0]}.") from err
+    if not terrains:
+        raise SuiteError(f"suite {folder} lists no terrains.")
+    if len({t.name for t in terrains}) != len(terrains):
+        raise SuiteError(f"suite {folder} lists a terrain name twice.")
+    return Suite(folder, terrains)
+
+
+# --- command --------------------------------------------------------------------------------
+
+@hydra.main(config_path=str(CONF_DIR), config_name="suite", version_base="1.3")
+def _app(raw: DictConfig) -> None:
+    try:
+        cfg: SuiteConfig = validate(raw)
+        folder = SHIPPED if cfg.out is None else Path(cfg.out)
+        print(f"generating {len(cfg.max_heights)} rounds x {cfg.children} terrains "
+              f"(seed {cfg.seed})", flush=True)
+        terrains, entries = generate(cfg, progress=True)
+        if cfg.check:
+            found = differences(folder, terrains, entries)
+            stored = len(load_suite(folder).terrains)
+            if stored != len(entries):
+                found.append(f"{stored} terrains stored, {len(entries)} generated")
+            if found:
+                fail(SuiteError(f"suite {folder} differs from the regenerated one: "
+                                f"{'; '.join(found[:5])}."))
+            print(f"suite {folder} matches the regenerated suite bit for bit")
+            return
+        write_suite(folder, terrains, entries, Course.of(cfg.agent))
+        counts = load_suite(folder).level_counts()
+        print(f"wrote {len(terrains)} terrains to {folder}/: "
+              + ", ".join(f"{n} {level}" for level, n in counts.items()))
+    except (ConfigError, CppnMutationError, SuiteError, OSError) as err:
+        fail(err)
+
+
+def main() -> None:
+    run_hydra_app(_app)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,107 @@
+"""The evaluation suite: deterministic regeneration of the shipped data, levels, folder checks."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from epoet.config import compose, validate
+from epoet.terrain.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,
+                                 level_of, load_suite, quantize, write_suite)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def suite_cfg(*overrides: str):
+    return validate(compose(list(overrides), config_name="suite"))
+
+
+def test_regenerating_the_first_two_rounds_matches_the_shipped_suite_bit_for_bit():
+    # The whole suite takes about a minute (`python -m epoet.terrain.suite check=true`); each
+    # (round, lineage) has its own seed key, so two rounds are an exact prefix of four.
+    cfg = suite_cfg("max_heights=[0.4,0.9]")
+    terrains, entries = generate(cfg)
+    assert len(terrains) == 16
+    assert differences(SHIPPED, terrains, entries) == []
+
+
+def test_a_changed_seed_is_detected_as_a_difference():
+    terrains, entries = generate(suite_cfg("max_heights=[0.4]", "seed=1"))
+    assert differences(SHIPPED, terrains, entries)
+
+
+def test_shipped_suite_has_32_terrains_with_levels_from_their_course_roughness():
+    suite = load_suite()
+    assert len(suite.terrains) == 32
+    index = json.loads((SHIPPED / "suite.json").read_text())
+    for terrain, entry in zip(suite.terrains, index["terrains"]):
+        # the stored roughness is the one recomputed from the stored (quantised) heights
+        assert terrain.roughness == pytest.approx(entry["roughness"], rel=1e-9)
+        assert terrain.level == level_of(terrain.roughness)
+    counts = suite.level_counts()
+    assert all(counts[level] >= 4 for level in LEVELS), counts
+    # S rises round by round, and so does the median roughness
+    medians = [np.median([t.roughness for t in suite.terrains if t.info["round"] == r])
+               for r in range(4)]
+    assert medians == sorted(medians)
+
+
+def test_level_buckets_follow_the_reference_thresholds():
+    assert [level_of(v) for v in (0.0, 0.00099, 0.001, 0.0099, 0.01, 0.099, 0.1, 5.0)] == [
+        "easy", "easy", "medium", "medium", "hard", "hard", "extreme", "extreme"]
+
+
+def test_course_roughness_reads_only_the_strip_the_robot_walks():
+    n, size = 200, 40.0
+    hm = np.zeros((n, n))
+    axis = np.linspace(-size / 2, size / 2, n)
+    hm[:, axis < -10] = np.random.default_rng(0).random((n, int((axis < -10).sum())))
+    course = Course(-6.0, 6.0, 0.35)
+    assert course.roughness(hm, 1.0, size) < 1e-12      # rough ground behind the start only
+    hm2 = hm.copy()
+    hm2[n // 2, n // 2] = 1.0                           # one spike on the course
+    assert course.roughness(hm2, 1.0, size) > 0.0
+    assert course.roughness(hm2, 2.0, size) == pytest.approx(4 * course.roughness(hm2, 1.0, size))
+
+
+def test_a_suite_written_by_write_suite_loads_back(tmp_path):
+    cfg = suite_cfg("max_heights=[0.4]", "children=2", "max_tries=2")
+    terrains, entries = generate(cfg)
+    write_suite(tmp_path, terrains, entries, Course.of(cfg.agent))
+    suite = load_suite(tmp_path)
+    assert [t.name for t in suite.terrains] == ["r0l0", "r0l1"]
+    assert np.array_equal(quantize(suite.terrains[0].heightmap), quantize(terrains[0].heightmap))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda d: (d / "suite.json").unlink(), "has no suite.json"),
+    (lambda d: (d / "heights.npz").unlink(), "has no heights.npz"),
+    (lambda d: (d / "suite.json").write_text("{not json"), "is malformed"),
+    (lambda d: (d / "suite.json").write_text(json.dumps({"format": "other"})), "is malformed"),
+    (lambda d: np.savez(d / "heights.npz", r0l0=np.zeros((3, 3))), "is malformed"),
+])
+def test_a_malformed_suite_folder_is_one_clear_error(tmp_path, damage, message):
+    folder = tmp_path / "suite"
+    shutil.copytree(SHIPPED, folder)
+    damage(folder)
+    with pytest.raises(SuiteError, match=message):
+        load_suite(folder)
+
+
+def test_check_command_reports_a_mismatch_in_one_line(tmp_path):
+    folder = tmp_path / "suite"
+    shutil.copytree(SHIPPED, folder)
+    index = json.loads((folder / "suite.json").read_text())
+    index["terrains"][0]["seed"] += 1
+    (folder / "suite.json").write_text(json.dumps(index))
+    proc = subprocess.run([sys.executable, "-m", "epoet.terrain.suite", f"out={folder}",
+                           "check=true", "max_heights=[0.4]", "children=1"],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error: suite") and "differs" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
