@@ -383,6 +383,83 @@ class Config:
 
 
 @dataclass
+class SuiteConfig:
+    """`python -m epoet.terrain.suite`: the fixed evaluation suite (REFERENCE.md section 9).
+
+    Rounds of mutated CPPN children with a rising S; round r aims its children at level r
+    (terrain/suite.py)."""
+
+    KEY: ClassVar[str] = ""
+
+    terrain: TerrainConfig
+    agent: AgentConfig               # the course (start_x .. finish_x) the roughness is read along
+    seed: int
+    children: int                    # children per round (lineages)
+    max_heights: list[float]         # S of each round, metres: one round per entry
+    max_tries: int                   # mutations tried per child before taking the closest
+    out: Optional[str]               # None: the shipped suite folder
+    check: bool                      # regenerate and compare with `out`, write nothing
+
+    def __post_init__(self) -> None:
+        _non_negative(self, "seed")
+        _positive(self, "children", "max_tries")
+        _check(len(self.max_heights) > 0 and all(0 < s <= self.terrain.max_height_limit
+                                                 for s in self.max_heights),
+               f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "
+               f"{self.terrain.max_height_limit}], got {self.max_heights}.")
+
+
+@dataclass
+class EvaluateConfig:
+    """`python -m epoet.evaluate`: a trained agent on the evaluation suite."""
+
+    KEY: ClassVar[str] = ""
+
+    run: Optional[str]               # MLflow run id, run folder or policy file
+    agent: AgentConfig               # episode rules for a bare policy file (a run brings its own)
+    tracking: TrackingConfig
+    suite: Optional[str]             # None: the shipped suite
+    episodes: int                    # per terrain
+    seed: int                        # keys every episode's start
+    solve_score: float               # "solved": finish line and this return (x the run's scale)
+    action_samples: int              # actions kept per episode, for t-SNE
+    workers: Optional[int]           # None: every available core
+    out: Optional[str]               # results folder; None: <run folder>/evaluation or ./evaluation
+
+    def __post_init__(self) -> None:
+        _check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
+        _positive(self, "episodes")
+        _non_negative(self, "seed", "action_samples")
+        _check(self.workers is None or self.workers > 0,
+               f"workers must be > 0 or null, got {self.workers}.")
+
+
+@dataclass
+class RenderConfig:
+    """`python -m epoet.render`: an mp4 of a trained agent on one terrain."""
+
+    KEY: ClassVar[str] = ""
+
+    run: Optional[str]               # MLflow run id, run folder or policy file
+    terrain: Optional[str]           # a suite terrain's name or a terrain .npz file
+    agent: AgentConfig
+    tracking: TrackingConfig
+    suite: Optional[str]             # None: the shipped suite
+    seed: int                        # the episode's start
+    steps: Optional[int]             # None: the run's episode length
+    width: int
+    height: int
+    out: Optional[str]               # None: videos/<run>_<terrain>.mp4
+
+    def __post_init__(self) -> None:
+        _check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
+        _check(bool(self.terrain), "terrain is required: a suite terrain's name or an .npz file.")
+        _non_negative(self, "seed")
+        _positive(self, "width", "height")
+        _check(self.steps is None or self.steps > 0, f"steps must be > 0, got {self.steps}.")
+
+
+@dataclass
 class GalleryConfig:
     """`python -m epoet.terrain`: a root terrain and its mutated descendants as one PNG grid."""
 
@@ -588,6 +665,9 @@ def register_configs() -> None:
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
     cs.store(name="gallery_schema", node=GalleryConfig)
+    cs.store(name="suite_schema", node=SuiteConfig)
+    cs.store(name="evaluate_schema", node=EvaluateConfig)
+    cs.store(name="render_schema", node=RenderConfig)
     cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
