@@ -446,3 +446,55 @@ class MlflowTracker:
             except MlflowException as exc:
                 raise TrackingError(f"cannot close MLflow run {self.run_id}: "
                                     f"{_reason(exc)}") from exc
+
+
+class StoredRun:
+    """A run already in the store, for the commands that read it or add results to it after
+    training (evaluation, videos): its tags, its artifacts, and logging without reopening it
+    (its status stays what training left)."""
+
+    def __init__(self, run_id: str, tracking_uri: str | None = None) -> None:
+        self.tracking_uri = resolve_tracking_uri(tracking_uri)
+        self.client = open_store(self.tracking_uri)
+        try:
+            run = self.client.get_run(run_id)
+        except MlflowException as exc:
+            raise TrackingError(f"run {run_id} is not in the MLflow store "
+                                f"{self.tracking_uri}.") from exc
+        self.run_id = run_id
+        self.name = run.info.run_name
+        self.status = run.info.status
+        self.tags = dict(run.data.tags)
+        self.metrics = dict(run.data.metrics)
+
+    def has_artifact(self, artifact_path: str) -> bool:
+        folder, _, name = artifact_path.rpartition("/")
+        try:
+            listed = self.client.list_artifacts(self.run_id, folder or None)
+        except (MlflowException, OSError):
+            return False
+        return any(f.path == artifact_path or f.path.endswith(f"/{name}") for f in listed)
+
+    def download(self, artifact_path: str, dst: Path) -> Path:
+        """The artifact (file or folder) copied under `dst`; its local path."""
+        os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")  # one per file
+        try:
+            return Path(self.client.download_artifacts(self.run_id, artifact_path, str(dst)))
+        except (MlflowException, OSError) as exc:
+            raise TrackingError(f"cannot download {artifact_path} of run {self.run_id}: "
+                                f"{_reason(exc)}") from exc
+
+    def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
+                    artifacts: Mapping[str, str | Path] = {}, step: int = 0) -> None:
+        """Metrics (one batch), tags and artifacts {local path: artifact folder}."""
+        try:
+            now = int(time.time() * 1000)
+            self.client.log_batch(
+                self.run_id,
+                metrics=[Metric(metric_key(k), float(v), now, step) for k, v in metrics.items()],
+                tags=[RunTag(k, str(v)) for k, v in tags.items()])
+            for path, folder in artifacts.items():
+                self.client.log_artifact(self.run_id, str(_existing_path(path)), str(folder))
+        except (MlflowException, OSError) as exc:
+            raise TrackingError(f"cannot log results to run {self.run_id}: "
+                                f"{_reason(exc)}") from exc

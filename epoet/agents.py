@@ -1,0 +1,169 @@
+"""Trained agents, wherever they live: an MLflow run, a run folder or a policy file.
+
+Evaluation and rendering take `run=<spec>` and need three things from it: a policy
+(`obs -> action`), the episode rules it was trained with (agent config, the budget's threshold
+scale) and, when there is one, the MLflow run to log results to. Two policy formats exist:
+- ES parameters (`.npz` with `theta` and `layer_sizes`): ePOET's and ePOET-SAC's pool agents,
+  `policies/env<N>.npz` (with their `score`); a run's agent is the pool's best by score;
+- exported torch policies (`policy.pt`, `epoet.rl.policy_file`): PPO, SAC and VMPO.
+"""
+from __future__ import annotations
+
+import atexit
+import re
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
+from epoet.config import AgentConfig
+from epoet.es.policy import forward
+from epoet.tracking import StoredRun, TrackingError
+
+Policy = Callable[[np.ndarray], np.ndarray]
+RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+TORCH_POLICY = "policy.pt"
+ES_POLICIES = "policies"
+
+
+class AgentError(ValueError):
+    """A run spec that names no usable agent; one sentence."""
+
+
+@dataclass(frozen=True)
+class AgentSource:
+    """A policy file and its format; picklable, so worker processes load it themselves."""
+
+    kind: str    # "es" | "torch"
+    path: Path
+
+    def load(self) -> Policy:
+        if self.kind == "es":
+            with np.load(self.path) as data:
+                theta, sizes = data["theta"].copy(), tuple(int(n) for n in data["layer_sizes"])
+            return lambda obs: forward(theta, obs, sizes)
+        from epoet.rl.policy_file import load_policy  # torch only when a torch policy is used
+        return load_policy(self.path)
+
+
+@dataclass(frozen=True)
+class TrainedRun:
+    """What `run=<spec>` resolved to."""
+
+    agent: AgentSource
+    label: str                       # e.g. "epoet-s1 env3" or a file's stem
+    run_id: str | None               # the MLflow run to log results to, when known
+    algo: str | None
+    seed: str | None
+    config: dict[str, Any] | None    # the run's resolved config, when known
+    folder: Path | None              # the run folder, when given one
+
+    def agent_config(self, default: AgentConfig) -> AgentConfig:
+        """The episode rules the agent was trained with (a bare policy file: `default`)."""
+        if self.config is None:
+            return default
+        merged = OmegaConf.merge(OmegaConf.structured(AgentConfig), self.config["agent"])
+        return OmegaConf.to_object(merged)
+
+    @property
+    def score_scale(self) -> float:
+        """The run's budget scales the paper's score thresholds (README, Budgets)."""
+        if self.config is None:
+            return 1.0
+        return float(self.config["budget"]["score_scale"])
+
+
+def _policy_in(folder: Path) -> tuple[AgentSource, str] | None:
+    """The best pool agent (highest score) or the exported torch policy found in a folder."""
+    pool = sorted((folder / ES_POLICIES).glob("env*.npz")) if (folder / ES_POLICIES).is_dir() \
+        else []
+    if pool:
+        scores = {}
+        for path in pool:
+            with np.load(path) as data:
+                scores[path] = float(data["score"]) if "score" in data else -np.inf
+        best = max(pool, key=lambda p: (scores[p], -int(p.stem[3:])))
+        return AgentSource("es", best), best.stem
+    if (folder / TORCH_POLICY).is_file():
+        return AgentSource("torch", folder / TORCH_POLICY), "policy"
+    return None
+
+
+def _file_source(path: Path) -> AgentSource:
+    if path.suffix == ".npz":
+        with np.load(path) as data:
+            if "theta" not in data or "layer_sizes" not in data:
+                raise AgentError(f"{path} is not an ES policy file (it needs theta and "
+                                 f"layer_sizes).")
+        return AgentSource("es", path)
+    if path.suffix == ".pt":
+        return AgentSource("torch", path)
+    raise AgentError(f"{path} is not a policy file (.npz ES parameters or .pt torch policy).")
+
+
+def _download_dir() -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="epoet-agent-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
+
+
+def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
+    stored = StoredRun(run_id, tracking_uri)
+    folder = _download_dir()
+    for artifact in (ES_POLICIES, TORCH_POLICY):
+        if stored.has_artifact(artifact):
+            stored.download(artifact, folder)
+            break
+    found = _policy_in(folder)
+    if found is None:
+        raise AgentError(f"run {run_id} ({stored.name}, {stored.status}) has no policy artifact "
+                         f"({ES_POLICIES}/ or {TORCH_POLICY}): evaluate a run that finished "
+                         f"training.")
+    config = None
+    if stored.has_artifact("config.yaml"):
+        config = OmegaConf.to_container(OmegaConf.load(stored.download("config.yaml", folder)))
+    source, name = found
+    label = stored.name if source.kind == "torch" else f"{stored.name} {name}"
+    return TrainedRun(source, label, run_id, stored.tags.get("algo"), stored.tags.get("seed"),
+                      config, None)
+
+
+def _from_folder(folder: Path) -> TrainedRun:
+    found = _policy_in(folder)
+    if found is None:
+        raise AgentError(f"run folder {folder} has no policy ({ES_POLICIES}/env<N>.npz or "
+                         f"{TORCH_POLICY}): evaluate a run that finished training.")
+    state: dict[str, Any] = {}
+    if (folder / CHECKPOINT_NAME).is_file():
+        try:
+            state = load_checkpoint(folder)
+        except CheckpointError as err:
+            raise AgentError(str(err)) from err
+    config = state.get("config")
+    source, name = found
+    algo = state.get("algo")
+    seed = None if config is None else str(config["seed"])
+    base = f"{algo}-s{seed}" if algo else folder.name
+    label = base if source.kind == "torch" else f"{base} {name}"
+    return TrainedRun(source, label, state.get("run_id"), algo, seed, config, folder)
+
+
+def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
+    """`run=<spec>`: a policy file, a run folder, or an MLflow run id (in that order)."""
+    path = Path(spec)
+    if path.is_file():
+        return TrainedRun(_file_source(path), path.stem, None, None, None, None, None)
+    if path.is_dir():
+        return _from_folder(path)
+    if RUN_ID.match(spec):
+        try:
+            return _from_store(spec, tracking_uri)
+        except TrackingError as err:
+            raise AgentError(str(err)) from err
+    raise AgentError(f"run={spec} is neither a policy file, a run folder nor an MLflow run id.")

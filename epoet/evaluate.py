@@ -1,0 +1,246 @@
+"""`python -m epoet.evaluate run=<MLflow run id | run folder | policy file> [episodes=5]
+[suite=<folder>]`: a trained agent on the fixed evaluation suite (paper Section 4).
+
+Every terrain of the suite is run `episodes` times (the paper: 32 x 5 = 160 episodes), each from
+a start keyed by (seed, terrain, episode), so two agents meet the same starts. The agent runs
+with the episode rules it was trained with (its run's agent config: episode length, integrator)
+and "solved" means the paper's: the finish line reached with a return of at least `solve_score`
+x the run's budget score scale (2000 on the paper's 2000-step episodes).
+
+Writes to the results folder (`out`, default `<run folder>/evaluation`, or
+`evaluation/<label>/` for an MLflow run or a policy file):
+- `episodes.csv`: one row per episode (terrain, level, roughness, episode, seed, return,
+  finished, solved, forward_distance, length, path_roughness);
+- `actions.npz`: `action_samples` evenly spaced actions of every episode (`row` = the CSV row,
+  `step`, `action`), for the t-SNE figure;
+- `summary.json`: the metrics below.
+and, for an MLflow run, logs the three as artifacts under `evaluation/` and the metrics
+`suite/success_rate`, `suite/success_rate_<level>`, `suite/return_mean`,
+`suite/forward_distance_mean`, with the tags `eval_suite` (the suite's fingerprint) and
+`eval_episodes`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import multiprocessing as mp
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from hydra.errors import HydraException
+from omegaconf.errors import OmegaConfBaseException
+from tqdm import tqdm
+
+from epoet.agents import AgentError, AgentSource, TrainedRun, resolve_run
+from epoet.cli import fail
+from epoet.config import (AgentConfig, ConfigError, EvaluateConfig, TerrainConfig, compose,
+                          load, validate)
+from epoet.envs.hexapod_env import HexapodEnv
+from epoet.es.workers import default_workers
+from epoet.files import atomic_write
+from epoet.terrain.suite import LEVELS, Suite, SuiteError, SuiteTerrain, load_suite
+from epoet.tracking import StoredRun, TrackingError
+
+COLUMNS = ["terrain", "level", "roughness", "episode", "seed", "return", "finished", "solved",
+           "forward_distance", "length", "path_roughness"]
+RESULTS = "evaluation"    # the artifact folder, and the default results folder name
+
+
+def suite_fingerprint(suite: Suite) -> str:
+    """Identifies a suite's contents, so a store knows which runs were evaluated on which."""
+    digest = hashlib.sha1()
+    for terrain in suite.terrains:
+        digest.update(terrain.name.encode())
+        digest.update(repr(terrain.max_height).encode())
+        digest.update(np.ascontiguousarray(terrain.heightmap).tobytes())
+    return digest.hexdigest()[:12]
+
+
+def env_terrain(suite: Suite) -> TerrainConfig:
+    """A heightfield that fits every suite terrain (the suite's grid and size, its tallest S)."""
+    base = load(["algo=epoet"]).terrain
+    tallest = max(t.max_height for t in suite.terrains)
+    return dataclasses.replace(base, grid=suite.terrains[0].heightmap.shape[0],
+                               size=suite.terrains[0].size,
+                               max_height_limit=max(base.max_height_limit, tallest))
+
+
+@dataclass(frozen=True)
+class Task:
+    """One terrain's episodes: everything a worker process needs, picklable."""
+
+    index: int
+    terrain: SuiteTerrain
+    agent: AgentSource
+    agent_cfg: AgentConfig
+    terrain_cfg: TerrainConfig
+    seeds: tuple[int, ...]
+    solve_return: float
+    action_samples: int
+
+
+_cache: dict[str, Any] = {}   # per worker process: the env and policy, built once
+
+
+def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
+    key = repr((task.agent, task.agent_cfg, task.terrain_cfg))
+    if _cache.get("key") != key:
+        if "env" in _cache:
+            _cache["env"].close()
+        _cache.update(key=key, env=HexapodEnv(task.agent_cfg, task.terrain_cfg),
+                      policy=task.agent.load())
+    return _cache["env"], _cache["policy"]
+
+
+def run_task(task: Task) -> tuple[int, list[list[Any]], list[np.ndarray]]:
+    """The terrain's episodes: CSV rows and each episode's sampled actions."""
+    env, policy = _env_and_policy(task)
+    env.set_terrain(task.terrain)
+    rows, samples = [], []
+    for episode, seed in enumerate(task.seeds):
+        obs, info = env.reset(seed=seed)
+        x0, total, path, actions = info["x"], 0.0, [info["roughness"]], []
+        done = False
+        while not done:
+            action = np.asarray(policy(obs), dtype=np.float64)
+            actions.append(action)
+            obs, reward, terminated, truncated, info = env.step(action)
+            total += reward
+            path.append(info["roughness"])
+            done = terminated or truncated
+        keep = np.linspace(0, len(actions) - 1, min(task.action_samples, len(actions)))
+        samples.append(np.asarray(actions)[np.unique(np.rint(keep).astype(int))])
+        rows.append([task.terrain.name, task.terrain.level, task.terrain.roughness, episode,
+                     seed, total, info["finished"],
+                     bool(info["finished"] and total >= task.solve_return),
+                     info["x"] - x0, info["steps"], float(np.mean(path))])
+    return task.index, rows, samples
+
+
+def episode_seeds(seed: int, terrain: int, episodes: int) -> tuple[int, ...]:
+    return tuple(int(np.random.SeedSequence([seed, terrain, e]).generate_state(1)[0])
+                 for e in range(episodes))
+
+
+@dataclass
+class Evaluation:
+    episodes: pd.DataFrame
+    actions: dict[str, np.ndarray]    # row, step, action
+    metrics: dict[str, float]
+
+
+def summarize(episodes: pd.DataFrame) -> dict[str, float]:
+    """Success rate overall and per level (levels without terrains are left out), means."""
+    metrics = {"suite/success_rate": float(episodes.solved.mean()),
+               "suite/return_mean": float(episodes["return"].mean()),
+               "suite/forward_distance_mean": float(episodes.forward_distance.mean()),
+               "suite/finish_rate": float(episodes.finished.mean())}
+    for level in LEVELS:
+        rows = episodes[episodes.level == level]
+        if len(rows):
+            metrics[f"suite/success_rate_{level}"] = float(rows.solved.mean())
+    return metrics
+
+
+def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
+             progress: bool = True) -> Evaluation:
+    """Every terrain's episodes, in parallel over `workers` processes (1: in this process)."""
+    agent_cfg = run.agent_config(cfg.agent)
+    terrain_cfg = env_terrain(suite)
+    tasks = [Task(k, terrain, run.agent, agent_cfg, terrain_cfg,
+                  episode_seeds(cfg.seed, k, cfg.episodes), cfg.solve_score * run.score_scale,
+                  cfg.action_samples)
+             for k, terrain in enumerate(suite.terrains)]
+    results: dict[int, tuple[list, list]] = {}
+    bar = tqdm(total=len(tasks) * cfg.episodes, unit="episode", desc=f"evaluate {run.label}",
+               disable=not progress, file=sys.stdout)
+    if workers == 1:
+        for task in tasks:
+            index, rows, samples = run_task(task)
+            results[index] = (rows, samples)
+            bar.update(len(rows))
+    else:
+        ctx = mp.get_context("forkserver")
+        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            futures = [pool.submit(run_task, task) for task in tasks]
+            for future in as_completed(futures):
+                index, rows, samples = future.result()
+                results[index] = (rows, samples)
+                bar.update(len(rows))
+    bar.close()
+    rows = [row for k in sorted(results) for row in results[k][0]]
+    samples = [s for k in sorted(results) for s in results[k][1]]
+    episodes = pd.DataFrame(rows, columns=COLUMNS)
+    actions = {"row": np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)]),
+               "step": np.concatenate([np.arange(len(s)) for s in samples]),
+               "action": np.concatenate(samples).astype(np.float32)}
+    return Evaluation(episodes, actions, summarize(episodes))
+
+
+def write_results(result: Evaluation, folder: Path, info: dict[str, Any]) -> dict[str, Path]:
+    """episodes.csv, actions.npz and summary.json, each written atomically."""
+    paths = {name: folder / name for name in ("episodes.csv", "actions.npz", "summary.json")}
+    with atomic_write(paths["episodes.csv"]) as f:
+        f.write(result.episodes.to_csv(index=False).encode())
+    with atomic_write(paths["actions.npz"]) as f:
+        np.savez_compressed(f, **result.actions)
+    with atomic_write(paths["summary.json"]) as f:
+        f.write((json.dumps({**info, **result.metrics}, indent=1) + "\n").encode())
+    return paths
+
+
+def results_folder(cfg: EvaluateConfig, run: TrainedRun) -> Path:
+    if cfg.out:
+        return Path(cfg.out)
+    if run.folder is not None:
+        return run.folder / RESULTS
+    return Path(RESULTS) / "".join(c if c.isalnum() or c in "-_." else "_" for c in run.label)
+
+
+def evaluate_run(cfg: EvaluateConfig, progress: bool = True) -> tuple[Evaluation, Path]:
+    """Resolve, check, evaluate, write and log: the whole command, for `make tables` too."""
+    run = resolve_run(cfg.run, cfg.tracking.uri)
+    suite = load_suite(cfg.suite)
+    stored = StoredRun(run.run_id, cfg.tracking.uri) if run.run_id else None  # fails fast
+    folder = results_folder(cfg, run)
+    workers = cfg.workers or default_workers()
+    print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
+          f"episodes ({suite.folder}), {workers} processes", flush=True)
+    result = evaluate(run, suite, cfg, workers, progress)
+    info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
+            "suite": str(suite.folder), "suite_fingerprint": suite_fingerprint(suite),
+            "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
+    paths = write_results(result, folder, info)
+    if stored is not None:
+        stored.log_results(result.metrics,
+                           tags={"eval_suite": info["suite_fingerprint"],
+                                 "eval_episodes": str(cfg.episodes)},
+                           artifacts={path: RESULTS for path in paths.values()})
+    return result, folder
+
+
+def main(argv: list[str] | None = None) -> None:
+    """CLI: bad input (config, run, suite, store) ends in one line and exit code 2."""
+    try:
+        cfg: EvaluateConfig = validate(compose(sys.argv[1:] if argv is None else argv,
+                                               config_name="evaluate"))
+        result, folder = evaluate_run(cfg)
+    except (ConfigError, AgentError, SuiteError, TrackingError, OSError, HydraException,
+            OmegaConfBaseException) as err:
+        fail(err)
+    m = result.metrics
+    levels = ", ".join(f"{level} {m[f'suite/success_rate_{level}']:.0%}" for level in LEVELS
+                       if f"suite/success_rate_{level}" in m)
+    print(f"success rate {m['suite/success_rate']:.1%} ({levels}); mean return "
+          f"{m['suite/return_mean']:.1f}; mean forward distance "
+          f"{m['suite/forward_distance_mean']:.2f} m; results in {folder}/")
+
+
+if __name__ == "__main__":
+    main()
