@@ -35,78 +35,17 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 from mlflow.exceptions import MlflowException  # noqa: E402
 
+from analysis.store import (ALGO_COLOURS, BASELINE_ALGOS, AnalysisError, connect,  # noqa: E402
+                            history, select_runs)
+from analysis.store import seed_of as _seed  # noqa: E402
 from epoet.errors import first_line  # noqa: E402
-from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path  # noqa: E402
+from epoet.tracking import TrackingError  # noqa: E402
 
 EPOET_ALGOS = ("epoet",)
-BASELINE_ALGOS = ("ppo", "sac", "vmpo")
 PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
 EVAL_KEY = "eval/return_mean"
 EPOET_COLUMNS = ["run_id", "algo", "seed", "pair", "iteration", "return_mean"]
 BASELINE_COLUMNS = ["run_id", "algo", "seed", "frames", "return_mean"]
-ALGO_COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "vmpo": "tab:green"}
-
-
-class CurvesError(ValueError):
-    """Input the command cannot use (no store, no runs, unknown run id); one sentence."""
-
-
-def connect(tracking_uri: str | None = None) -> tuple[MlflowClient, str]:
-    """Open an existing store; a missing sqlite file is an error, not a new empty store.
-
-    MLflow would silently create the database, and an analysis must never write to the store.
-    """
-    uri = resolve_tracking_uri(tracking_uri)
-    db = sqlite_path(uri)
-    if db is not None and not db.is_file():
-        raise CurvesError(f"there is no MLflow store at {db}: train a run first "
-                          "or point MLFLOW_TRACKING_URI at a store.")
-    return open_store(uri), uri
-
-
-def select_runs(client: MlflowClient, uri: str, experiment: str,
-                run_ids: Sequence[str] = ()) -> list[Run]:
-    """The runs to plot: the given ids, else the experiment's finished runs with an algo tag."""
-    if run_ids:
-        runs = []
-        for run_id in run_ids:
-            try:
-                runs.append(client.get_run(run_id))
-            except MlflowException as exc:
-                raise CurvesError(f"run {run_id} is not in the MLflow store {uri}.") from exc
-        for run in runs:
-            algo = run.data.tags.get("algo")
-            if algo not in EPOET_ALGOS + BASELINE_ALGOS:
-                raise CurvesError(f"run {run.info.run_id} has algo tag {algo!r}, so it has no "
-                                  f"learning curve (expected one of "
-                                  f"{', '.join(EPOET_ALGOS + BASELINE_ALGOS)}).")
-        return runs
-    exp = client.get_experiment_by_name(experiment)
-    if exp is None:
-        raise CurvesError(f"the MLflow store {uri} has no experiment named {experiment!r}.")
-    runs, token = [], None
-    while True:
-        page = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'",
-                                  max_results=1000, order_by=["attributes.start_time ASC"],
-                                  page_token=token)
-        runs.extend(r for r in page if "algo" in r.data.tags)  # sweep parents have no algo
-        token = page.token
-        if not token:
-            return runs
-
-
-def history(client: MlflowClient, run_id: str, key: str) -> list[tuple[int, float]]:
-    """(step, value) of a metric, one point per step: the last logged value wins.
-
-    A resumed run re-logs the steps between its last checkpoint and the kill; the later values
-    are the ones that led to the final state.
-    """
-    points = sorted(client.get_metric_history(run_id, key), key=lambda m: (m.step, m.timestamp))
-    return sorted({m.step: m.value for m in points}.items())
-
-
-def _seed(run: Run) -> str:
-    return run.data.tags.get("seed", "")
 
 
 def epoet_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
@@ -185,7 +124,7 @@ def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path,
                  source: str) -> list[Path]:
     """Write both figures and their CSV files; skip (and say so) a figure without runs.
 
-    Raises CurvesError when neither figure has anything to plot.
+    Raises AnalysisError when neither figure has anything to plot.
     """
     epoet_runs = [r for r in runs if r.data.tags.get("algo") in EPOET_ALGOS]
     baseline_runs = [r for r in runs if r.data.tags.get("algo") in BASELINE_ALGOS]
@@ -194,7 +133,7 @@ def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path,
               "baseline_curves": (baseline_table(client, baseline_runs), baseline_runs,
                                   "PPO/SAC/VMPO", EVAL_KEY)}
     if all(table.empty for table, *_ in tables.values()):
-        raise CurvesError(f"{source} has no ePOET runs with pair<N>/return_mean and no "
+        raise AnalysisError(f"{source} has no ePOET runs with pair<N>/return_mean and no "
                           f"PPO/SAC/VMPO runs with {EVAL_KEY} to plot.")
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -235,11 +174,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         client, uri = connect()
-        runs = select_runs(client, uri, args.experiment, args.run)
+        runs = select_runs(client, uri, args.experiment, args.run, EPOET_ALGOS + BASELINE_ALGOS)
         source = (f"the selected runs in {uri}" if args.run
                   else f"experiment {args.experiment!r} in {uri}")
         write_curves(client, runs, args.out, source)
-    except (CurvesError, TrackingError) as exc:
+    except (AnalysisError, TrackingError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except MlflowException as exc:

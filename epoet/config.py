@@ -423,15 +423,15 @@ class EvaluateConfig:
     seed: int                        # keys every episode's start
     solve_score: float               # "solved": finish line and this return (x the run's scale)
     action_samples: int              # actions kept per episode, for t-SNE
-    workers: Optional[int]           # None: every available core
+    processes: Optional[int]         # None: one per available core ("workers" is a config group)
     out: Optional[str]               # results folder; None: <run folder>/evaluation or ./evaluation
 
     def __post_init__(self) -> None:
         _check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
         _positive(self, "episodes")
         _non_negative(self, "seed", "action_samples")
-        _check(self.workers is None or self.workers > 0,
-               f"workers must be > 0 or null, got {self.workers}.")
+        _check(self.processes is None or self.processes > 0,
+               f"processes must be > 0 or null, got {self.processes}.")
 
 
 @dataclass

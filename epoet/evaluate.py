@@ -9,7 +9,7 @@ x the run's budget score scale (2000 on the paper's 2000-step episodes).
 
 Writes to the results folder (`out`, default `<run folder>/evaluation`, or
 `evaluation/<label>/` for an MLflow run or a policy file):
-- `episodes.csv`: one row per episode (terrain, level, roughness, episode, seed, return,
+- `episodes.csv`: one row per episode (terrain, level, roughness, episode, start_seed, return,
   finished, solved, forward_distance, length, path_roughness);
 - `actions.npz`: `action_samples` evenly spaced actions of every episode (`row` = the CSV row,
   `step`, `action`), for the t-SNE figure;
@@ -47,7 +47,7 @@ from epoet.files import atomic_write
 from epoet.terrain.suite import LEVELS, Suite, SuiteError, SuiteTerrain, load_suite
 from epoet.tracking import StoredRun, TrackingError
 
-COLUMNS = ["terrain", "level", "roughness", "episode", "seed", "return", "finished", "solved",
+COLUMNS = ["terrain", "level", "roughness", "episode", "start_seed", "return", "finished", "solved",
            "forward_distance", "length", "path_roughness"]
 RESULTS = "evaluation"    # the artifact folder, and the default results folder name
 
@@ -209,7 +209,7 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True) -> tuple[Evaluation
     suite = load_suite(cfg.suite)
     stored = StoredRun(run.run_id, cfg.tracking.uri) if run.run_id else None  # fails fast
     folder = results_folder(cfg, run)
-    workers = cfg.workers or default_workers()
+    workers = cfg.processes or default_workers()
     print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
           f"episodes ({suite.folder}), {workers} processes", flush=True)
     result = evaluate(run, suite, cfg, workers, progress)

@@ -1,0 +1,85 @@
+"""Reading the MLflow store: the one place analysis/ connects, selects runs and reads metrics.
+
+The store is epoet's (`sqlite:///<project root>/mlflow.db`); MLFLOW_TRACKING_URI overrides it.
+An analysis never writes training data: a missing store is an error, not a new empty one.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from mlflow import MlflowClient
+from mlflow.entities import Run
+from mlflow.exceptions import MlflowException
+
+from epoet.tracking import open_store, resolve_tracking_uri, sqlite_path
+
+ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")   # table and legend order
+POET_ALGOS = ("epoet", "epoet_sac")
+BASELINE_ALGOS = ("ppo", "sac", "vmpo")
+ALGO_COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "vmpo": "tab:green",
+                "epoet": "tab:red", "epoet_sac": "tab:purple"}
+
+
+class AnalysisError(ValueError):
+    """Input an analysis command cannot use (no store, no runs, unknown run id); one sentence."""
+
+
+def connect(tracking_uri: str | None = None) -> tuple[MlflowClient, str]:
+    """Open an existing store; a missing sqlite file is an error, not a new empty store.
+
+    MLflow would silently create the database, and an analysis must never write to the store.
+    """
+    uri = resolve_tracking_uri(tracking_uri)
+    db = sqlite_path(uri)
+    if db is not None and not db.is_file():
+        raise AnalysisError(f"there is no MLflow store at {db}: train a run first "
+                            "or point MLFLOW_TRACKING_URI at a store.")
+    return open_store(uri), uri
+
+
+def select_runs(client: MlflowClient, uri: str, experiment: str, run_ids: Sequence[str] = (),
+                algos: Sequence[str] = ALGOS) -> list[Run]:
+    """The given runs, else the experiment's FINISHED runs of `algos`, oldest first.
+
+    A sweep's parent run has no algo tag and is never selected.
+    """
+    if run_ids:
+        runs = []
+        for run_id in run_ids:
+            try:
+                runs.append(client.get_run(run_id))
+            except MlflowException as exc:
+                raise AnalysisError(f"run {run_id} is not in the MLflow store {uri}.") from exc
+        for run in runs:
+            algo = run.data.tags.get("algo")
+            if algo not in algos:
+                raise AnalysisError(f"run {run.info.run_id} has algo tag {algo!r}; expected "
+                                    f"one of {', '.join(algos)}.")
+        return runs
+    exp = client.get_experiment_by_name(experiment)
+    if exp is None:
+        raise AnalysisError(f"the MLflow store {uri} has no experiment named {experiment!r}: "
+                            f"train first (e.g. make paper BUDGET=smoke SEEDS=1).")
+    runs, token = [], None
+    while True:
+        page = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'",
+                                  max_results=1000, order_by=["attributes.start_time ASC"],
+                                  page_token=token)
+        runs.extend(r for r in page if r.data.tags.get("algo") in algos)
+        token = page.token
+        if not token:
+            return runs
+
+
+def history(client: MlflowClient, run_id: str, key: str) -> list[tuple[int, float]]:
+    """(step, value) of a metric, one point per step: the last logged value wins.
+
+    A resumed run re-logs the steps between its last checkpoint and the kill; the later values
+    are the ones that led to the final state.
+    """
+    points = sorted(client.get_metric_history(run_id, key), key=lambda m: (m.step, m.timestamp))
+    return sorted({m.step: m.value for m in points}.items())
+
+
+def seed_of(run: Run) -> str:
+    return run.data.tags.get("seed", "")

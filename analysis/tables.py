@@ -1,0 +1,197 @@
+"""The paper's Tables 1 and 2 from the evaluations in the MLflow store (`make tables`).
+
+    python -m analysis.tables [--experiment epoet] [--out results] [--suite FOLDER]
+
+- Table 1: success rate per difficulty level (and in total) per algorithm: each run's rate over
+  its suite episodes, then mean +- sample std over the algorithm's runs (seeds).
+- Table 2: over the easy and medium terrains, the average +- std of the episode returns and the
+  maximum return, pooling every episode of the algorithm's runs (the paper: 16 terrains x 5
+  runs per agent).
+
+Each table is written as Markdown, LaTeX and CSV under `--out` and printed. The numbers come
+from each run's `evaluation/episodes.csv` artifact; a FINISHED run without an evaluation on the
+suite (its `eval_suite` tag is not the suite's fingerprint) is evaluated first, and the command
+says so.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+from mlflow.entities import Run
+from mlflow.exceptions import MlflowException
+
+from analysis.store import ALGOS, AnalysisError, connect, seed_of, select_runs
+from epoet.agents import AgentError
+from epoet.config import compose, validate
+from epoet.errors import first_line
+from epoet.evaluate import RESULTS, evaluate_run, suite_fingerprint
+from epoet.terrain.suite import LEVELS, SuiteError, load_suite
+from epoet.tracking import StoredRun, TrackingError
+
+EASY_MEDIUM = ("easy", "medium")
+
+
+def ensure_evaluated(runs: Sequence[Run], uri: str, suite: str | None, fingerprint: str,
+                     workers: int | None, out: Path) -> None:
+    """Evaluate (and log) every run that has no evaluation on this suite yet; local copies of
+    the results go to out/evaluations/<run id>."""
+    missing = [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
+    if not missing:
+        return
+    print(f"evaluating {len(missing)} run(s) that have no evaluation on this suite "
+          f"({fingerprint}): {', '.join(r.info.run_name for r in missing)}", flush=True)
+    overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
+        [f"processes={workers}"] if workers else [])
+    for run in missing:
+        cfg = validate(compose([f"run={run.info.run_id}", f"out={out / 'evaluations' / run.info.run_id}",
+                                *overrides], config_name="evaluate"))
+        evaluate_run(cfg)
+
+
+def episodes_of(runs: Sequence[Run], uri: str) -> pd.DataFrame:
+    """Every run's episodes.csv, with its algo, seed and run id."""
+    frames = []
+    with tempfile.TemporaryDirectory(prefix="epoet-tables-") as tmp:
+        for run in runs:
+            stored = StoredRun(run.info.run_id, uri)
+            path = stored.download(f"{RESULTS}/episodes.csv", Path(tmp) / run.info.run_id)
+            frame = pd.read_csv(path)
+            frame.insert(0, "run_id", run.info.run_id)
+            frame.insert(1, "algo", run.data.tags["algo"])
+            frame.insert(2, "seed", seed_of(run))
+            frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def _mean_std(values: pd.Series) -> tuple[float, float]:
+    return float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else float("nan")
+
+
+def table1(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per algorithm: mean and std over runs of each run's success rate per level and total."""
+    rows = []
+    for algo in [a for a in ALGOS if a in set(episodes.algo)]:
+        mine = episodes[episodes.algo == algo]
+        per_run = {level: mine[mine.level == level].groupby("run_id").solved.mean()
+                   for level in LEVELS}
+        per_run["total"] = mine.groupby("run_id").solved.mean()
+        row = {"algo": algo, "runs": mine.run_id.nunique()}
+        for column, rates in per_run.items():
+            row[f"{column}_mean"], row[f"{column}_std"] = _mean_std(rates)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def table2(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per algorithm, over its easy and medium episodes: mean, std and max of the return."""
+    rows = []
+    for algo in [a for a in ALGOS if a in set(episodes.algo)]:
+        mine = episodes[(episodes.algo == algo) & episodes.level.isin(EASY_MEDIUM)]
+        if mine.empty:
+            continue
+        returns = mine["return"]
+        rows.append({"algo": algo, "runs": mine.run_id.nunique(), "episodes": len(mine),
+                     "return_mean": float(returns.mean()),
+                     "return_std": float(returns.std(ddof=1)) if len(mine) > 1 else float("nan"),
+                     "return_max": float(returns.max())})
+    return pd.DataFrame(rows)
+
+
+def _pm(mean: float, std: float, scale: float, digits: int) -> str:
+    text = f"{mean * scale:.{digits}f}"
+    return text if std != std else f"{text} ± {std * scale:.{digits}f}"  # std NaN: one run
+
+
+def formatted(t1: pd.DataFrame, t2: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The tables as shown: success rates in percent, mean ± std."""
+    shown1 = pd.DataFrame({"algorithm": t1.algo, "runs": t1.runs, **{
+        column: [_pm(m, s, 100, 1) for m, s in zip(t1[f"{column}_mean"], t1[f"{column}_std"])]
+        for column in (*LEVELS, "total")}})
+    shown2 = pd.DataFrame({"algorithm": t2.algo, "runs": t2.runs, "episodes": t2.episodes,
+                           "average return": [_pm(m, s, 1, 1) for m, s in
+                                              zip(t2.return_mean, t2.return_std)],
+                           "maximum return": [f"{v:.1f}" for v in t2.return_max]})
+    return shown1, shown2
+
+
+def to_markdown(frame: pd.DataFrame) -> str:
+    """A pipe table (pandas' own needs the tabulate package)."""
+    cells = [list(map(str, frame.columns))] + [list(map(str, row)) for row in frame.values]
+    widths = [max(len(row[k]) for row in cells) for k in range(len(frame.columns))]
+    lines = ["| " + " | ".join(c.ljust(w) for c, w in zip(row, widths)) + " |" for row in cells]
+    lines.insert(1, "|" + "|".join("-" * (w + 2) for w in widths) + "|")
+    return "\n".join(lines)
+
+
+def write_tables(episodes: pd.DataFrame, out: Path) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    t1, t2 = table1(episodes), table2(episodes)
+    shown1, shown2 = formatted(t1, t2)
+    written = []
+    titles = {"table1": "Table 1: success rate (%) by difficulty, mean ± std over runs",
+              "table2": "Table 2: return over the easy and medium terrains"}
+    for name, raw, shown in (("table1", t1, shown1), ("table2", t2, shown2)):
+        raw.to_csv(out / f"{name}.csv", index=False)
+        markdown = to_markdown(shown)
+        (out / f"{name}.md").write_text(f"{titles[name]}\n\n{markdown}\n")
+        (out / f"{name}.tex").write_text(shown.to_latex(index=False, caption=titles[name],
+                                                        label=f"tab:{name}"))
+        print(f"\n{titles[name]}\n{markdown}")
+        written += [out / f"{name}.{ext}" for ext in ("csv", "md", "tex")]
+    print(f"\nwrote {', '.join(str(p) for p in written)}")
+    return written
+
+
+def make_tables(experiment: str, out: Path, suite: str | None = None,
+                run_ids: Sequence[str] = (), workers: int | None = None,
+                tracking_uri: str | None = None) -> list[Path]:
+    client, uri = connect(tracking_uri)
+    runs = select_runs(client, uri, experiment, run_ids)
+    if not runs:
+        raise AnalysisError(f"experiment {experiment!r} in {uri} has no finished runs: train "
+                            f"first, e.g. `python -m epoet algo=epoet` or "
+                            f"`make paper BUDGET=smoke SEEDS=1`.")
+    fingerprint = suite_fingerprint(load_suite(suite))
+    ensure_evaluated(runs, uri, suite, fingerprint, workers, out)
+    runs = [client.get_run(r.info.run_id) for r in runs]  # tags after evaluation
+    return write_tables(episodes_of(runs, uri), out)
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.tables",
+        description="Success-rate and return tables (paper Tables 1-2) from the evaluations in "
+                    "the MLflow store; runs without one are evaluated first.")
+    parser.add_argument("--experiment", default="epoet",
+                        help="MLflow experiment whose FINISHED runs are tabled (default: epoet)")
+    parser.add_argument("--out", type=Path, default=Path("results"),
+                        help="folder for the Markdown, LaTeX and CSV files (default: results)")
+    parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
+    parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
+                        help="table these runs instead of the experiment's")
+    parser.add_argument("--processes", type=int, default=None,
+                        help="processes per evaluation (default: every core)")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """CLI entry; bad input gives one sentence on stderr and exit code 2."""
+    args = parse_args(argv)
+    try:
+        make_tables(args.experiment, args.out, args.suite, args.run, args.processes)
+    except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
+        print(f"error: {first_line(exc)}", file=sys.stderr)
+        return 2
+    except MlflowException as exc:
+        print(f"error: cannot read the MLflow store: {first_line(exc)}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
