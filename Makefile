@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery bench bench-learning clean-venv
+.PHONY: install test train gallery tables figures paper suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -21,6 +21,24 @@ test: install
 # The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
 train: install
 	$(PY) -m epoet
+
+# The paper's tables and figures from the runs in ./mlflow.db (EXPERIMENT: its experiment).
+EXPERIMENT ?= epoet
+tables: install
+	$(PY) -m analysis.tables --experiment $(EXPERIMENT)
+
+figures: install
+	$(PY) -m analysis.figures --experiment $(EXPERIMENT)
+
+# Every algorithm x seed at one budget, evaluated, tabled and plotted; resumable (README).
+BUDGET ?= laptop
+SEEDS  ?= 1,2,3
+paper: install
+	$(PY) -m analysis.paper --budget $(BUDGET) --seeds $(SEEDS)
+
+# Check the shipped evaluation suite against a fresh regeneration (about a minute).
+suite: install
+	$(PY) -m epoet.terrain.suite check=true
 
 gallery: install
 	$(PY) -m epoet.terrain terrain=cppn n=8 out=gallery

@@ -363,7 +363,8 @@ class Config:
     tracking: TrackingConfig
     seed: int
     checkpoint_every: int            # ES iterations, or collector batches (baselines), per checkpoint
-    resume: Optional[str]            # a run folder or checkpoint file to continue
+    resume: Optional[str]            # a run folder or checkpoint file to continue; "auto": this
+                                     # job's own folder if it has a checkpoint (run.py)
 
     def __post_init__(self) -> None:
         _check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")

@@ -13,8 +13,9 @@ from typing import Any, Callable
 
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.checkpoint import CheckpointError, find_checkpoint, load_checkpoint
+from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.config import Config, validate
+from epoet.files import atomic_write
 from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
 
 # algo.name -> "module:function" with the runner shape
@@ -26,6 +27,9 @@ RUNNERS: dict[str, str] = {
     "sac": "epoet.rl.sac:train",
     "vmpo": "epoet.rl.vmpo:train",
 }
+
+AUTO = "auto"     # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
+DONE = "DONE"     # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
 RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations")
@@ -48,11 +52,21 @@ def runner_for(name: str) -> Runner:
 
 
 def run(raw: DictConfig, run_dir: Path) -> Any:
-    """Train the configured algorithm; returns the runner's final state."""
+    """Train the configured algorithm; returns the runner's final state (None when
+    `resume=auto` finds the run folder already finished)."""
     cfg: Config = validate(raw)
     resume = None
-    if cfg.resume:
-        path = find_checkpoint(cfg.resume)
+    resume_from = cfg.resume
+    if resume_from == AUTO:
+        # `make paper` calls the same sweep again after an interruption: finished jobs are
+        # skipped, interrupted ones continue from their checkpoint, the rest start.
+        if (run_dir / DONE).is_file():
+            print(f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; "
+                  f"skipped", flush=True)
+            return None
+        resume_from = run_dir if (run_dir / CHECKPOINT_NAME).is_file() else None
+    if resume_from:
+        path = find_checkpoint(resume_from)
         resume = load_checkpoint(path)
         if resume.get("algo") != cfg.algo.name:
             raise CheckpointError(f"checkpoint {path} is from algo={resume.get('algo')}, so it "
@@ -76,5 +90,8 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
             tracker.log_dict(resolved, "config.yaml")
         print(f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
               f"run_id={tracker.run_id} dir={run_dir}", flush=True)
-        return runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
+        result = runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
+    with atomic_write(run_dir / DONE) as f:  # after the run is closed as FINISHED
+        f.write(f"{tracker.run_id}\n".encode())
+    return result
 

@@ -148,6 +148,7 @@ class EPOET:
         self.next_index = 0
         self.transfers = 0
         self.env_steps = 0
+        self.elapsed = 0.0  # seconds of iterations, summed over resumes
         self._terrains: dict[tuple[int, int], Terrain] = {}
         root = Environment(index=0, genome=new_genome(terrain.cppn, self._seed(Key.ROOT_GENOME, 0)),
                            generation=0, parent=None, created_at=0)
@@ -227,6 +228,7 @@ class EPOET:
         timer = PhaseTimer()
         metrics = self.steps(self.iteration, timer)
         elapsed = time.perf_counter() - start
+        self.elapsed += elapsed
         metrics.update(timer.metrics())
         metrics.update(self.generation_scores())
         metrics.update({
@@ -237,6 +239,10 @@ class EPOET:
             "env_steps": float(self.env_steps),
             "steps_per_second": (self.env_steps - steps0) / elapsed,
             "wall_time": elapsed,
+            # The axes and the score every algorithm logs (the baselines: their evaluation
+            # return), so MLflow charts can put ePOET and the baselines side by side.
+            "elapsed": self.elapsed,
+            "score": max(p.score for p in self.active),
         })
         self.iteration += 1
         return metrics
@@ -481,6 +487,7 @@ class EPOET:
                     "sac_join": p.sac_join}
         return {"iteration": self.iteration, "next_index": self.next_index,
                 "transfers": self.transfers, "env_steps": self.env_steps,
+                "elapsed": self.elapsed,
                 "active": [pair_state(p) for p in self.active],
                 "archived": [pair_state(p) for p in self.archived]}
 
@@ -493,6 +500,7 @@ class EPOET:
         self.next_index = state["next_index"]
         self.transfers = state["transfers"]
         self.env_steps = state["env_steps"]
+        self.elapsed = state.get("elapsed", 0.0)  # checkpoints before it was kept: 0
         self.active = [restore(s) for s in state["active"]]
         self.archived = [restore(s) for s in state["archived"]]
         self._terrains.clear()

@@ -189,8 +189,11 @@ class TrainingRun:
         state.frames += batch.numel()
         state.batches += 1
         state.wall_time += elapsed
+        # env_steps and elapsed are the x-axes every algorithm logs (ePOET too), so MLflow can
+        # chart all algorithms against environment steps or training time.
         metrics.update({"frames": state.frames, "fps": batch.numel() / elapsed,
-                        "wall_time": state.wall_time, "train/episodes": state.episodes})
+                        "wall_time": state.wall_time, "train/episodes": state.episodes,
+                        "env_steps": state.frames, "elapsed": state.wall_time})
         self.tracker.log_metrics(state.frames, metrics)
         self.progress.update(batch.numel())
 
@@ -233,7 +236,9 @@ class TrainingRun:
                                    self.cfg.budget.episode_steps)
         state.last_eval_frames = state.frames
         self.tracker.log_metrics(state.frames,
-                                 {f"eval/{k}": v for k, v in state.last_eval.items()})
+                                 {**{f"eval/{k}": v for k, v in state.last_eval.items()},
+                                  "score": state.last_eval["return_mean"],
+                                  "env_steps": state.frames, "elapsed": state.wall_time})
         self.progress.write(f"[{self.cfg.algo.name}] frames={state.frames} eval return="
                             f"{state.last_eval['return_mean']:.1f} "
                             f"finish={state.last_eval['finish_rate']:.2f}")

@@ -107,6 +107,19 @@ class SuiteTerrain:
     size: float
     info: dict[str, Any] = dataclasses.field(default_factory=dict)  # round, lineage, seed, ...
 
+    # What plot_terrain reads of a Terrain, so galleries draw suite terrains the same way.
+    @property
+    def id(self) -> str:
+        return f"{self.name} ({self.level})"
+
+    @property
+    def generation(self) -> int:
+        return int(self.info.get("generation", 0))
+
+    @property
+    def grid(self) -> int:
+        return int(self.heightmap.shape[0])
+
 
 @dataclass(frozen=True)
 class Suite:

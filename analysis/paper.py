@@ -1,0 +1,82 @@
+"""`make paper BUDGET=<budget> SEEDS=1,2,3`: every algorithm x seed, evaluated, tabled, plotted.
+
+1. trains ppo, sac, vmpo, epoet and epoet_sac for every seed as one Hydra multirun into the
+   MLflow experiment `paper-<budget>`, with fixed job folders
+   (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again after an
+   interruption skips the finished jobs and continues the interrupted ones from their
+   checkpoints;
+2. evaluates every finished run on the suite that has no evaluation yet (analysis.tables);
+3. writes the tables to `results/paper-<budget>/` and the figures to
+   `results/paper-<budget>/figures/`.
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from analysis.figures import write_figures
+from analysis.store import ALGOS, AnalysisError
+from analysis.tables import make_tables
+from epoet.agents import AgentError
+from epoet.config import CONF_DIR
+from epoet.errors import first_line
+from epoet.terrain.suite import SuiteError
+from epoet.tracking import TrackingError
+
+
+def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str,
+                  sweep_dir: Path) -> list[str]:
+    return [sys.executable, "-m", "epoet", "-m", f"algo={','.join(algos)}", f"seed={seeds}",
+            f"budget={budget}", f"tracking.experiment={experiment}", "resume=auto",
+            f"hydra.sweep.dir={sweep_dir}", "hydra.sweep.subdir=${algo.name}_s${seed}"]
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m analysis.paper", description=__doc__.split(
+        "\n")[0])
+    parser.add_argument("--budget", default="laptop")
+    parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
+    parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="results folder (default: results/paper-<budget>)")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = parse_args(argv)
+    algos = [a for a in args.algos.split(",") if a]
+    budgets = sorted(p.stem for p in (CONF_DIR / "budget").glob("*.yaml"))
+    problems = ([f"unknown budget {args.budget!r} (available: {', '.join(budgets)})"]
+                if args.budget not in budgets else [])
+    problems += [f"unknown algorithm {a!r} (available: {', '.join(ALGOS)})"
+                 for a in algos if a not in ALGOS]
+    if not all(s.strip().isdigit() for s in args.seeds.split(",")):
+        problems.append(f"seeds must be comma-separated integers, got {args.seeds!r}")
+    if problems:
+        print(f"error: {problems[0]}.", file=sys.stderr)
+        return 2
+    experiment = f"paper-{args.budget}"
+    out = args.out or Path("results") / experiment
+    command = train_command(args.budget, args.seeds, algos, experiment,
+                            Path("multirun") / experiment)
+    print(f"[paper] training {len(algos)} algorithms x seeds {args.seeds} at budget "
+          f"{args.budget} (finished jobs are skipped):\n  {' '.join(command[1:])}", flush=True)
+    if (code := subprocess.run(command).returncode) != 0:
+        print(f"error: training stopped with exit code {code}; run the same command again to "
+              f"continue where it stopped.", file=sys.stderr)
+        return code
+    try:
+        make_tables(experiment, out)
+        write_figures(experiment, out / "figures")
+    except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
+        print(f"error: {first_line(exc)}", file=sys.stderr)
+        return 2
+    print(f"[paper] tables in {out}/, figures in {out / 'figures'}/")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
