@@ -40,6 +40,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--budget", default="laptop")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
     parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
+    parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="evaluation episodes per terrain (default: 5)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: results/paper-<budget>)")
     return parser.parse_args(argv)
@@ -69,8 +72,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"continue where it stopped.", file=sys.stderr)
         return code
     try:
-        make_tables(experiment, out)
-        write_figures(experiment, out / "figures")
+        make_tables(experiment, out, args.suite, episodes=args.episodes)
+        write_figures(experiment, out / "figures", args.suite)
     except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
         print(f"error: {first_line(exc)}", file=sys.stderr)
         return 2

@@ -37,7 +37,7 @@ EASY_MEDIUM = ("easy", "medium")
 
 
 def ensure_evaluated(runs: Sequence[Run], uri: str, suite: str | None, fingerprint: str,
-                     workers: int | None, out: Path) -> None:
+                     workers: int | None, out: Path, episodes: int | None = None) -> None:
     """Evaluate (and log) every run that has no evaluation on this suite yet; local copies of
     the results go to out/evaluations/<run id>."""
     missing = [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
@@ -46,7 +46,8 @@ def ensure_evaluated(runs: Sequence[Run], uri: str, suite: str | None, fingerpri
     print(f"evaluating {len(missing)} run(s) that have no evaluation on this suite "
           f"({fingerprint}): {', '.join(r.info.run_name for r in missing)}", flush=True)
     overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
-        [f"processes={workers}"] if workers else [])
+        [f"processes={workers}"] if workers else []) + (
+        [f"episodes={episodes}"] if episodes else [])
     for run in missing:
         cfg = validate(compose([f"run={run.info.run_id}", f"out={out / 'evaluations' / run.info.run_id}",
                                 *overrides], config_name="evaluate"))
@@ -149,7 +150,7 @@ def write_tables(episodes: pd.DataFrame, out: Path) -> list[Path]:
 
 def make_tables(experiment: str, out: Path, suite: str | None = None,
                 run_ids: Sequence[str] = (), workers: int | None = None,
-                tracking_uri: str | None = None) -> list[Path]:
+                tracking_uri: str | None = None, episodes: int | None = None) -> list[Path]:
     client, uri = connect(tracking_uri)
     runs = select_runs(client, uri, experiment, run_ids)
     if not runs:
@@ -157,7 +158,7 @@ def make_tables(experiment: str, out: Path, suite: str | None = None,
                             f"first, e.g. `python -m epoet algo=epoet` or "
                             f"`make paper BUDGET=smoke SEEDS=1`.")
     fingerprint = suite_fingerprint(load_suite(suite))
-    ensure_evaluated(runs, uri, suite, fingerprint, workers, out)
+    ensure_evaluated(runs, uri, suite, fingerprint, workers, out, episodes)
     runs = [client.get_run(r.info.run_id) for r in runs]  # tags after evaluation
     return write_tables(episodes_of(runs, uri), out)
 
@@ -176,6 +177,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="table these runs instead of the experiment's")
     parser.add_argument("--processes", type=int, default=None,
                         help="processes per evaluation (default: every core)")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="episodes per terrain of new evaluations (default: 5)")
     return parser.parse_args(argv)
 
 
@@ -183,7 +186,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry; bad input gives one sentence on stderr and exit code 2."""
     args = parse_args(argv)
     try:
-        make_tables(args.experiment, args.out, args.suite, args.run, args.processes)
+        make_tables(args.experiment, args.out, args.suite, args.run, args.processes,
+                    episodes=args.episodes)
     except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
         print(f"error: {first_line(exc)}", file=sys.stderr)
         return 2

@@ -21,7 +21,6 @@ and, for an MLflow run, logs the three as artifacts under `evaluation/` and the 
 """
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import multiprocessing as mp
@@ -40,11 +39,12 @@ from tqdm import tqdm
 from epoet.agents import AgentError, AgentSource, TrainedRun, resolve_run
 from epoet.cli import fail
 from epoet.config import (AgentConfig, ConfigError, EvaluateConfig, TerrainConfig, compose,
-                          load, validate)
+                          validate)
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.es.workers import default_workers
 from epoet.files import atomic_write
-from epoet.terrain.suite import LEVELS, Suite, SuiteError, SuiteTerrain, load_suite
+from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, load_suite,
+                                 terrain_config_for)
 from epoet.tracking import StoredRun, TrackingError
 
 COLUMNS = ["terrain", "level", "roughness", "episode", "start_seed", "return", "finished", "solved",
@@ -60,15 +60,6 @@ def suite_fingerprint(suite: Suite) -> str:
         digest.update(repr(terrain.max_height).encode())
         digest.update(np.ascontiguousarray(terrain.heightmap).tobytes())
     return digest.hexdigest()[:12]
-
-
-def env_terrain(suite: Suite) -> TerrainConfig:
-    """A heightfield that fits every suite terrain (the suite's grid and size, its tallest S)."""
-    base = load(["algo=epoet"]).terrain
-    tallest = max(t.max_height for t in suite.terrains)
-    return dataclasses.replace(base, grid=suite.terrains[0].heightmap.shape[0],
-                               size=suite.terrains[0].size,
-                               max_height_limit=max(base.max_height_limit, tallest))
 
 
 @dataclass(frozen=True)
@@ -152,7 +143,7 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
              progress: bool = True) -> Evaluation:
     """Every terrain's episodes, in parallel over `workers` processes (1: in this process)."""
     agent_cfg = run.agent_config(cfg.agent)
-    terrain_cfg = env_terrain(suite)
+    terrain_cfg = terrain_config_for(suite.terrains)
     tasks = [Task(k, terrain, run.agent, agent_cfg, terrain_cfg,
                   episode_seeds(cfg.seed, k, cfg.episodes), cfg.solve_score * run.score_scale,
                   cfg.action_samples)

@@ -56,7 +56,7 @@ class HexapodEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
     def __init__(self, agent: Any = None, terrain: Any = None, resample_terrain: bool = False,
-                 render_mode: str | None = None) -> None:
+                 render_mode: str | None = None, width: int = 320, height: int = 240) -> None:
         self.agent_cfg, self.terrain_cfg = _configs(agent, terrain)
         self.model = build_model(self.agent_cfg, self.terrain_cfg)
         self.data = mujoco.MjData(self.model)
@@ -65,6 +65,7 @@ class HexapodEnv(gym.Env):
         self.task = HexapodTask(self.agent_cfg, layout(self.model), self.ground.half_x)
         self.resample_terrain = resample_terrain
         self.render_mode = render_mode
+        self.render_size = (height, width)  # pixels of `render()`'s frames
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float64)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
         self.terrain: Terrain | None = None
@@ -127,7 +128,11 @@ class HexapodEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.model, 240, 320)
+            height, width = self.render_size
+            # The offscreen buffer (MJCF default 640 x 480) must hold the frame.
+            vis = self.model.vis.global_
+            vis.offwidth, vis.offheight = max(vis.offwidth, width), max(vis.offheight, height)
+            self._renderer = mujoco.Renderer(self.model, height, width)
             mujoco.mjr_uploadHField(self.model, self._renderer._mjr_context, 0)
         self._renderer.update_scene(self.data, camera="track")
         return self._renderer.render()

@@ -32,6 +32,7 @@ import json
 import math
 import pickle
 from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,8 @@ import hydra
 from omegaconf import DictConfig
 
 from epoet.cli import fail, run_hydra_app
-from epoet.config import CONF_DIR, AgentConfig, ConfigError, SuiteConfig, TerrainConfig, validate
+from epoet.config import (CONF_DIR, AgentConfig, ConfigError, SuiteConfig, TerrainConfig, load,
+                          validate)
 from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
 from epoet.files import atomic_write
@@ -79,6 +81,15 @@ class Course:
         rows = np.abs(axis) <= self.half_width
         cols = (axis >= self.start_x) & (axis <= self.finish_x)
         return float(patch_variance(heightmap * max_height)[np.ix_(rows, cols)].mean())
+
+
+def terrain_config_for(terrains: Sequence[Any]) -> TerrainConfig:
+    """The CPPN terrain config with these terrains' grid and extent and room for their tallest
+    S: the env's heightfield is compiled from it, so any suite or terrain file fits."""
+    base = load(["algo=epoet"]).terrain
+    return dataclasses.replace(base, grid=terrains[0].heightmap.shape[0], size=terrains[0].size,
+                               max_height_limit=max(base.max_height_limit,
+                                                    *(t.max_height for t in terrains)))
 
 
 def level_of(roughness: float) -> str:

@@ -1,0 +1,223 @@
+"""`python -m epoet.render run=<spec> terrain=<suite terrain name | terrain .npz> [seed=0]
+[steps=N] [width=640] [height=480] [out=path.mp4]`: one episode of a trained agent as an mp4.
+
+`run` is what `python -m epoet.evaluate` takes (an MLflow run id, a run folder or a policy file);
+the agent walks with the episode rules it was trained with (its run's agent config), for
+`steps` steps or its episode length, from the start `seed` keys. The video plays in real time
+(1 / agent.timestep frames per second) from the env's tracking camera, and goes to `out`
+(default `videos/<run label>_<terrain>.mp4`) and, for an MLflow run, to its artifacts under
+`videos/`.
+
+Rendering is MuJoCo's offscreen OpenGL on the CPU: MUJOCO_GL defaults to `egl`, which Mesa
+(packages libegl1, libegl-mesa0, libgl1-mesa-dri) serves with its llvmpipe software rasteriser,
+no GPU or display needed; `MUJOCO_GL=osmesa` works too once libosmesa6 is installed. Shadows
+are turned off: on llvmpipe MuJoCo's 4096 x 4096 shadow map cut the frame rate 3-8 times and
+left acne on the large terrain. Writing mp4 needs the `video` extra (imageio, imageio-ffmpeg).
+
+Bad input (config, run, terrain, suite, store, a missing GL backend or video writer) ends in
+one line on stderr and exit code 2, before the episode starts.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+import sys
+import tempfile
+import time
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from hydra.errors import HydraException
+from omegaconf.errors import OmegaConfBaseException
+from tqdm import tqdm
+
+from epoet.agents import AgentError, TrainedRun, resolve_run
+from epoet.cli import fail
+from epoet.config import ConfigError, RenderConfig, compose, validate
+from epoet.terrain import Terrain, TerrainFileError
+from epoet.tracking import StoredRun, TrackingError
+
+VIDEOS = "videos"   # the default output folder, and the artifact folder in the MLflow run
+NO_GL = "MuJoCo cannot render offscreen"
+GL_HELP = ("for CPU rendering install Mesa's EGL, `sudo apt-get install libegl1 libegl-mesa0 "
+           "libgl1-mesa-dri` (MUJOCO_GL=egl), or OSMesa, `sudo apt-get install libosmesa6` "
+           "with MUJOCO_GL=osmesa")
+
+
+class RenderError(RuntimeError):
+    """What rendering needs from the machine is missing; one sentence naming the fix."""
+
+
+def parse_args(argv: list[str]) -> RenderConfig:
+    """The validated config of the command line.
+
+    Hydra reads `terrain=X` as a choice in the conf/terrain group and fails, so that item is
+    kept out of the composition and set on the composed config afterwards.
+    """
+    terrains = [arg.split("=", 1)[1] for arg in argv if arg.startswith("terrain=")]
+    raw = compose([arg for arg in argv if not arg.startswith("terrain=")], config_name="render")
+    if terrains:
+        raw.terrain = terrains[-1]
+    cfg: RenderConfig = validate(raw)
+    if cfg.width % 2 or cfg.height % 2:  # H.264's 4:2:0 chroma halves both sides
+        raise ConfigError(f"width and height must be even for an mp4, got {cfg.width} x "
+                          f"{cfg.height}.")
+    return cfg
+
+
+def require_imageio() -> ModuleType:
+    """imageio's v2 API (it streams frames to ffmpeg), or RenderError naming the extra."""
+    try:
+        import imageio.v2 as imageio
+        import imageio_ffmpeg
+        imageio_ffmpeg.get_ffmpeg_exe()  # the wheel ships ffmpeg; fails if it is missing
+    except (ImportError, RuntimeError) as err:
+        raise RenderError("writing mp4 needs imageio and imageio-ffmpeg: "
+                          "pip install 'epoet[video]'") from err
+    return imageio
+
+
+def open_gl() -> str:
+    """Choose MuJoCo's OpenGL backend and prove it renders offscreen; its name.
+
+    MuJoCo reads MUJOCO_GL once, when first imported, and a backend whose libraries are
+    missing can fail in that import already: so this runs before anything imports mujoco
+    (the env and the suite modules are imported after it, inside functions). The proof is a
+    tiny Renderer, as the env makes: a GL context alone can "succeed" without a display (glfw).
+    """
+    backend = os.environ["MUJOCO_GL"] = os.environ.get("MUJOCO_GL") or "egl"
+    try:
+        import mujoco
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # glfw warns, then the Renderer fails: one line
+            mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16).close()
+    except Exception as err:  # missing libraries surface as ImportError, AttributeError, ...
+        raise RenderError(f"{NO_GL} with MUJOCO_GL={backend}; {GL_HELP}") from err
+    return backend
+
+
+def load_terrain(spec: str, suite: str | None) -> tuple[Any, str]:
+    """A terrain file (`.npz`) or a suite terrain's name; with the name the video carries."""
+    if spec.endswith(".npz") or Path(spec).is_file():
+        return Terrain.load(spec), Path(spec).stem
+    from epoet.terrain.suite import load_suite  # imports mujoco: after open_gl
+    return load_suite(suite).by_name(spec), spec
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "agent"
+
+
+@contextmanager
+def video_writer(path: Path, fps: float, imageio: ModuleType) -> Iterator[Any]:
+    """An mp4 writer whose file appears at `path` only when complete.
+
+    ffmpeg writes a temporary file in the same folder (it picks the container from the
+    `.mp4` suffix), renamed over `path` when the writer closes; on any failure it is removed.
+    """
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".mp4")
+    except OSError as err:  # name the output, not the temporary file
+        raise OSError(f"cannot write {path}: {err.strerror or err}.") from None
+    os.fchmod(fd, 0o644)  # mkstemp makes 0600; a video is as readable as any other output
+    os.close(fd)
+    try:
+        # macro_block_size=2 keeps the frame size (the default 16 would resize e.g. 100 x 60).
+        with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264",
+                                macro_block_size=2, ffmpeg_log_level="error") as writer:
+            yield writer
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@dataclass(frozen=True)
+class Video:
+    """What `record` wrote, for the summary line."""
+
+    path: Path
+    frames: int
+    fps: float
+    episode_return: float
+    finished: bool
+    render_fps: float    # frames simulated, rendered and encoded per second of wall time
+
+    def summary(self) -> str:
+        return (f"{self.frames} frames ({self.frames / self.fps:.1f} s at {self.fps:g} fps, "
+                f"rendered at {self.render_fps:.1f} frames/s), return "
+                f"{self.episode_return:.1f}, finished {self.finished}: {self.path}")
+
+
+def record(cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str,
+           imageio: ModuleType) -> Video:
+    """One episode of the run's agent on the terrain, every frame into the mp4."""
+    from epoet.envs.hexapod_env import HexapodEnv  # imports mujoco: after open_gl
+    from epoet.terrain.suite import terrain_config_for
+
+    agent = run.agent_config(cfg.agent)
+    if cfg.steps is not None:
+        agent = dataclasses.replace(agent, max_episode_steps=cfg.steps)
+    path = Path(cfg.out) if cfg.out else Path(VIDEOS) / f"{_slug(run.label)}_{_slug(name)}.mp4"
+    env = HexapodEnv(agent=agent, terrain=terrain_config_for([terrain]),
+                     render_mode="rgb_array", width=cfg.width, height=cfg.height)
+    env.model.light_castshadow[:] = 0  # see the module docstring: speed and acne on llvmpipe
+    policy = run.agent.load()
+    fps = 1.0 / agent.timestep
+    start = time.perf_counter()
+    try:
+        with video_writer(path, fps, imageio) as writer:
+            obs, info = env.reset(seed=cfg.seed, options={"terrain": terrain})
+            writer.append_data(env.render())
+            total, frames, done = 0.0, 1, False
+            with tqdm(total=agent.max_episode_steps, unit="step", file=sys.stdout,
+                      desc=f"{run.label} on {name}") as bar:
+                while not done:
+                    obs, reward, terminated, truncated, info = env.step(policy(obs))
+                    writer.append_data(env.render())
+                    total, frames, done = total + reward, frames + 1, terminated or truncated
+                    bar.update()
+    finally:
+        env.close()
+    return Video(path, frames, fps, total, info["finished"],
+                 frames / (time.perf_counter() - start))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """CLI: bad input ends in one line and exit code 2; Ctrl-C leaves no partial video."""
+    try:
+        cfg = parse_args(sys.argv[1:] if argv is None else argv)
+        imageio = require_imageio()
+        run = resolve_run(cfg.run, cfg.tracking.uri)  # needs no mujoco: checked before GL
+        open_gl()
+    except (ConfigError, RenderError, AgentError, HydraException, OmegaConfBaseException,
+            OSError) as err:
+        fail(err)
+    # Imported only now, as in `record`: they import mujoco.
+    from epoet.envs.model import TerrainMismatchError
+    from epoet.terrain.suite import SuiteError
+    try:
+        terrain, name = load_terrain(cfg.terrain, cfg.suite)
+        stored = StoredRun(run.run_id, cfg.tracking.uri) if run.run_id else None  # fails fast
+        video = record(cfg, run, terrain, name, imageio)
+        print(video.summary(), flush=True)  # before logging: the video exists whatever follows
+        if stored is not None:
+            stored.log_results({}, artifacts={video.path: VIDEOS})
+            print(f"logged to MLflow run {run.run_id} under {VIDEOS}/")
+    except (SuiteError, TerrainFileError, TerrainMismatchError, TrackingError,
+            OSError) as err:
+        fail(err)
+    except KeyboardInterrupt:
+        print("interrupted (an unfinished video is removed)", file=sys.stderr)
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()

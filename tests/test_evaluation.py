@@ -1,0 +1,202 @@
+"""Evaluation, tables, figures and `make paper`, on a store filled by real smoke runs.
+
+One `python -m analysis.paper --budget smoke` call (every algorithm, one seed, a four-terrain
+suite, one episode per terrain) fills a private store; the tests then check what it produced
+against the evaluation CSVs, and the bad inputs of each command.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.store import ALGOS
+from analysis.tables import table1, table2
+from epoet.terrain.suite import LEVELS, SHIPPED, load_suite
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def small_suite(folder: Path) -> Path:
+    """The shipped suite's first terrain of each level, in the same format."""
+    suite = load_suite()
+    picks = [next(t for t in suite.terrains if t.level == level) for level in LEVELS]
+    index = json.loads((SHIPPED / "suite.json").read_text())
+    index["terrains"] = [e for e in index["terrains"] if e["name"] in {t.name for t in picks}]
+    folder.mkdir(parents=True)
+    (folder / "suite.json").write_text(json.dumps(index))
+    with np.load(SHIPPED / "heights.npz") as heights:
+        np.savez(folder / "heights.npz", **{t.name: heights[t.name] for t in picks})
+    return folder
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory):
+    """A smoke `make paper` into a private store; (store uri, results folder, stdout)."""
+    tmp = tmp_path_factory.mktemp("paper")
+    uri = f"sqlite:///{tmp}/mlflow.db"
+    suite = small_suite(tmp / "suite")
+    proc = subprocess.run(
+        [sys.executable, "-m", "analysis.paper", "--budget", "smoke", "--seeds", "1",
+         "--suite", str(suite), "--episodes", "1", "--out", str(tmp / "results")],
+        capture_output=True, text=True, cwd=tmp,
+        env={**os.environ, "MLFLOW_TRACKING_URI": uri})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return uri, tmp / "results", proc.stdout, suite
+
+
+def finished_runs(uri: str) -> dict[str, mlflow.entities.Run]:
+    client = mlflow.MlflowClient(uri)
+    exp = client.get_experiment_by_name("paper-smoke")
+    runs = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'")
+    return {r.data.tags["algo"]: r for r in runs if "algo" in r.data.tags}
+
+
+def test_every_algorithm_is_trained_evaluated_and_logged(paper):
+    uri, _, stdout, suite = paper
+    runs = finished_runs(uri)
+    assert sorted(runs) == sorted(ALGOS)
+    assert "evaluating 5 run(s) that have no evaluation" in stdout
+    client = mlflow.MlflowClient(uri)
+    for algo, run in runs.items():
+        metrics = run.data.metrics
+        for key in ("suite/success_rate", "suite/return_mean", "suite/forward_distance_mean",
+                    *(f"suite/success_rate_{level}" for level in LEVELS)):
+            assert key in metrics, (algo, key)
+        # the common axes and score, so MLflow charts can compare every algorithm
+        for key in ("env_steps", "elapsed", "score"):
+            assert key in metrics, (algo, key)
+        elapsed = [m.value for m in sorted(client.get_metric_history(run.info.run_id,
+                                                                     "elapsed"),
+                                           key=lambda m: m.step)]
+        assert elapsed == sorted(elapsed)
+        names = {a.path for a in client.list_artifacts(run.info.run_id, "evaluation")}
+        assert names == {"evaluation/episodes.csv", "evaluation/actions.npz",
+                         "evaluation/summary.json"}
+        csv = pd.read_csv(client.download_artifacts(run.info.run_id, "evaluation/episodes.csv"))
+        assert len(csv) == 4 and sorted(csv.level) == sorted(LEVELS)
+        assert metrics["suite/return_mean"] == pytest.approx(csv["return"].mean())
+        assert metrics["suite/forward_distance_mean"] == pytest.approx(
+            csv.forward_distance.mean())
+        assert (csv.length <= 50).all() and (csv.length > 0).all()   # the smoke episode length
+        assert not csv.solved.any() or (csv["return"][csv.solved] >= 2000 * 0.025).all()
+
+
+def test_tables_match_the_evaluation_csvs(paper):
+    uri, results, _, _ = paper
+    client = mlflow.MlflowClient(uri)
+    frames = []
+    for algo, run in finished_runs(uri).items():
+        csv = pd.read_csv(client.download_artifacts(run.info.run_id, "evaluation/episodes.csv"))
+        frames.append(csv.assign(algo=algo, run_id=run.info.run_id))
+    episodes = pd.concat(frames)
+    t1 = pd.read_csv(results / "table1.csv").set_index("algo")
+    t2 = pd.read_csv(results / "table2.csv").set_index("algo")
+    for algo, rows in episodes.groupby("algo"):
+        assert t1.loc[algo, "total_mean"] == pytest.approx(rows.solved.mean())
+        for level in LEVELS:
+            assert t1.loc[algo, f"{level}_mean"] == pytest.approx(
+                rows[rows.level == level].solved.mean())
+        easy = rows[rows.level.isin(["easy", "medium"])]["return"]
+        assert t2.loc[algo, "return_mean"] == pytest.approx(easy.mean())
+        assert t2.loc[algo, "return_max"] == pytest.approx(easy.max())
+        assert t2.loc[algo, "episodes"] == 2
+    assert "| epoet_sac |" in (results / "table1.md").read_text()
+    assert "\\begin{tabular}" in (results / "table2.tex").read_text()
+
+
+def test_table_statistics_are_over_runs_and_pooled_episodes():
+    # two runs of one algorithm: Table 1 averages the per-run rates, Table 2 pools episodes
+    episodes = pd.DataFrame({
+        "algo": ["ppo"] * 4, "run_id": ["a", "a", "b", "b"],
+        "level": ["easy", "hard", "easy", "hard"], "solved": [True, True, False, True],
+        "return": [10.0, 0.0, 30.0, 5.0]})
+    t1, t2 = table1(episodes).iloc[0], table2(episodes).iloc[0]
+    assert t1.easy_mean == 0.5 and t1.easy_std == pytest.approx(np.std([1, 0], ddof=1))
+    assert t1.total_mean == pytest.approx(0.75) and t1.runs == 2
+    assert t2.return_mean == 20.0 and t2.return_max == 30.0 and t2.episodes == 2
+
+
+def test_figures_are_drawn_from_the_store(paper):
+    _, results, _, _ = paper
+    figures = results / "figures"
+    for name in ("learning_curves", "generations", "annecs", "tsne"):
+        assert (figures / f"{name}.png").stat().st_size > 10_000, name
+    curves = pd.read_csv(figures / "learning_curves.csv")
+    assert set(curves.algo) == set(ALGOS) and set(curves.axis) == {"env_steps", "elapsed"}
+    assert set(pd.read_csv(figures / "generations.csv").algo) == {"epoet", "epoet_sac"}
+    assert set(pd.read_csv(figures / "tsne.csv").algo) == set(ALGOS)
+    assert (figures / "suite_gallery.png").is_file()
+    assert len(list(figures.glob("admitted_*.png"))) == 2
+
+
+def one_line_error(capsys, call, *words: str) -> None:
+    """`call()` exits with code 2 and one `error:` line on stderr naming `words`."""
+    try:
+        code = call()
+    except SystemExit as exit_:
+        code = exit_.code
+    err = capsys.readouterr().err
+    assert code == 2, err[-2000:]
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err[-2000:]
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
+    from analysis import paper as paper_cli
+    from analysis import tables
+    from epoet import evaluate
+
+    uri, _, _, suite = paper
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    monkeypatch.chdir(tmp_path)
+    runs = finished_runs(uri)
+    one_line_error(capsys, lambda: evaluate.main(["run=0123456789abcdef0123456789abcdef"]),
+                   "is not in the MLflow store")
+    (tmp_path / "empty_run").mkdir()
+    one_line_error(capsys, lambda: evaluate.main([f"run={tmp_path / 'empty_run'}"]),
+                   "has no policy")
+    broken = tmp_path / "broken_suite"
+    shutil.copytree(suite, broken)
+    (broken / "heights.npz").unlink()
+    one_line_error(capsys, lambda: evaluate.main([f"run={runs['epoet'].info.run_id}",
+                                                  f"suite={broken}"]), "has no heights.npz")
+    one_line_error(capsys, lambda: evaluate.main(["run=nothing-here"]), "neither a policy file")
+    one_line_error(capsys, lambda: evaluate.main(["episodes=0", "run=x"]), "episodes")
+    empty = f"sqlite:///{tmp_path}/empty.db"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", empty)
+    one_line_error(capsys, lambda: tables.main([]), "no MLflow store")
+    mlflow.MlflowClient(empty).create_experiment("epoet")
+    capsys.readouterr()  # MLflow's own log lines from creating the store
+    one_line_error(capsys, lambda: tables.main([]), "no finished runs", "make paper")
+    one_line_error(capsys, lambda: paper_cli.main(["--budget", "huge"]), "unknown budget")
+    # nothing was written to the runs by the failed calls
+    after = finished_runs(uri)
+    assert {a: r.data.metrics for a, r in after.items()} == {
+        a: r.data.metrics for a, r in runs.items()}
+
+
+def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compose, mlflow_uri,
+                                                                         tmp_path):
+    from epoet.run import DONE, run
+    overrides = ["algo=epoet", "budget=smoke", "workers.num=1", "resume=auto"]
+    folder = tmp_path / "job"
+    first = run(compose(overrides), folder)
+    assert first is not None and (folder / DONE).is_file()
+    assert run(compose(overrides), folder) is None          # finished: skipped
+    (folder / DONE).unlink()                                  # as if killed after its checkpoint
+    again = run(compose(overrides), folder)                   # resumes: nothing left to train
+    assert again.iteration == first.iteration
+    client = mlflow.MlflowClient(mlflow_uri)
+    runs = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
+    assert len(runs) == 1                                     # the resume continued the run

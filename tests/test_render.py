@@ -1,0 +1,123 @@
+"""`python -m epoet.render`: a real (short, small) video, its MLflow artifact, one-line errors.
+
+The command runs as a subprocess: MuJoCo picks its OpenGL backend once per process, when first
+imported, and this test process may already have imported it without one.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+import pytest
+from mlflow import MlflowClient
+
+from epoet.config import load
+from epoet.es.policy import LAYER_SIZES, init_params
+from epoet.render import NO_GL
+from epoet.terrain import make_terrain
+from epoet.tracking import MlflowTracker
+
+
+def render_cli(*args: str, cwd: Path, uri: str | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MLFLOW_TRACKING_URI": uri} if uri else None
+    return subprocess.run([sys.executable, "-m", "epoet.render", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def skip_without_gl(proc: subprocess.CompletedProcess) -> None:
+    """Rendering tests need an offscreen GL backend; the command says when there is none."""
+    if proc.returncode == 2 and NO_GL in proc.stderr:
+        pytest.skip(f"no offscreen OpenGL backend here: {proc.stderr.strip()}")
+
+
+def one_error_line(proc: subprocess.CompletedProcess) -> str:
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    return lines[0]
+
+
+def decoded(path: Path) -> list[np.ndarray]:
+    # Iterated, not list()ed: the reader reports an unknown (infinite) frame count.
+    with imageio.get_reader(path, format="FFMPEG") as reader:
+        return [frame for frame in reader]
+
+
+@pytest.fixture
+def policy(tmp_path: Path) -> Path:
+    """An ePOET policy file (untrained: the video's content does not matter here)."""
+    path = tmp_path / "my policy.npz"
+    np.savez(path, theta=init_params(0), layer_sizes=np.array(LAYER_SIZES))
+    return path
+
+
+@pytest.fixture
+def suite(tmp_path: Path) -> Path:
+    """A one-terrain suite folder in the documented format (epoet/terrain/suite.py)."""
+    folder = tmp_path / "suite"
+    folder.mkdir()
+    heights = np.random.default_rng(0).uniform(0.0, 1.0, (40, 40))
+    np.savez(folder / "heights.npz", bumps=heights)
+    (folder / "suite.json").write_text(json.dumps({
+        "format": "epoet-suite/1", "size": 20.0, "grid": 40,
+        "terrains": [{"name": "bumps", "max_height": 0.2}]}))
+    return folder
+
+
+def test_an_es_policy_on_a_terrain_file_becomes_an_mp4_of_the_episode(policy, tmp_path):
+    terrain = make_terrain(load(["algo=epoet"]).terrain, seed=0).save(tmp_path / "cppn0.npz")
+    proc = render_cli(f"run={policy}", f"terrain={terrain}", "steps=10", "width=96",
+                      "height=64", cwd=tmp_path)
+    skip_without_gl(proc)
+    assert proc.returncode == 0, proc.stderr
+    # Default name: videos/<run label>_<terrain>.mp4, the label's space made safe.
+    video = tmp_path / "videos" / "my_policy_cppn0.mp4"
+    frames = decoded(video)
+    assert len(frames) == 11  # the start, then one per step
+    assert {frame.shape for frame in frames} == {(64, 96, 3)}
+    assert frames[0].std() > 0  # a picture, not a blank buffer
+    assert [p.name for p in video.parent.iterdir()] == [video.name]  # no temporary file left
+    assert "11 frames" in proc.stdout and str(Path("videos") / video.name) in proc.stdout
+
+
+def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tmp_path,
+                                                               mlflow_uri):
+    with MlflowTracker(mlflow_uri, experiment="render") as tracker:
+        run_id = tracker.start("es-run")
+        pool = tmp_path / "policies"
+        pool.mkdir()
+        policy.rename(pool / "env0.npz")
+        tracker.log_artifact(pool, "policies")
+    out = tmp_path / "clip.mp4"
+    proc = render_cli(f"run={run_id}", "terrain=bumps", f"suite={suite}", "steps=5",
+                      "width=64", "height=48", f"out={out}", cwd=tmp_path, uri=mlflow_uri)
+    skip_without_gl(proc)
+    assert proc.returncode == 0, proc.stderr
+    assert len(decoded(out)) == 6
+    logged = [f.path for f in MlflowClient(mlflow_uri).list_artifacts(run_id, "videos")]
+    assert logged == ["videos/clip.mp4"]
+
+
+def test_an_unknown_suite_terrain_is_one_line(policy, suite, tmp_path):
+    line = one_error_line(render_cli(f"run={policy}", "terrain=nope", f"suite={suite}",
+                                     cwd=tmp_path))
+    # The GL check runs before the suite is read (the suite module imports mujoco).
+    assert "'nope'" in line or NO_GL in line
+    assert not (tmp_path / "videos").exists()
+
+
+def test_a_missing_run_file_is_one_line(tmp_path):
+    line = one_error_line(render_cli(f"run={tmp_path / 'missing.npz'}", "terrain=r0l0",
+                                     cwd=tmp_path))
+    assert "missing.npz" in line
+
+
+def test_an_odd_frame_size_is_one_line(policy, tmp_path):
+    line = one_error_line(render_cli(f"run={policy}", "terrain=r0l0", "width=641",
+                                     cwd=tmp_path))
+    assert "must be even" in line
