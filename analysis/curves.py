@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -33,13 +32,10 @@ import pandas as pd  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
-from mlflow.exceptions import MlflowException  # noqa: E402
 
 from analysis.store import (ALGO_COLOURS, BASELINE_ALGOS, AnalysisError, connect,  # noqa: E402
-                            history, select_runs)
+                            history, run_command, select_runs)
 from analysis.store import seed_of as _seed  # noqa: E402
-from epoet.errors import first_line  # noqa: E402
-from epoet.tracking import TrackingError  # noqa: E402
 
 EPOET_ALGOS = ("epoet",)
 PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
@@ -172,19 +168,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry; bad input gives one sentence on stderr and exit code 2."""
     args = parse_args(argv)
-    try:
+
+    def curves() -> None:
         client, uri = connect()
         runs = select_runs(client, uri, args.experiment, args.run, EPOET_ALGOS + BASELINE_ALGOS)
         source = (f"the selected runs in {uri}" if args.run
                   else f"experiment {args.experiment!r} in {uri}")
         write_curves(client, runs, args.out, source)
-    except (AnalysisError, TrackingError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except MlflowException as exc:
-        print(f"error: cannot read the MLflow store: {first_line(exc)}", file=sys.stderr)
-        return 2
-    return 0
+
+    return run_command(curves)
 
 
 if __name__ == "__main__":

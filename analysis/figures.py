@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -35,16 +34,14 @@ import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
-from mlflow.exceptions import MlflowException  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
 from analysis.store import (ALGO_COLOURS, ALGOS, POET_ALGOS, AnalysisError, connect,  # noqa: E402
-                            history, seed_of, select_runs)
-from epoet.errors import first_line  # noqa: E402
+                            history, run_command, seed_of, select_runs)
 from epoet.evaluate import RESULTS  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
-from epoet.terrain.suite import LEVELS, SuiteError, load_suite  # noqa: E402
-from epoet.tracking import StoredRun, TrackingError  # noqa: E402
+from epoet.terrain.suite import LEVELS, load_suite  # noqa: E402
+from epoet.tracking import StoredRun  # noqa: E402
 
 GEN_KEY = re.compile(r"^gen(\d+)/score$")
 GRID_POINTS = 100
@@ -301,15 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID")
     args = parser.parse_args(argv)
-    try:
-        write_figures(args.experiment, args.out, args.suite, args.run)
-    except (AnalysisError, TrackingError, SuiteError) as exc:
-        print(f"error: {first_line(exc)}", file=sys.stderr)
-        return 2
-    except MlflowException as exc:
-        print(f"error: cannot read the MLflow store: {first_line(exc)}", file=sys.stderr)
-        return 2
-    return 0
+    return run_command(lambda: write_figures(args.experiment, args.out, args.suite, args.run))
 
 
 if __name__ == "__main__":

@@ -18,13 +18,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from analysis.figures import write_figures
-from analysis.store import ALGOS, AnalysisError
+from analysis.store import ALGOS, run_command
 from analysis.tables import make_tables
-from epoet.agents import AgentError
 from epoet.config import CONF_DIR
-from epoet.errors import first_line
-from epoet.terrain.suite import SuiteError
-from epoet.tracking import TrackingError
 
 
 def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str,
@@ -71,12 +67,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: training stopped with exit code {code}; run the same command again to "
               f"continue where it stopped.", file=sys.stderr)
         return code
-    try:
+
+    def analyse() -> None:
         make_tables(experiment, out, args.suite, episodes=args.episodes)
         write_figures(experiment, out / "figures", args.suite)
-    except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
-        print(f"error: {first_line(exc)}", file=sys.stderr)
-        return 2
+
+    if code := run_command(analyse):
+        return code
     print(f"[paper] tables in {out}/, figures in {out / 'figures'}/")
     return 0
 

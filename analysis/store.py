@@ -5,13 +5,17 @@ An analysis never writes training data: a missing store is an error, not a new e
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
 
 from mlflow import MlflowClient
 from mlflow.entities import Run
 from mlflow.exceptions import MlflowException
 
-from epoet.tracking import open_store, resolve_tracking_uri, sqlite_path
+from epoet.agents import AgentError
+from epoet.errors import first_line
+from epoet.terrain.suite import SuiteError
+from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path
 
 ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")   # table and legend order
 POET_ALGOS = ("epoet", "epoet_sac")
@@ -83,3 +87,17 @@ def history(client: MlflowClient, run_id: str, key: str) -> list[tuple[int, floa
 
 def seed_of(run: Run) -> str:
     return run.data.tags.get("seed", "")
+
+
+def run_command(action: Callable[[], object]) -> int:
+    """Run an analysis command: bad input (store, runs, suite, agent) ends in one sentence on
+    stderr and exit code 2."""
+    try:
+        action()
+    except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
+        print(f"error: {first_line(exc)}", file=sys.stderr)
+        return 2
+    except MlflowException as exc:
+        print(f"error: cannot read the MLflow store: {first_line(exc)}", file=sys.stderr)
+        return 2
+    return 0

@@ -16,22 +16,18 @@ says so.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
 from mlflow.entities import Run
-from mlflow.exceptions import MlflowException
 
-from analysis.store import ALGOS, AnalysisError, connect, seed_of, select_runs
-from epoet.agents import AgentError
+from analysis.store import ALGOS, AnalysisError, connect, run_command, seed_of, select_runs
 from epoet.config import compose, validate
-from epoet.errors import first_line
 from epoet.evaluate import RESULTS, evaluate_run, suite_fingerprint
-from epoet.terrain.suite import LEVELS, SuiteError, load_suite
-from epoet.tracking import StoredRun, TrackingError
+from epoet.terrain.suite import LEVELS, load_suite
+from epoet.tracking import StoredRun
 
 EASY_MEDIUM = ("easy", "medium")
 
@@ -185,16 +181,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry; bad input gives one sentence on stderr and exit code 2."""
     args = parse_args(argv)
-    try:
-        make_tables(args.experiment, args.out, args.suite, args.run, args.processes,
-                    episodes=args.episodes)
-    except (AnalysisError, TrackingError, SuiteError, AgentError) as exc:
-        print(f"error: {first_line(exc)}", file=sys.stderr)
-        return 2
-    except MlflowException as exc:
-        print(f"error: cannot read the MLflow store: {first_line(exc)}", file=sys.stderr)
-        return 2
-    return 0
+    return run_command(lambda: make_tables(args.experiment, args.out, args.suite, args.run,
+                                           args.processes, episodes=args.episodes))
 
 
 if __name__ == "__main__":
