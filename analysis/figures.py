@@ -36,11 +36,11 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
-from analysis.store import (ALGO_COLOURS, ALGOS, POET_ALGOS, AnalysisError, connect,  # noqa: E402
-                            history, run_command, seed_of, select_runs)
+from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, history,  # noqa: E402
+                            in_order, require_runs, run_command, seed_of, select_runs)
 from epoet.evaluate import RESULTS  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
-from epoet.terrain.suite import LEVELS, load_suite  # noqa: E402
+from epoet.terrain.suite import LEVELS, Suite, load_suite  # noqa: E402
 from epoet.tracking import StoredRun  # noqa: E402
 
 GEN_KEY = re.compile(r"^gen(\d+)/score$")
@@ -48,9 +48,13 @@ GRID_POINTS = 100
 TSNE_LEVELS = ("easy", "medium", "hard")
 
 
-def _algos(runs: Sequence[Run]) -> list[str]:
-    present = {r.data.tags["algo"] for r in runs}
-    return [a for a in ALGOS if a in present]
+def save(fig: plt.Figure, table: pd.DataFrame, stem: Path) -> list[Path]:
+    """The figure as <stem>.png and exactly its points as <stem>.csv."""
+    fig.tight_layout()
+    fig.savefig(stem.with_suffix(".png"), dpi=120)
+    plt.close(fig)
+    table.to_csv(stem.with_suffix(".csv"), index=False)
+    return [stem.with_suffix(".png"), stem.with_suffix(".csv")]
 
 
 def curve_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
@@ -93,7 +97,7 @@ def plot_learning_curves(curves: pd.DataFrame, out: Path) -> list[Path]:
                          (axes[1], "elapsed", "training time (s)")):
         table = mean_std_on_grid(curves, x)
         tables.append(table.assign(axis=x).rename(columns={x: "x"}))
-        for algo in [a for a in ALGOS if a in set(table.algo)]:
+        for algo in in_order(table.algo):
             t = table[table.algo == algo]
             colour = ALGO_COLOURS[algo]
             ax.plot(t[x], t["mean"], color=colour, label=f"{algo} ({t.seeds.iloc[0]} seeds)")
@@ -104,12 +108,7 @@ def plot_learning_curves(curves: pd.DataFrame, out: Path) -> list[Path]:
         ax.grid(alpha=0.3)
         ax.legend(fontsize="small")
     fig.suptitle("Learning curves: mean ± std over seeds")
-    fig.tight_layout()
-    png, csv = out / "learning_curves.png", out / "learning_curves.csv"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    pd.concat(tables, ignore_index=True).to_csv(csv, index=False)
-    return [png, csv]
+    return save(fig, pd.concat(tables, ignore_index=True), out / "learning_curves")
 
 
 def generation_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
@@ -125,7 +124,7 @@ def generation_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
 
 
 def plot_generations(table: pd.DataFrame, out: Path) -> list[Path]:
-    algos = [a for a in POET_ALGOS if a in set(table.algo)]
+    algos = in_order(table.algo, POET_ALGOS)
     fig, axes = plt.subplots(1, len(algos), figsize=(6 * len(algos), 4.2), squeeze=False)
     for ax, algo in zip(axes[0], algos):
         rows = table[table.algo == algo]
@@ -137,12 +136,7 @@ def plot_generations(table: pd.DataFrame, out: Path) -> list[Path]:
         ax.set_ylabel("score")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="x-small")
-    fig.tight_layout()
-    png, csv = out / "generations.png", out / "generations.csv"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    table.to_csv(csv, index=False)
-    return [png, csv]
+    return save(fig, table, out / "generations")
 
 
 def environments_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
@@ -168,26 +162,21 @@ def plot_environments(table: pd.DataFrame, out: Path) -> list[Path]:
         ax.set_xlabel("iteration")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize="x-small")
-    fig.tight_layout()
-    png, csv = out / "annecs.png", out / "annecs.csv"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    table.to_csv(csv, index=False)
-    return [png, csv]
+    return save(fig, table, out / "annecs")
 
 
-def tsne_table(runs: Sequence[Run], uri: str, terrains: Sequence[str], seed: int = 0
-               ) -> pd.DataFrame:
+def tsne_table(client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str],
+               seed: int = 0) -> pd.DataFrame:
     """2-D t-SNE of each algorithm's sampled actions on `terrains` (its first evaluated run)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="epoet-tsne-") as tmp:
-        for algo in _algos(runs):
+        for algo in in_order(r.data.tags["algo"] for r in runs):
             run = next((r for r in runs if r.data.tags["algo"] == algo
                         and "eval_suite" in r.data.tags), None)
             if run is None:
                 print(f"t-SNE: no {algo} run has a suite evaluation (make tables runs them)")
                 continue
-            stored = StoredRun(run.info.run_id, uri)
+            stored = StoredRun(client, run)
             folder = Path(tmp) / run.info.run_id
             episodes = pd.read_csv(stored.download(f"{RESULTS}/episodes.csv", folder))
             with np.load(stored.download(f"{RESULTS}/actions.npz", folder)) as data:
@@ -203,7 +192,7 @@ def tsne_table(runs: Sequence[Run], uri: str, terrains: Sequence[str], seed: int
 
 
 def plot_tsne(table: pd.DataFrame, terrains: Sequence[str], out: Path) -> list[Path]:
-    algos = [a for a in ALGOS if a in set(table.algo)]
+    algos = in_order(table.algo)
     fig, axes = plt.subplots(1, len(algos), figsize=(4 * len(algos), 4), squeeze=False)
     for ax, algo in zip(axes[0], algos):
         rows = table[table.algo == algo]
@@ -215,12 +204,7 @@ def plot_tsne(table: pd.DataFrame, terrains: Sequence[str], out: Path) -> list[P
         ax.set_yticks([])
     axes[0][0].legend(fontsize="x-small", markerscale=2)
     fig.suptitle("t-SNE of actions on three terrains")
-    fig.tight_layout()
-    png, csv = out / "tsne.png", out / "tsne.csv"
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    table.to_csv(csv, index=False)
-    return [png, csv]
+    return save(fig, table, out / "tsne")
 
 
 def _gallery(terrains: Sequence, path: Path, columns: int) -> Path:
@@ -235,20 +219,17 @@ def _gallery(terrains: Sequence, path: Path, columns: int) -> Path:
     return path
 
 
-def suite_gallery(suite_folder: str | None, out: Path) -> list[Path]:
-    suite = load_suite(suite_folder)
+def suite_gallery(suite: Suite, out: Path) -> list[Path]:
     ordered = [t for level in LEVELS for t in suite.terrains if t.level == level]
     return [_gallery(ordered, out / "suite_gallery.png", columns=8)]
 
 
-def admitted_galleries(runs: Sequence[Run], uri: str, out: Path) -> list[Path]:
+def admitted_galleries(client: MlflowClient, runs: Sequence[Run], out: Path) -> list[Path]:
     """Each ePOET-family run's environments (root first, then in admission order)."""
     written = []
     with tempfile.TemporaryDirectory(prefix="epoet-terrains-") as tmp:
         for run in runs:
-            if run.data.tags["algo"] not in POET_ALGOS:
-                continue
-            stored = StoredRun(run.info.run_id, uri)
+            stored = StoredRun(client, run)
             if not stored.has_artifact("terrains"):
                 continue
             folder = stored.download("terrains", Path(tmp) / run.info.run_id)
@@ -262,10 +243,7 @@ def admitted_galleries(runs: Sequence[Run], uri: str, out: Path) -> list[Path]:
 def write_figures(experiment: str, out: Path, suite: str | None = None,
                   run_ids: Sequence[str] = (), tracking_uri: str | None = None) -> list[Path]:
     client, uri = connect(tracking_uri)
-    runs = select_runs(client, uri, experiment, run_ids)
-    if not runs:
-        raise AnalysisError(f"experiment {experiment!r} in {uri} has no finished runs: train "
-                            f"first, e.g. `make paper BUDGET=smoke SEEDS=1`.")
+    runs = require_runs(select_runs(client, uri, experiment, run_ids), experiment, uri)
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     curves = curve_table(client, runs)
@@ -277,14 +255,14 @@ def write_figures(experiment: str, out: Path, suite: str | None = None,
     if poet:
         written += plot_generations(generation_table(client, poet), out)
         written += plot_environments(environments_table(client, poet), out)
-        written += admitted_galleries(poet, uri, out)
-    suite_terrains = load_suite(suite).terrains
-    picks = [next(t.name for t in suite_terrains if t.level == level)
-             for level in TSNE_LEVELS if any(t.level == level for t in suite_terrains)]
-    tsne = tsne_table(runs, uri, picks)
+        written += admitted_galleries(client, poet, out)
+    loaded = load_suite(suite)
+    picks = [next(t.name for t in loaded.terrains if t.level == level)
+             for level in TSNE_LEVELS if any(t.level == level for t in loaded.terrains)]
+    tsne = tsne_table(client, runs, picks)
     if not tsne.empty:
         written += plot_tsne(tsne, picks, out)
-    written += suite_gallery(suite, out)
+    written += suite_gallery(loaded, out)
     for path in written:
         print(f"wrote {path}")
     return written

@@ -6,7 +6,7 @@ An analysis never writes training data: a missing store is an error, not a new e
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 from mlflow import MlflowClient
 from mlflow.entities import Run
@@ -22,6 +22,12 @@ POET_ALGOS = ("epoet", "epoet_sac")
 BASELINE_ALGOS = ("ppo", "sac", "vmpo")
 ALGO_COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "vmpo": "tab:green",
                 "epoet": "tab:red", "epoet_sac": "tab:purple"}
+
+
+def in_order(present: Iterable[str], order: Sequence[str] = ALGOS) -> list[str]:
+    """The algorithms among `present`, in table and legend order."""
+    present = set(present)
+    return [algo for algo in order if algo in present]
 
 
 class AnalysisError(ValueError):
@@ -73,6 +79,15 @@ def select_runs(client: MlflowClient, uri: str, experiment: str, run_ids: Sequen
         token = page.token
         if not token:
             return runs
+
+
+def require_runs(runs: list[Run], experiment: str, uri: str) -> list[Run]:
+    """The runs, or AnalysisError saying what to run first."""
+    if not runs:
+        raise AnalysisError(f"experiment {experiment!r} in {uri} has no finished runs: train "
+                            f"first, e.g. `python -m epoet algo=epoet` or "
+                            f"`make paper BUDGET=smoke SEEDS=1`.")
+    return runs
 
 
 def history(client: MlflowClient, run_id: str, key: str) -> list[tuple[int, float]]:

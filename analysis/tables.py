@@ -21,11 +21,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
+from mlflow import MlflowClient
 from mlflow.entities import Run
 
-from analysis.store import ALGOS, AnalysisError, connect, run_command, seed_of, select_runs
+from analysis.store import connect, in_order, require_runs, run_command, seed_of, select_runs
 from epoet.config import compose, validate
-from epoet.evaluate import RESULTS, evaluate_run, suite_fingerprint
+from epoet.evaluate import RESULTS, evaluate_run
 from epoet.terrain.suite import LEVELS, load_suite
 from epoet.tracking import StoredRun
 
@@ -50,13 +51,12 @@ def ensure_evaluated(runs: Sequence[Run], uri: str, suite: str | None, fingerpri
         evaluate_run(cfg)
 
 
-def episodes_of(runs: Sequence[Run], uri: str) -> pd.DataFrame:
+def episodes_of(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
     """Every run's episodes.csv, with its algo, seed and run id."""
     frames = []
     with tempfile.TemporaryDirectory(prefix="epoet-tables-") as tmp:
         for run in runs:
-            stored = StoredRun(run.info.run_id, uri)
-            path = stored.download(f"{RESULTS}/episodes.csv", Path(tmp) / run.info.run_id)
+            path = StoredRun(client, run).download(f"{RESULTS}/episodes.csv", Path(tmp) / run.info.run_id)
             frame = pd.read_csv(path)
             frame.insert(0, "run_id", run.info.run_id)
             frame.insert(1, "algo", run.data.tags["algo"])
@@ -72,7 +72,7 @@ def _mean_std(values: pd.Series) -> tuple[float, float]:
 def table1(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per algorithm: mean and std over runs of each run's success rate per level and total."""
     rows = []
-    for algo in [a for a in ALGOS if a in set(episodes.algo)]:
+    for algo in in_order(episodes.algo):
         mine = episodes[episodes.algo == algo]
         per_run = {level: mine[mine.level == level].groupby("run_id").solved.mean()
                    for level in LEVELS}
@@ -87,7 +87,7 @@ def table1(episodes: pd.DataFrame) -> pd.DataFrame:
 def table2(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per algorithm, over its easy and medium episodes: mean, std and max of the return."""
     rows = []
-    for algo in [a for a in ALGOS if a in set(episodes.algo)]:
+    for algo in in_order(episodes.algo):
         mine = episodes[(episodes.algo == algo) & episodes.level.isin(EASY_MEDIUM)]
         if mine.empty:
             continue
@@ -148,15 +148,11 @@ def make_tables(experiment: str, out: Path, suite: str | None = None,
                 run_ids: Sequence[str] = (), workers: int | None = None,
                 tracking_uri: str | None = None, episodes: int | None = None) -> list[Path]:
     client, uri = connect(tracking_uri)
-    runs = select_runs(client, uri, experiment, run_ids)
-    if not runs:
-        raise AnalysisError(f"experiment {experiment!r} in {uri} has no finished runs: train "
-                            f"first, e.g. `python -m epoet algo=epoet` or "
-                            f"`make paper BUDGET=smoke SEEDS=1`.")
-    fingerprint = suite_fingerprint(load_suite(suite))
+    runs = require_runs(select_runs(client, uri, experiment, run_ids), experiment, uri)
+    fingerprint = load_suite(suite).fingerprint
     ensure_evaluated(runs, uri, suite, fingerprint, workers, out, episodes)
     runs = [client.get_run(r.info.run_id) for r in runs]  # tags after evaluation
-    return write_tables(episodes_of(runs, uri), out)
+    return write_tables(episodes_of(client, runs), out)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:

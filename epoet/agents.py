@@ -58,11 +58,15 @@ class TrainedRun:
 
     agent: AgentSource
     label: str                       # e.g. "epoet-s1 env3" or a file's stem
-    run_id: str | None               # the MLflow run to log results to, when known
+    stored: StoredRun | None         # the MLflow run to log results to, when known
     algo: str | None
     seed: str | None
     config: dict[str, Any] | None    # the run's resolved config, when known
     folder: Path | None              # the run folder, when given one
+
+    @property
+    def run_id(self) -> str | None:
+        return None if self.stored is None else self.stored.run_id
 
     def agent_config(self, default: AgentConfig) -> AgentConfig:
         """The episode rules the agent was trained with (a bare policy file: `default`)."""
@@ -81,8 +85,7 @@ class TrainedRun:
 
 def _policy_in(folder: Path) -> tuple[AgentSource, str] | None:
     """The best pool agent (highest score) or the exported torch policy found in a folder."""
-    pool = sorted((folder / ES_POLICIES).glob("env*.npz")) if (folder / ES_POLICIES).is_dir() \
-        else []
+    pool = sorted((folder / ES_POLICIES).glob("env*.npz"))  # none if the folder is absent
     if pool:
         scores = {}
         for path in pool:
@@ -114,7 +117,7 @@ def _download_dir() -> Path:
 
 
 def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
-    stored = StoredRun(run_id, tracking_uri)
+    stored = StoredRun.open(run_id, tracking_uri)
     folder = _download_dir()
     for artifact in (ES_POLICIES, TORCH_POLICY):
         if stored.has_artifact(artifact):
@@ -130,11 +133,11 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
         config = OmegaConf.to_container(OmegaConf.load(stored.download("config.yaml", folder)))
     source, name = found
     label = stored.name if source.kind == "torch" else f"{stored.name} {name}"
-    return TrainedRun(source, label, run_id, stored.tags.get("algo"), stored.tags.get("seed"),
+    return TrainedRun(source, label, stored, stored.tags.get("algo"), stored.tags.get("seed"),
                       config, None)
 
 
-def _from_folder(folder: Path) -> TrainedRun:
+def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
     found = _policy_in(folder)
     if found is None:
         raise AgentError(f"run folder {folder} has no policy ({ES_POLICIES}/env<N>.npz or "
@@ -151,7 +154,9 @@ def _from_folder(folder: Path) -> TrainedRun:
     seed = None if config is None else str(config["seed"])
     base = f"{algo}-s{seed}" if algo else folder.name
     label = base if source.kind == "torch" else f"{base} {name}"
-    return TrainedRun(source, label, state.get("run_id"), algo, seed, config, folder)
+    # The run the checkpoint continues, opened now so a missing store fails before any work.
+    stored = StoredRun.open(state["run_id"], tracking_uri) if state.get("run_id") else None
+    return TrainedRun(source, label, stored, algo, seed, config, folder)
 
 
 def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
@@ -159,11 +164,11 @@ def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
     path = Path(spec)
     if path.is_file():
         return TrainedRun(_file_source(path), path.stem, None, None, None, None, None)
-    if path.is_dir():
-        return _from_folder(path)
-    if RUN_ID.match(spec):
-        try:
+    try:
+        if path.is_dir():
+            return _from_folder(path, tracking_uri)
+        if RUN_ID.match(spec):
             return _from_store(spec, tracking_uri)
-        except TrackingError as err:
-            raise AgentError(str(err)) from err
+    except TrackingError as err:
+        raise AgentError(str(err)) from err
     raise AgentError(f"run={spec} is neither a policy file, a run folder nor an MLflow run id.")

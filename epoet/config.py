@@ -411,8 +411,8 @@ class SuiteConfig:
 
 
 @dataclass
-class EvaluateConfig:
-    """`python -m epoet.evaluate`: a trained agent on the evaluation suite."""
+class AgentCommandConfig:
+    """What the commands that run a trained agent share (evaluate, render)."""
 
     KEY: ClassVar[str] = ""
 
@@ -420,42 +420,44 @@ class EvaluateConfig:
     agent: AgentConfig               # episode rules for a bare policy file (a run brings its own)
     tracking: TrackingConfig
     suite: Optional[str]             # None: the shipped suite
+    seed: int                        # keys the episodes' starts
+
+    def __post_init__(self) -> None:
+        _check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
+        _non_negative(self, "seed")
+
+
+@dataclass
+class EvaluateConfig(AgentCommandConfig):
+    """`python -m epoet.evaluate`: a trained agent on the evaluation suite."""
+
     episodes: int                    # per terrain
-    seed: int                        # keys every episode's start
     solve_score: float               # "solved": finish line and this return (x the run's scale)
     action_samples: int              # actions kept per episode, for t-SNE
     processes: Optional[int]         # None: one per available core ("workers" is a config group)
     out: Optional[str]               # results folder; None: <run folder>/evaluation or ./evaluation
 
     def __post_init__(self) -> None:
-        _check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
+        super().__post_init__()
         _positive(self, "episodes")
-        _non_negative(self, "seed", "action_samples")
+        _non_negative(self, "action_samples")
         _check(self.processes is None or self.processes > 0,
                f"processes must be > 0 or null, got {self.processes}.")
 
 
 @dataclass
-class RenderConfig:
+class RenderConfig(AgentCommandConfig):
     """`python -m epoet.render`: an mp4 of a trained agent on one terrain."""
 
-    KEY: ClassVar[str] = ""
-
-    run: Optional[str]               # MLflow run id, run folder or policy file
     terrain: Optional[str]           # a suite terrain's name or a terrain .npz file
-    agent: AgentConfig
-    tracking: TrackingConfig
-    suite: Optional[str]             # None: the shipped suite
-    seed: int                        # the episode's start
     steps: Optional[int]             # None: the run's episode length
     width: int
     height: int
     out: Optional[str]               # None: videos/<run>_<terrain>.mp4
 
     def __post_init__(self) -> None:
-        _check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
+        super().__post_init__()
         _check(bool(self.terrain), "terrain is required: a suite terrain's name or an .npz file.")
-        _non_negative(self, "seed")
         _positive(self, "width", "height")
         _check(self.steps is None or self.steps > 0, f"steps must be > 0, got {self.steps}.")
 
@@ -640,7 +642,7 @@ class EpoetSacConfig(PoetConfig):
     updates_per_frame: float         # gradient updates per SAC frame (paper: 1)
     es_episodes_per_pair: int        # ES-step episodes per active pair recorded into the replay
     sac_terrain: str                 # pool: a sampled active environment; bowl: the reference's
-    mapping: str                     # the join's [256, 256] -> ES mapping: distill | random
+    mapping: str                     # the join's SAC actor -> ES mapping: distill | random
     join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
     pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
 

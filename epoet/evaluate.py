@@ -21,11 +21,12 @@ and, for an MLflow run, logs the three as artifacts under `evaluation/` and the 
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import multiprocessing as mp
 import sys
+from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,21 +46,11 @@ from epoet.es.workers import default_workers
 from epoet.files import atomic_write
 from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, load_suite,
                                  terrain_config_for)
-from epoet.tracking import StoredRun, TrackingError
+from epoet.tracking import TrackingError
 
 COLUMNS = ["terrain", "level", "roughness", "episode", "start_seed", "return", "finished", "solved",
            "forward_distance", "length", "path_roughness"]
 RESULTS = "evaluation"    # the artifact folder, and the default results folder name
-
-
-def suite_fingerprint(suite: Suite) -> str:
-    """Identifies a suite's contents, so a store knows which runs were evaluated on which."""
-    digest = hashlib.sha1()
-    for terrain in suite.terrains:
-        digest.update(terrain.name.encode())
-        digest.update(repr(terrain.max_height).encode())
-        digest.update(np.ascontiguousarray(terrain.heightmap).tobytes())
-    return digest.hexdigest()[:12]
 
 
 @dataclass(frozen=True)
@@ -149,22 +140,21 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
                   cfg.action_samples)
              for k, terrain in enumerate(suite.terrains)]
     results: dict[int, tuple[list, list]] = {}
-    bar = tqdm(total=len(tasks) * cfg.episodes, unit="episode", desc=f"evaluate {run.label}",
-               disable=not progress, file=sys.stdout)
-    if workers == 1:
-        for task in tasks:
-            index, rows, samples = run_task(task)
-            results[index] = (rows, samples)
-            bar.update(len(rows))
-    else:
-        ctx = mp.get_context("forkserver")
-        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            futures = [pool.submit(run_task, task) for task in tasks]
-            for future in as_completed(futures):
-                index, rows, samples = future.result()
+    with ExitStack() as stack:
+        if workers == 1:
+            done: Iterable = map(run_task, tasks)
+        else:
+            ctx = mp.get_context("forkserver")
+            # The fork server imports this module (MuJoCo, the env, MLflow) once; each
+            # worker is then a cheap fork instead of ~5 s of imports per process and call.
+            ctx.set_forkserver_preload([__name__])
+            pool = stack.enter_context(ProcessPoolExecutor(workers, mp_context=ctx))
+            done = (f.result() for f in as_completed([pool.submit(run_task, t) for t in tasks]))
+        with tqdm(total=len(tasks) * cfg.episodes, unit="episode", file=sys.stdout,
+                  desc=f"evaluate {run.label}", disable=not progress) as bar:
+            for index, rows, samples in done:
                 results[index] = (rows, samples)
                 bar.update(len(rows))
-    bar.close()
     rows = [row for k in sorted(results) for row in results[k][0]]
     samples = [s for k in sorted(results) for s in results[k][1]]
     episodes = pd.DataFrame(rows, columns=COLUMNS)
@@ -198,21 +188,20 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True) -> tuple[Evaluation
     """Resolve, check, evaluate, write and log: the whole command, for `make tables` too."""
     run = resolve_run(cfg.run, cfg.tracking.uri)
     suite = load_suite(cfg.suite)
-    stored = StoredRun(run.run_id, cfg.tracking.uri) if run.run_id else None  # fails fast
     folder = results_folder(cfg, run)
     workers = cfg.processes or default_workers()
     print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
           f"episodes ({suite.folder}), {workers} processes", flush=True)
     result = evaluate(run, suite, cfg, workers, progress)
     info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
-            "suite": str(suite.folder), "suite_fingerprint": suite_fingerprint(suite),
+            "suite": str(suite.folder), "suite_fingerprint": suite.fingerprint,
             "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
     paths = write_results(result, folder, info)
-    if stored is not None:
-        stored.log_results(result.metrics,
-                           tags={"eval_suite": info["suite_fingerprint"],
-                                 "eval_episodes": str(cfg.episodes)},
-                           artifacts={path: RESULTS for path in paths.values()})
+    if run.stored is not None:
+        run.stored.log_results(result.metrics,
+                               tags={"eval_suite": suite.fingerprint,
+                                     "eval_episodes": str(cfg.episodes)},
+                               artifacts={path: RESULTS for path in paths.values()})
     return result, folder
 
 

@@ -41,7 +41,7 @@ from epoet.agents import AgentError, TrainedRun, resolve_run
 from epoet.cli import fail
 from epoet.config import ConfigError, RenderConfig, compose, validate
 from epoet.terrain import Terrain, TerrainFileError
-from epoet.tracking import StoredRun, TrackingError
+from epoet.tracking import TrackingError
 
 VIDEOS = "videos"   # the default output folder, and the artifact folder in the MLflow run
 NO_GL = "MuJoCo cannot render offscreen"
@@ -205,11 +205,10 @@ def main(argv: list[str] | None = None) -> None:
     from epoet.terrain.suite import SuiteError
     try:
         terrain, name = load_terrain(cfg.terrain, cfg.suite)
-        stored = StoredRun(run.run_id, cfg.tracking.uri) if run.run_id else None  # fails fast
         video = record(cfg, run, terrain, name, imageio)
         print(video.summary(), flush=True)  # before logging: the video exists whatever follows
-        if stored is not None:
-            stored.log_results({}, artifacts={video.path: VIDEOS})
+        if run.stored is not None:
+            run.stored.log_results({}, artifacts={video.path: VIDEOS})
             print(f"logged to MLflow run {run.run_id} under {VIDEOS}/")
     except (SuiteError, TerrainFileError, TerrainMismatchError, TrackingError,
             OSError) as err:

@@ -26,7 +26,7 @@ from types import TracebackType
 from typing import Any, Protocol, runtime_checkable
 
 from mlflow import MlflowClient
-from mlflow.entities import Metric, Param, RunTag
+from mlflow.entities import Metric, Param, Run, RunTag
 from mlflow.exceptions import MlflowException
 from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_PARENT_RUN_ID
 from mlflow.utils.validation import (
@@ -450,22 +450,25 @@ class MlflowTracker:
 
 class StoredRun:
     """A run already in the store, for the commands that read it or add results to it after
-    training (evaluation, videos): its tags, its artifacts, and logging without reopening it
-    (its status stays what training left)."""
+    training (evaluation, videos, analysis): its tags, its artifacts, and logging without
+    reopening it (its status stays what training left)."""
 
-    def __init__(self, run_id: str, tracking_uri: str | None = None) -> None:
-        self.tracking_uri = resolve_tracking_uri(tracking_uri)
-        self.client = open_store(self.tracking_uri)
-        try:
-            run = self.client.get_run(run_id)
-        except MlflowException as exc:
-            raise TrackingError(f"run {run_id} is not in the MLflow store "
-                                f"{self.tracking_uri}.") from exc
-        self.run_id = run_id
+    def __init__(self, client: MlflowClient, run: Run) -> None:
+        self.client = client
+        self.run_id = run.info.run_id
         self.name = run.info.run_name
         self.status = run.info.status
         self.tags = dict(run.data.tags)
-        self.metrics = dict(run.data.metrics)
+
+    @classmethod
+    def open(cls, run_id: str, tracking_uri: str | None = None) -> StoredRun:
+        """Connect to the store (proving it answers) and find the run, or TrackingError."""
+        uri = resolve_tracking_uri(tracking_uri)
+        client = open_store(uri)
+        try:
+            return cls(client, client.get_run(run_id))
+        except MlflowException as exc:
+            raise TrackingError(f"run {run_id} is not in the MLflow store {uri}.") from exc
 
     def has_artifact(self, artifact_path: str) -> bool:
         folder, _, name = artifact_path.rpartition("/")
@@ -485,13 +488,13 @@ class StoredRun:
                                 f"{_reason(exc)}") from exc
 
     def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
-                    artifacts: Mapping[str, str | Path] = {}, step: int = 0) -> None:
+                    artifacts: Mapping[str, str | Path] = {}) -> None:
         """Metrics (one batch), tags and artifacts {local path: artifact folder}."""
         try:
             now = int(time.time() * 1000)
             self.client.log_batch(
                 self.run_id,
-                metrics=[Metric(metric_key(k), float(v), now, step) for k, v in metrics.items()],
+                metrics=[Metric(metric_key(k), float(v), now, 0) for k, v in metrics.items()],
                 tags=[RunTag(k, str(v)) for k, v in tags.items()])
             for path, folder in artifacts.items():
                 self.client.log_artifact(self.run_id, str(_existing_path(path)), str(folder))

@@ -28,6 +28,8 @@ Suite folder format (any folder in this format can be evaluated, `suite=<folder>
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
 import json
 import math
 import pickle
@@ -143,6 +145,16 @@ class Suite:
                 return terrain
         raise SuiteError(f"suite {self.folder} has no terrain {name!r} (it has "
                          f"{self.terrains[0].name} .. {self.terrains[-1].name}).")
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """Identifies the suite's contents, so a store knows which runs were evaluated on it."""
+        digest = hashlib.sha1()
+        for terrain in self.terrains:
+            digest.update(terrain.name.encode())
+            digest.update(repr(terrain.max_height).encode())
+            digest.update(np.ascontiguousarray(terrain.heightmap).tobytes())
+        return digest.hexdigest()[:12]
 
     def level_counts(self) -> dict[str, int]:
         return {level: sum(t.level == level for t in self.terrains) for level in LEVELS}
@@ -291,8 +303,6 @@ def load_suite(folder: str | Path | None = None) -> Suite:
                 info = {k: v for k, v in entry.items()
                         if k not in ("name", "level", "roughness", "max_height")}
                 terrains.append(SuiteTerrain(name, level, rough, hm, height, size, info))
-    except SuiteError:
-        raise
     except Exception as err:  # json, zip, missing keys, wrong shapes
         raise SuiteError(f"suite {folder} is malformed: {str(err).splitlines()[0]}.") from err
     if not terrains:
