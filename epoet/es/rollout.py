@@ -117,15 +117,19 @@ class _Recorder:
 
     def add(self, rows: np.ndarray, episode: np.ndarray, obs: np.ndarray, action: np.ndarray,
             reward: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray) -> None:
-        values = (episode, obs, action, reward, next_obs, terminated)
+        """The step's transitions of slots `rows`; `obs` holds those rows only (the engine
+        takes them before it overwrites its observations), the other fields every slot."""
+        values = (episode[rows], obs, action[rows], reward[rows], next_obs[rows],
+                  terminated[rows])
         for key, value in zip(TRANSITION_KEYS, values):
-            # fancy indexing copies the rows (the engine reuses its buffers); float64 fields
+            # fancy indexing copied the rows (the engine reuses its buffers); float64 fields
             # are then cast to float32 (a second, row-sized copy)
-            self.chunks[key].append(value[rows].astype(self.DTYPES[key], copy=False))
+            self.chunks[key].append(value.astype(self.DTYPES[key], copy=False))
 
     def result(self) -> dict[str, np.ndarray]:
-        return _group_by_episode({key: np.concatenate(parts)
-                                  for key, parts in self.chunks.items()})
+        """Rows in step order; `merge_episodes` groups them by episode (a stable sort keeps
+        each episode's steps in time order)."""
+        return {key: np.concatenate(parts) for key, parts in self.chunks.items()}
 
 
 @dataclass
@@ -213,7 +217,8 @@ class RolloutEngine:
         """Run jobs on their terrains (`set_terrains`) until the stream ends; jobs are pulled as
         slots free up.
 
-        Returns the episode indices seen (ascending) and their results in that order. `slots`
+        Returns the episode indices seen (ascending) and their results in that order (recorded
+        transitions in step order, grouped by `merge_episodes`). `slots`
         caps the slots in use (default: all): fewer rows make each batched step cheaper, and a
         worker sharing a job queue should not hoard more jobs than its share.
         """
@@ -245,7 +250,7 @@ class RolloutEngine:
             reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state)
             np.add(run.returns, reward, out=run.returns, where=run.running)
             if len(recorded):
-                before = obs.copy()
+                before = obs[recorded].astype(np.float32)
             self.task.observe(qpos, qvel, sensor, obs)
             if len(recorded):
                 run.recorder.add(recorded, run.episode, before, actions, reward, obs, terminated)

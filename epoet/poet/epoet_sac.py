@@ -9,7 +9,7 @@ Each iteration is Algorithm 1 with its red steps:
    and takes `updates_per_frame` gradient updates per frame;
 4. `transfer` (every `transfer_interval` iterations), as ePOET, then `update_actor_from_pool`:
    if the best pool agent beats the SAC actor on its environment, the actor learns from it;
-5. `join` (t mod (4 N_transfer) = 4 N_transfer - 2): the SAC actor, mapped to the ES shape,
+5. `join` (t mod (k N_transfer) = k N_transfer - 2, k = `join_every_transfers`): the SAC actor, mapped to the ES shape,
    joins the pool as a new pair, and Algorithm 3's `crossover_with` runs against every other
    active agent.
 
@@ -18,11 +18,14 @@ Decisions the paper leaves open (README "ePOET-SAC"):
   and updates with torch on every core; `time/<step>` metrics show the split, and
   `frames_per_iteration` / `updates_per_frame` set it.
 - SAC's episodes: each Train_SAC resets on the iteration's terrain of the sampled environment
-  (`sac_terrain=bowl`: a fresh bowl at the same S, the reference's behaviour) and runs whole
+  (`sac_terrain=bowl`: a fresh bowl at the same S, the reference's behaviour) and runs
   episodes there until its frames are spent; the episode still running is cut (a time limit:
-  SAC bootstraps through it).
-- SAC actor <-> ES agent: the shapes differ ([256, 256] vs [40, 40]), so the transfer step
-  distils the ES agent into the actor's mean, and the join maps the actor by `mapping`:
+  SAC bootstraps through it). Where a budget's frames per iteration are fewer than its episode
+  steps (laptop, workstation), SAC's own episodes never get past that many steps: the later
+  parts of an episode reach the replay only through the ES transitions.
+- SAC actor <-> ES agent: the shapes differ (`algo.sac.hidden` vs the ES agent's), so the
+  transfer step distils the ES agent into the actor's mean, and the join maps the actor by
+  `mapping`:
   `distill` (behaviour cloning on replay states) or `random` (the paper's random selection).
 - The joined agent pairs with a copy of the environment SAC trained on (a new index, the same
   CPPN genome); copies are not novel environments, so ANNECS does not count them.
@@ -135,29 +138,27 @@ class EpoetSac(EPOET):
         self.frames_per_iteration = frames_per_iteration
         self.updates_per_iteration = round(frames_per_iteration * algo.updates_per_frame)
         self.mix = ReplayMix(algo.sac.buffer_size)
-        self.joins = 0
         self.replaced: list[ReplacedAgent] = []
 
     # --- one iteration: Algorithm 1 ------------------------------------------------------------
+    @property
+    def record_per_pair(self) -> int:
+        """The ES-step episodes of each pair whose transitions go into SAC's replay."""
+        return self.cfg.es_episodes_per_pair
+
+    @property
+    def joins(self) -> int:
+        """Joins so far: the k-th join's pair has sac_join = k, and pairs are never dropped."""
+        return max((p.sac_join for p in self.active + self.archived), default=0)
+
     def steps(self, t: int, timer: PhaseTimer) -> dict[str, float]:
+        """Algorithm 1: ePOET's steps with SAC trained after the ES step and updated from the
+        pool at transfers, then the join."""
         metrics: dict[str, float] = {}
         if t == 0 and self.cfg.pretrain_iterations:
             with timer("pretrain"):
                 metrics.update(self.pretrain())
-        if self.reproduce_due(t):
-            with timer("reproduce"):
-                metrics["admitted"] = float(self.reproduce())
-        with timer("optimize"):
-            es_metrics, episodes = self.es_step(record=self.cfg.es_episodes_per_pair)
-            metrics.update(es_metrics)
-            metrics.update(self.evaluate_pairs())
-        with timer("sac"):
-            self.add_to_replay(episodes)
-            metrics.update(self.train_sac(t))
-        if self.transfer_due(t):
-            with timer("transfer"):
-                metrics["transfers"] = float(self.transfer())
-                metrics.update(self.update_actor_from_pool(t))
+        metrics.update(super().steps(t, timer))
         if self.join_due(t):
             with timer("join"):
                 metrics.update(self.join(t))
@@ -167,8 +168,18 @@ class EpoetSac(EPOET):
                         "sac/es_share": self.mix.share("es")})
         return metrics
 
+    def after_optimize(self, t: int, episodes: list[Episodes], timer: PhaseTimer
+                       ) -> dict[str, float]:
+        with timer("sac"):
+            self.add_to_replay(episodes)
+            return self.train_sac(t)
+
+    def after_transfer(self, t: int) -> dict[str, float]:
+        return self.update_actor_from_pool(t)
+
     def join_due(self, t: int) -> bool:
-        """Algorithm 1: t > 0 and t mod (k N_transfer) = k N_transfer - 2 (k = 4: 58, 118...)."""
+        """Algorithm 1: t > 0 and t mod (k N_transfer) = k N_transfer - 2, with
+        k = `join_every_transfers` and N_transfer the transfer interval."""
         period = self.cfg.join_every_transfers * self.transfer_interval
         return t > 0 and t % period == period - 2
 
@@ -237,9 +248,10 @@ class EpoetSac(EPOET):
         """Mean return of the SAC actor's deterministic policy, tanh(loc(s)), on `terrain`,
         one episode per spawn seed."""
         env, returns = self.score_env, []
+        env.set_terrain(terrain)  # kept by every reset below (SAC's env never resamples)
         with torch.no_grad():
             for seed in spawn_seeds:
-                obs, _ = env.reset(seed=int(seed), options={"terrain": terrain})
+                obs, _ = env.reset(seed=int(seed))
                 total, done = 0.0, False
                 while not done:
                     loc, _ = self.actor_net(torch.as_tensor(obs, dtype=torch.float32))
@@ -261,8 +273,8 @@ class EpoetSac(EPOET):
 
     def update_actor_from_pool(self, t: int) -> dict[str, float]:
         """Algorithm 1's "SAC_Actor = theta_top" when the best pool agent beats the actor on that
-        agent's environment (same starts as its evaluation). A [40, 40] agent cannot be copied
-        into the [256, 256] actor: the actor's mean is distilled from it on replay states."""
+        agent's environment (same starts as its evaluation). An ES agent cannot be copied into
+        the actor (other layer sizes): the actor's mean is distilled from it on replay states."""
         top = max(self.active, key=lambda p: p.score)
         sac_score = self.actor_score(
             self.terrain(top.env), self._seeds(self.eval_episodes, Key.EVAL, top.env.index, t))
@@ -302,15 +314,15 @@ class EpoetSac(EPOET):
         home = self.sac_pair(t)
         terrain = self.terrain(home.env)
         mapped = self.map_and_score(t, terrain, self.cfg.mapping, t)
-        self.joins += 1
+        joins = self.joins + 1
         env = Environment(index=self.next_index, genome=home.env.genome,
                           generation=home.env.generation, parent=home.env.index, created_at=t)
         pair = self._admit(env, mapped.theta)
-        pair.sac_join = self.joins
+        pair.sac_join = joins
         self._terrains[(env.index, t)] = terrain
         self._record(pair, mapped.score)
         outcome = self.crossover_with([p for p in self.active if p is not pair], mapped.theta)
-        metrics = {"joined": float(self.joins), "join/env": float(env.index),
+        metrics = {"joined": float(joins), "join/env": float(env.index),
                    "join/sac_score": mapped.sac_score, "join/mapped_score": mapped.score,
                    "join/mapping_error": mapped.error,
                    "replaced": float(sum(new > old for old, new in outcome.values()))}
@@ -338,9 +350,7 @@ class EpoetSac(EPOET):
             if new > old:
                 self.replaced.append(ReplacedAgent(pair.env.index, t, pair.theta.copy(),
                                                    float(old)))
-                pair.es.reset(child)
-                pair.scores.pop()  # the child's score stands for this iteration
-                self._record(pair, float(new))
+                self._replace_agent(pair, child, float(new))
         return outcome
 
     # --- generation curves, artifacts, checkpoints ------------------------------------------
@@ -368,14 +378,13 @@ class EpoetSac(EPOET):
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "sac": self.learner.state_dict(),
-                "mix": self.mix.state_dict(), "joins": self.joins,
+                "mix": self.mix.state_dict(),
                 "replaced": [dataclasses.asdict(a) for a in self.replaced]}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
         self.learner.load_state_dict(state["sac"])
         self.mix.load_state_dict(state["mix"])
-        self.joins = state["joins"]
         self.replaced = [ReplacedAgent(**a) for a in state["replaced"]]
 
 

@@ -68,7 +68,7 @@ class Key(IntEnum):
     JOIN_EVAL = 23      # (iteration,): the mapped agent and the SAC actor on one terrain
     CROSSOVER = 24      # (env, iteration): the coin flips of Algorithm 3
     CROSSOVER_EVAL = 25  # (env, iteration): old and new agent on the same starts
-    PRETRAIN = 26       # (i,): the i-th pre-training Train_SAC
+    PRETRAIN = 26       # (i, 0 | 1): the i-th pre-training Train_SAC's torch | spawn seed
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,8 @@ class PhaseTimer:
 
 class EPOET:
     """The pool of environment-agent pairs and the three things that change it."""
+
+    record_per_pair = 0  # ES-step episodes per pair whose transitions come back (ePOET: none)
 
     def __init__(self, algo: PoetConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
                  seed: int, n_pairs: int, eval_episodes: int, score_scale: float,
@@ -231,8 +233,9 @@ class EPOET:
         self.elapsed += elapsed
         metrics.update(timer.metrics())
         metrics.update(self.generation_scores())
+        best = max(p.score for p in self.active)
         metrics.update({
-            "best_score": max(p.score for p in self.active),
+            "best_score": best,
             "active_envs": float(len(self.active)),
             "archived_envs": float(len(self.archived)),
             "annecs": float(self.annecs),
@@ -242,35 +245,43 @@ class EPOET:
             # The axes and the score every algorithm logs (the baselines: their evaluation
             # return), so MLflow charts can put ePOET and the baselines side by side.
             "elapsed": self.elapsed,
-            "score": max(p.score for p in self.active),
+            "score": best,
         })
         self.iteration += 1
         return metrics
 
     def steps(self, t: int, timer: PhaseTimer) -> dict[str, float]:
-        """Algorithm 1 without the SAC steps: reproduce, optimise, transfer."""
+        """Algorithm 1's ES steps: reproduce, optimise (an ES step and the evaluation of every
+        pair), transfer. ePOET-SAC adds its steps at `after_optimize` and `after_transfer`."""
         metrics: dict[str, float] = {}
         if self.reproduce_due(t):
             with timer("reproduce"):
                 metrics["admitted"] = float(self.reproduce())
         with timer("optimize"):
-            metrics.update(self.optimize())
+            es_metrics, episodes = self.es_step(record=self.record_per_pair)
+            metrics.update(es_metrics)
+            metrics.update(self.evaluate_pairs())
+        metrics.update(self.after_optimize(t, episodes, timer))
         if self.transfer_due(t):
             with timer("transfer"):
                 metrics["transfers"] = float(self.transfer())
+                metrics.update(self.after_transfer(t))
         return metrics
+
+    def after_optimize(self, t: int, episodes: list[Episodes], timer: PhaseTimer
+                       ) -> dict[str, float]:
+        """A hook after the ES step (ePOET: nothing)."""
+        return {}
+
+    def after_transfer(self, t: int) -> dict[str, float]:
+        """A hook inside the transfer step, after the transfers (ePOET: nothing)."""
+        return {}
 
     def reproduce_due(self, t: int) -> bool:
         return t > 0 and t % self.reproduce_interval == 0
 
     def transfer_due(self, t: int) -> bool:
         return len(self.active) > 1 and t % self.transfer_interval == 0
-
-    def optimize(self) -> dict[str, float]:
-        """One ES step of every active pair on its own environment, then its evaluation."""
-        metrics, _ = self.es_step()
-        metrics.update(self.evaluate_pairs())
-        return metrics
 
     def es_step(self, record: int = 0) -> tuple[dict[str, float], list[Episodes]]:
         """One ES step of every active pair; the transitions of each pair's first `record`
@@ -317,6 +328,13 @@ class EPOET:
         """ePOET's generations: the environment's (root 0, a child its parent's + 1)."""
         return pair.env.generation
 
+    def _replace_agent(self, pair: Pair, theta: np.ndarray, score: float) -> None:
+        """A new agent for the pair (a transfer, a crossover child); its score, measured this
+        iteration, stands in place of the old agent's."""
+        pair.es.reset(theta)
+        pair.scores.pop()
+        self._record(pair, score)
+
     def _record(self, pair: Pair, score: float) -> None:
         pair.scores.append(score)
         pair.env.solved |= score >= self.thresholds.repro
@@ -355,10 +373,7 @@ class EPOET:
             if score[0] > max(bars[m], best.get(m, (-np.inf,))[0]):
                 best[m] = (float(score[0]), proposal)
         for m, (score, theta) in best.items():
-            target = self.active[m]
-            target.es.reset(theta)
-            target.scores.pop()  # the new agent's score stands for this iteration
-            self._record(target, score)
+            self._replace_agent(self.active[m], theta, score)
         self.transfers += len(best)
         return len(best)
 
@@ -500,7 +515,7 @@ class EPOET:
         self.next_index = state["next_index"]
         self.transfers = state["transfers"]
         self.env_steps = state["env_steps"]
-        self.elapsed = state.get("elapsed", 0.0)  # checkpoints before it was kept: 0
+        self.elapsed = state["elapsed"]
         self.active = [restore(s) for s in state["active"]]
         self.archived = [restore(s) for s in state["archived"]]
         self._terrains.clear()

@@ -1,8 +1,8 @@
 """Moving agents between the ES pool and the SAC learner of ePOET-SAC (paper Section 3).
 
-ES agents are 53-40-40-18 tanh networks stored as one flat float64 vector (epoet/es/policy.py);
-the SAC actor is a [256, 256] ReLU tanh-Gaussian network. Neither can be copied into the other,
-so every crossing is a mapping:
+ES agents are small tanh networks stored as one flat float64 vector (epoet/es/policy.py); the
+SAC actor is a larger ReLU tanh-Gaussian network (`algo.sac.hidden`). Neither can be copied
+into the other, so every crossing is a mapping:
 
 - `random_mapping` (the paper's "random parameter selection"; the reference samples each ES
   layer's values with replacement from the corresponding SAC layer): cheap, and by the paper's

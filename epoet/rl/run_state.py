@@ -235,10 +235,11 @@ class TrainingRun:
                                    self.seeds.eval, hexapod(self.env).episodes,
                                    self.cfg.budget.episode_steps)
         state.last_eval_frames = state.frames
-        self.tracker.log_metrics(state.frames,
-                                 {**{f"eval/{k}": v for k, v in state.last_eval.items()},
-                                  "score": state.last_eval["return_mean"],
-                                  "env_steps": state.frames, "elapsed": state.wall_time})
+        metrics = {**{f"eval/{k}": v for k, v in state.last_eval.items()},
+                   "score": state.last_eval["return_mean"]}
+        if state.batches == 0:  # later evaluations follow a batch that logged the axes already
+            metrics.update({"env_steps": state.frames, "elapsed": state.wall_time})
+        self.tracker.log_metrics(state.frames, metrics)
         self.progress.write(f"[{self.cfg.algo.name}] frames={state.frames} eval return="
                             f"{state.last_eval['return_mean']:.1f} "
                             f"finish={state.last_eval['finish_rate']:.2f}")

@@ -6,7 +6,8 @@ updates and automatic entropy tuning (target entropy -(action dimensions)
 unless set). Rewards are multiplied by the reward scale when they enter the replay buffer (the
 logged returns are the env's). Each collector batch is followed by `updates_per_batch` gradient
 updates; the first batch comes from uniform random actions (Table 3: one pre-training epoch).
-Settings: conf/algo/sac.yaml. `SacLearner.gradient_steps` is what bench/sac_updates.py times.
+Settings: conf/learner/sac.yaml (networks, losses, replay; shared with ePOET-SAC) and
+conf/algo/sac.yaml (collection and updates). `SacLearner.gradient_steps` is what bench/sac_updates.py times.
 
 Speed (DESIGN.md: the update rate should match a plain-PyTorch SAC; bench/sac_updates.py):
 the loss is ours (sac_loss.py: the twin critics as one batched ensemble, no functional
