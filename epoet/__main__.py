@@ -11,6 +11,7 @@ from omegaconf import DictConfig
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.cli import fail, run_hydra_app
 from epoet.config import CONF_DIR, ConfigError
+from epoet.lifecycle import Stopped
 from epoet.tracking import TrackingError
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
@@ -22,7 +23,11 @@ def _app(cfg: DictConfig) -> None:
         run(cfg, run_dir)
     except (ConfigError, TrackingError, CheckpointError) as err:
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
-    except KeyboardInterrupt:
+    except Stopped as stop:  # SIGINT / SIGTERM: the checkpoint is written
+        print(f"epoet: {stop}; checkpoint saved, continue with resume={run_dir}",
+              file=sys.stderr)
+        sys.exit(stop.exit_code)
+    except KeyboardInterrupt:  # a second Ctrl-C: stopped at once
         hint = (f"; continue with resume={run_dir}" if (run_dir / CHECKPOINT_NAME).exists()
                 else "")
         print(f"epoet: interrupted{hint}", file=sys.stderr)

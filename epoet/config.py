@@ -8,6 +8,7 @@ which runs each `__post_init__` range check before any work starts; every failur
 """
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -321,19 +322,25 @@ class BudgetConfig:
 
 @dataclass
 class WorkersConfig:
-    """Where rollouts run: `local` is a process pool on this machine."""
+    """Where ES rollouts run: `local` is a process pool on this machine, `ray` a Ray cluster."""
 
     KEY: ClassVar[str] = "workers"
 
     backend: str
-    num: Optional[int]               # None: one worker per available core
+    num: Optional[int]               # None: one worker per available core (Ray: per cluster CPU)
     batch: int                       # robots per process (fits the cache: bench/rollout_throughput)
+    address: Optional[str] = None    # ray: a running cluster's address; None starts a local Ray
 
     def __post_init__(self) -> None:
-        _check(self.backend in ("local",),
-               f"workers.backend must be 'local', got {self.backend!r}.")
+        _check(self.backend in ("local", "ray"),
+               f"workers.backend must be 'local' or 'ray', got {self.backend!r}.")
         _check(self.num is None or self.num > 0, f"workers.num must be > 0, got {self.num}.")
         _positive(self, "batch")
+        _check(self.address is None or self.backend == "ray",
+               "workers.address is the Ray cluster to join, so it needs workers=ray.")
+        _check(self.backend != "ray" or importlib.util.find_spec("ray") is not None,
+               "workers=ray needs Ray, the 'distributed' extra: "
+               "pip install -c constraints.txt -e '.[distributed]'.")
 
 
 @dataclass
@@ -377,6 +384,9 @@ class Config:
             _check(self.budget.frames >= self.algo.batch_size,
                    f"budget.frames ({self.budget.frames}) must be at least algo.batch_size "
                    f"({self.algo.batch_size}), or SAC never updates.")
+        _check(self.workers.backend == "local" or isinstance(self.algo, PoetConfig),
+               f"workers={self.workers.backend} runs ES rollouts, and algo={self.algo.name} "
+               f"has none (it collects in-process): use workers=local.")
         if isinstance(self.algo, PoetConfig):
             _check(self.terrain.kind == "cppn",
                    f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "

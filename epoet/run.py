@@ -14,8 +14,9 @@ from typing import Any, Callable
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
-from epoet.config import Config, validate
+from epoet.config import Config, ConfigError, validate
 from epoet.files import atomic_write
+from epoet.lifecycle import StopOnSignal
 from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
 
 # algo.name -> "module:function" with the runner shape
@@ -76,6 +77,12 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
             raise CheckpointError(
                 f"checkpoint {path} was made with a different config ({', '.join(changed)}); "
                 f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change).")
+    if cfg.workers.address is not None:
+        from epoet.es.ray_workers import check_address
+        try:
+            check_address(cfg.workers.address)
+        except ConnectionError as exc:
+            raise ConfigError(str(exc)) from exc
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,
@@ -90,7 +97,8 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
             tracker.log_dict(resolved, "config.yaml")
         print(f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
               f"run_id={tracker.run_id} dir={run_dir}", flush=True)
-        result = runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
+        with StopOnSignal():
+            result = runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
     with atomic_write(run_dir / DONE) as f:  # after the run is closed as FINISHED
         f.write(f"{tracker.run_id}\n".encode())
     return result

@@ -12,9 +12,11 @@ never scatter stores. A sweep's parent run id reaches each job through EPOET_PAR
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import numbers
 import os
+import random
 import re
 import sqlite3
 import subprocess
@@ -38,6 +40,7 @@ from mlflow.utils.validation import (
 )
 
 from epoet.errors import first_line
+from epoet.lifecycle import Stopped
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_TRACKING_URI = f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
@@ -212,6 +215,38 @@ def _check_sqlite(uri: str, db: Path) -> None:
         raise TrackingError(f"cannot open MLflow store {uri}: {problem}.")
 
 
+class _RetryingClient:
+    """An MlflowClient whose calls retry, with jittered exponential backoff, while sqlite says
+    "database is locked": the parallel jobs of a sweep (hydra/launcher=joblib) write one store,
+    and sqlite lets one writer in at a time. A locked call rolled back, so trying it again is
+    safe; any other error is raised at once."""
+
+    ATTEMPTS = 10
+    FIRST_DELAY = 0.05  # seconds; doubles per attempt (about 50 s in all, beyond sqlite's own 5 s)
+
+    def __init__(self, client: MlflowClient) -> None:
+        self._client = client
+
+    def __getattr__(self, name: str) -> Any:
+        attr = getattr(self._client, name)
+        if not callable(attr):
+            return attr
+
+        @functools.wraps(attr)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            delay = self.FIRST_DELAY
+            for attempt in range(1, self.ATTEMPTS + 1):
+                try:
+                    return attr(*args, **kwargs)
+                except Exception as exc:
+                    if "database is locked" not in str(exc) or attempt == self.ATTEMPTS:
+                        raise
+                    time.sleep(delay * (1.0 + random.random()))
+                    delay *= 2
+
+        return call
+
+
 def open_store(tracking_uri: str | None = None) -> MlflowClient:
     """Connect to the store and prove it answers, so a bad store fails before any training."""
     uri = resolve_tracking_uri(tracking_uri)
@@ -220,11 +255,11 @@ def open_store(tracking_uri: str | None = None) -> MlflowClient:
         _check_sqlite(uri, db)
     try:
         with _quick_http():
-            client = MlflowClient(uri)
+            client = _RetryingClient(MlflowClient(uri))
             client.search_experiments(max_results=1)
     except Exception as exc:  # any failure here means the store is unusable
         raise TrackingError(f"cannot open MLflow store {uri}: {_reason(exc)}") from exc
-    return client
+    return client  # type: ignore[return-value]  # an MlflowClient in all but retries
 
 
 class MemoryTracker:
@@ -276,6 +311,10 @@ class MlflowTracker:
         self._buffer: list[Metric] = []
         self._last_flush = time.monotonic()
         self._closed = False
+        # A resumed run's last logged step per metric: a run killed after logging some steps
+        # resumes from an earlier checkpoint and recomputes them (identically); they are not
+        # sent twice.
+        self._logged: dict[str, int] = {}
 
     def __enter__(self) -> MlflowTracker:
         return self
@@ -287,7 +326,8 @@ class MlflowTracker:
         if exc_type is None:
             self.close("FINISHED")
         else:
-            self.close("KILLED" if issubclass(exc_type, KeyboardInterrupt) else "FAILED")
+            stopped = issubclass(exc_type, (KeyboardInterrupt, Stopped))
+            self.close("KILLED" if stopped else "FAILED")
 
     def _experiment_id(self) -> str:
         """Get or create the experiment; local stores keep artifacts next to the database."""
@@ -317,7 +357,8 @@ class MlflowTracker:
         """Create a run (or continue `resume_run_id`) and log its params and tags; returns its id.
 
         The git commit is tagged unless `tags` sets it. On resume, params already in the run
-        keep their first value (MLflow refuses to change a param); new keys are added.
+        keep their first value (MLflow refuses to change a param); new keys are added; metric
+        points at or before a metric's last logged step are not sent again.
         """
         if self.run_id is not None:
             raise TrackingError(f"this tracker already started run {self.run_id}.")
@@ -350,6 +391,8 @@ class MlflowTracker:
                                 f"{self.tracking_uri}.") from exc
         self.run_id, self.experiment_id = run_id, run.info.experiment_id
         self.client.update_run(run_id, status="RUNNING", name=run_name)
+        self._logged = {key: max(m.step for m in self.client.get_metric_history(run_id, key))
+                        for key in run.data.metrics}
         old = run.data.params
         changed = sorted(k for k, v in params.items() if k in old and old[k] != v)
         if changed:
@@ -395,7 +438,8 @@ class MlflowTracker:
         self._require_open()
         now_ms = int(time.time() * 1000)
         step, points = _metric_points(step, metrics)
-        self._buffer.extend(Metric(key, value, now_ms, step) for key, value in points)
+        self._buffer.extend(Metric(key, value, now_ms, step) for key, value in points
+                            if step > self._logged.get(key, -1))
         if (len(self._buffer) >= self.flush_every
                 or time.monotonic() - self._last_flush >= self.flush_seconds):
             self.flush()

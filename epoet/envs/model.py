@@ -54,6 +54,9 @@ def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
     spec = mujoco.MjSpec.from_file(str(MJCF))
     spec.option.timestep = agent.timestep
     spec.option.integrator = _INTEGRATORS[agent.integrator]
+    # On a blow-up MuJoCo would silently reset the robot to its initial pose and go on; the
+    # task sees the NaN or huge state instead and ends the episode (HexapodTask.step).
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
     hfield = spec.hfields[0]
     hfield.nrow = hfield.ncol = terrain.grid
     half = terrain.size / 2

@@ -15,6 +15,8 @@ from epoet.envs.model import Layout
 
 OBS_DIM = 53
 ACT_DIM = 18
+# MuJoCo's own bound on a sane state value (mjMAXVAL): beyond it, or NaN, the physics blew up.
+MAX_STATE = 1e10
 REWARD_TERMS = ("velocity", "heading", "lateral", "penalty", "bonus")
 
 
@@ -28,12 +30,13 @@ class EpisodeState:
     stalled: np.ndarray     # consecutive steps without a new best x
     steps: np.ndarray
     finished: np.ndarray    # finish line crossed (the bonus is paid once)
+    unstable: np.ndarray    # the physics blew up in the last step (the episode ended on it)
 
     @classmethod
     def zeros(cls, batch: int) -> "EpisodeState":
         f = lambda: np.zeros(batch)  # noqa: E731
         return cls(f(), f(), f(), np.zeros(batch, np.int64), np.zeros(batch, np.int64),
-                   np.zeros(batch, bool))
+                   np.zeros(batch, bool), np.zeros(batch, bool))
 
 
 def heading_deviation(quat: np.ndarray) -> np.ndarray:
@@ -70,6 +73,9 @@ class HexapodTask:
         out[:, 42:46] = qpos[:, 3:7]
         out[:, 46] = qpos[:, 1]
         np.greater(sensordata[:, lay.contact], 0.0, out=out[:, 47:53])
+        # A blown-up robot's (terminal) observation is stored as zeros, never NaN: a replay
+        # buffer multiplies terminal next-observations' values by zero, and NaN * 0 is NaN.
+        np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         return out
 
     def begin(self, qpos: np.ndarray, state: EpisodeState, rows: np.ndarray | slice) -> None:
@@ -80,6 +86,7 @@ class HexapodTask:
         state.stalled[rows] = 0
         state.steps[rows] = 0
         state.finished[rows] = False
+        state.unstable[rows] = False
 
     def step(self, qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
              state: EpisodeState) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -118,9 +125,17 @@ class HexapodTask:
         state.stalled[:] = np.where(progressed, 0, state.stalled + 1)
         state.steps += 1
 
+        # A physics blow-up (NaN, Inf or a huge state; MuJoCo's automatic reset is disabled in
+        # build_model) ends the episode as a fall would, and its step earns nothing: the
+        # episode's return is what it earned while the physics was sound.
+        state.unstable[:] = ~((np.abs(qpos) <= MAX_STATE).all(axis=1)
+                              & (np.abs(qvel) <= MAX_STATE).all(axis=1))
+        if state.unstable.any():
+            reward[state.unstable] = 0.0
+            state.finished &= ~state.unstable
         # Falling off: below the terrain's lowest point (height 0) or past its edge.
         fell = (qpos[:, 2] < 0.0) | (np.abs(x) > self.half_size) | (np.abs(y) > self.half_size)
-        terminated = state.finished | fell
+        terminated = state.finished | fell | state.unstable
         truncated = ~terminated & ((state.steps >= self.cfg.max_episode_steps)
                                    | (state.stalled > self.cfg.no_progress_steps))
         terms = {"velocity": rw.w_velocity * velocity, "heading": rw.w_heading * heading_gain,

@@ -15,9 +15,12 @@ its parameters, spawn seed and terrain only, hence identical for any worker coun
 scheduling.
 
 Processes start with "forkserver" (fork after torch/OpenMP threads exist can deadlock); each
-builds its engine once in the pool initializer. A worker exception is re-raised in the parent (the
-pool stays usable: the queue items of a failed call are tagged with its call number and skipped
-later); a worker that dies breaks the pool and raises RuntimeError.
+builds its engine once in the pool initializer and ends with the main process (`epoet.lifecycle`).
+A worker exception is re-raised in the parent (the pool stays usable: the queue items of a failed
+call are tagged with its call number and skipped later). A worker that dies (killed, out of memory)
+is a lost worker: the backend restarts its workers and runs the call again, which gives the same
+results, since an episode's result does not depend on the worker that runs it. `workers=ray` is
+the same design on a Ray cluster (`epoet.es.ray_workers`).
 """
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ import itertools
 import math
 import multiprocessing as mp
 import os
-import signal
+import sys
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, wait
@@ -36,11 +39,20 @@ from typing import NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import AgentConfig, TerrainConfig, WorkersConfig
 from epoet.es.optimizer import mirrored_population
 from epoet.es.policy import LAYER_SIZES, num_params
 from epoet.es.rollout import (DEFAULT_BATCH, Episodes, Job, RolloutEngine, TerrainLike,
                               check_seeds, merge_episodes)
+from epoet.lifecycle import end_with, ignore_stop_signals
+
+# How many times one call may lose a worker before the run gives up (a worker that dies on every
+# try is a bug or a machine without memory, not bad luck).
+MAX_RESTARTS = 3
+
+
+class WorkerLost(Exception):
+    """A rollout worker died during a call; its backend can restart its workers."""
 
 
 class _Relief(NamedTuple):
@@ -165,6 +177,7 @@ class Evaluator(Protocol):
     """Runs populations of episodes, one terrain each, many per call (see `make_evaluator`)."""
 
     workers: int
+    restarts: int       # worker losses survived so far (each restarted the workers)
 
     def run(self, requests: Sequence[Request]) -> list[Episodes]: ...
 
@@ -185,11 +198,32 @@ class _Backend(ABC):
 
     def __init__(self, layer_sizes: Sequence[int]) -> None:
         self.num_params = num_params(layer_sizes)
+        self.restarts = 0
 
     @abstractmethod
     def _run(self, requests: Sequence[Request]) -> list[Episodes]:
         """All episodes of every request, one flat `Episodes` per request in population order;
-        each request's first `record` episodes recorded."""
+        each request's first `record` episodes recorded. Raises `WorkerLost` if a worker died."""
+
+    def _restart(self) -> None:
+        """Replace the workers after a `WorkerLost` (backends without workers never lose one)."""
+        raise RuntimeError(f"{type(self).__name__} has no workers to restart.")
+
+    def _run_surviving(self, requests: Sequence[Request]) -> list[Episodes]:
+        """`_run`, restarting the workers and running the call again when one dies."""
+        for attempt in itertools.count(1):
+            try:
+                return self._run(requests)
+            except WorkerLost as lost:
+                if attempt > MAX_RESTARTS:
+                    self.close()
+                    raise RuntimeError(f"rollout workers died {attempt} times in one call "
+                                       f"({lost}); giving up.") from lost
+                print(f"[workers] {lost}: restarting the workers and running the call again "
+                      f"(restart {attempt}/{MAX_RESTARTS})", file=sys.stderr, flush=True)
+                self.restarts += 1
+                self._restart()
+        raise AssertionError("unreachable")
 
     def run(self, requests: Sequence[Request]) -> list[Episodes]:
         """Every request's episodes in one call; results shaped as each `population.shape`.
@@ -210,7 +244,7 @@ class _Backend(ABC):
         return [Episodes(e.returns.reshape(r.population.shape),
                          e.lengths.reshape(r.population.shape),
                          e.finished.reshape(r.population.shape), e.transitions)
-                for r, e in zip(requests, self._run(requests))]
+                for r, e in zip(requests, self._run_surviving(requests))]
 
     def __enter__(self) -> "_Backend":
         return self
@@ -286,10 +320,10 @@ _queue: Queue | None = None           # episode indices of the current call, sha
 
 
 def _init_worker(agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
-                 layer_sizes: tuple[int, ...], queue: Queue) -> None:
+                 layer_sizes: tuple[int, ...], queue: Queue, main_pid: int) -> None:
     global _engine, _queue
-    # Ctrl-C is the parent's to handle (it stops the pool); workers print no tracebacks.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ignore_stop_signals()
+    end_with(main_pid)
     _engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
     _queue = queue
 
@@ -312,6 +346,17 @@ def _work(call: int, reliefs: Sequence[_Relief], populations: Sequence[Populatio
     return _engine.run_jobs(_jobs(_items(call), populations, records), slots=slots)
 
 
+def reliefs_of(requests: Sequence[Request]) -> list[_Relief]:
+    """The requests' terrains as the plain arrays a worker needs."""
+    return [_Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
+                    float(r.terrain.size)) for r in requests]
+
+
+def fair_slots(batch: int, episodes: int, workers: int) -> int:
+    """Slots a worker fills at first: at most its fair share, so none hoards the queue."""
+    return min(batch, math.ceil(episodes / workers))
+
+
 class PoolEvaluator(_Backend):
     """A local process pool, one RolloutEngine per process; episodes are shared out one by one."""
 
@@ -322,17 +367,27 @@ class PoolEvaluator(_Backend):
             raise ValueError(f"a process pool needs workers >= 2, got {workers}.")
         self.workers = int(workers)
         self.batch = int(batch)
-        ctx = mp.get_context("forkserver")
+        self._ctx = mp.get_context("forkserver")
         # The fork server imports this module (numpy, MuJoCo, the engine) once; each worker is
         # then a cheap fork of it (~0.05 s instead of ~0.5 s of imports per process).
-        ctx.set_forkserver_preload([__name__])
-        self._queue = ctx.Queue()
+        self._ctx.set_forkserver_preload([__name__])
+        self._initargs = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
         self._calls = itertools.count()
-        self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(
-            self.workers, mp_context=ctx, initializer=_init_worker,
-            initargs=(agent, terrain_cfg, self.batch, tuple(layer_sizes), self._queue))
+        self._pool: ProcessPoolExecutor | None = None
+        self._start()
+
+    def _start(self) -> None:
+        # A fresh queue each time: a worker killed while reading may leave the old one's lock held.
+        self._queue = self._ctx.Queue()
+        self._pool = ProcessPoolExecutor(
+            self.workers, mp_context=self._ctx, initializer=_init_worker,
+            initargs=(*self._initargs, self._queue, os.getpid()))
         # Start every worker now (the pool spawns lazily), so start-up is paid here, once.
         self._submit_all(os.getpid)
+
+    def _restart(self) -> None:
+        self.close()
+        self._start()
 
     def _submit_all(self, fn: Callable[..., T], *args: object) -> list[T]:
         """Run fn(*args) as one task per worker; all must end before any error is raised, so no
@@ -344,9 +399,13 @@ class PoolEvaluator(_Backend):
             wait(futures)
             return [f.result() for f in futures]
         except BrokenProcessPool as err:
-            self.close()
-            raise RuntimeError("a rollout worker process died (see its traceback above); the "
-                               "evaluator is closed.") from err
+            # The broken executor terminates the other workers with SIGTERM, which they ignore
+            # (epoet.lifecycle), then joins the feeder thread of its task queue, which blocks
+            # writing task arguments (terrains) into a pipe nobody reads any more: kill the
+            # workers and close the pipe's read end, so that write fails and the join returns.
+            self._kill_workers()
+            self._pool._call_queue._reader.close()
+            raise WorkerLost("a rollout worker process died") from err
 
     def _run(self, requests: Sequence[Request]) -> list[Episodes]:
         if self._pool is None:
@@ -358,21 +417,23 @@ class PoolEvaluator(_Backend):
                 self._queue.put((call, request, e))
         for _ in range(self.workers):
             self._queue.put((call, None, None))
-        # A worker holds at most its fair share of slots at first, so none hoards the queue.
-        slots = min(self.batch, math.ceil(sum(sizes) / self.workers))
-        reliefs = [_Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
-                           float(r.terrain.size)) for r in requests]
-        return _split(self._submit_all(_work, call, reliefs, [r.population for r in requests],
+        slots = fair_slots(self.batch, sum(sizes), self.workers)
+        return _split(self._submit_all(_work, call, reliefs_of(requests),
+                                       [r.population for r in requests],
                                        [r.record for r in requests], slots), sizes)
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and self._pool is not None:
             # Interrupted or failed mid-call: stop the workers now rather than letting them
-            # finish an ES step nobody will read (ProcessPoolExecutor has no public terminate
-            # before Python 3.14).
-            for process in list(self._pool._processes.values()):
-                process.terminate()
+            # finish an ES step nobody will read.
+            self._kill_workers()
         self.close()
+
+    def _kill_workers(self) -> None:
+        """SIGKILL every worker (ProcessPoolExecutor has no public terminate before Python
+        3.14, and its terminate sends the SIGTERM workers ignore)."""
+        for process in list((self._pool._processes or {}).values()):
+            process.kill()
 
     def close(self) -> None:
         """Stop the worker processes (idempotent)."""
@@ -400,3 +461,13 @@ def make_evaluator(agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int 
     if workers == 1:
         return SerialEvaluator(agent, terrain_cfg, batch, layer_sizes)
     return PoolEvaluator(agent, terrain_cfg, workers, batch, layer_sizes)
+
+
+def evaluator_for(workers: WorkersConfig, agent: AgentConfig, terrain_cfg: TerrainConfig,
+                  layer_sizes: Sequence[int] = LAYER_SIZES) -> Evaluator:
+    """The evaluator a run's `workers` config asks for."""
+    if workers.backend == "ray":
+        from epoet.es.ray_workers import RayEvaluator  # the optional extra, imported on demand
+        return RayEvaluator(agent, terrain_cfg, workers.num, workers.batch, layer_sizes,
+                            workers.address)
+    return make_evaluator(agent, terrain_cfg, workers.num or "local", workers.batch, layer_sizes)

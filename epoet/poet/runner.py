@@ -9,7 +9,8 @@ from typing import Any
 from epoet.checkpoint import save_run_state
 from epoet.config import Config, EpoetSacConfig
 from epoet.es.policy import LAYER_SIZES
-from epoet.es.workers import Evaluator, make_evaluator
+from epoet.es.workers import Evaluator, evaluator_for
+from epoet.lifecycle import raise_if_stopped, stop_requested
 from epoet.poet.epoet_sac import make_epoet_sac
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
@@ -33,9 +34,7 @@ def make_loop(cfg: Config, evaluator: Evaluator) -> EPOET:
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
     """Iterate until `budget.iterations`, checkpointing every `checkpoint_every` iterations."""
-    sizes = layer_sizes(cfg)
-    workers = cfg.workers.num if cfg.workers.num is not None else "local"
-    with make_evaluator(cfg.agent, cfg.terrain, workers, cfg.workers.batch, sizes) as evaluator:
+    with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
         poet = make_loop(cfg, evaluator)
         try:
             _iterate(poet, cfg, tracker, run_dir, resume)
@@ -51,12 +50,18 @@ def _iterate(poet: EPOET, cfg: Config, tracker: Tracker, run_dir: Path,
         poet.load_state_dict(resume["poet"])
         print(f"[{cfg.algo.name}] resumed at iteration {poet.iteration}", flush=True)
     started = time.perf_counter()
+    restarts = poet.evaluator.restarts
     while poet.iteration < budget.iterations:
         metrics = poet.iterate()
+        if poet.evaluator.restarts > restarts:  # a worker died; the iteration ran unchanged
+            metrics["workers/restarts"] = poet.evaluator.restarts - restarts
+            restarts = poet.evaluator.restarts
         tracker.log_metrics(poet.iteration - 1, metrics)
         _progress(cfg.algo.name, poet, metrics, budget.iterations, time.perf_counter() - started)
-        if poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations:
+        if (poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations
+                or stop_requested()):
             save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
+            raise_if_stopped(f"after iteration {poet.iteration}")
     poet.log_artifacts(run_dir, tracker)
 
 

@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 from torchrl.data import LazyTensorStorage, SamplerWithoutReplacement, TensorDictReplayBuffer
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss, LossModule
@@ -22,7 +21,7 @@ from torchrl.objectives.value import GAE
 
 from epoet.config import Config, OnPolicyConfig, PpoConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
-from epoet.rl.setup import BatchPlan, make_actor, make_value
+from epoet.rl.setup import BatchPlan, make_actor, make_value, step_if_finite
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -63,20 +62,20 @@ class OnPolicyLearner:
         self.buffer.empty()
         self.buffer.extend(batch.reshape(-1))
         sums: dict[str, torch.Tensor] = {}
+        steps = skipped = 0
         for _ in range(self.epochs):
             for _ in range(self.minibatches):
                 out = self.loss(self.buffer.sample())
                 total = sum(v for k, v in out.items() if k.startswith("loss_"))
-                self.optimizer.zero_grad(set_to_none=True)
-                total.backward()
-                if self.max_grad_norm is not None:
-                    nn.utils.clip_grad_norm_(self.actor.parameters(), self.max_grad_norm)
-                    nn.utils.clip_grad_norm_(self.critic.parameters(), self.max_grad_norm)
-                self.optimizer.step()
+                if not step_if_finite(self.optimizer, total,
+                                      (self.actor.parameters(), self.critic.parameters()),
+                                      self.max_grad_norm):
+                    skipped += 1
+                    continue
+                steps += 1
                 for k, v in out.items():
                     sums[k] = sums.get(k, 0.0) + v.detach().float().mean()
-        steps = self.epochs * self.minibatches
-        return {k: float(v) / steps for k, v in sums.items()}
+        return {**{k: float(v) / steps for k, v in sums.items()}, "skipped_updates": skipped}
 
     def state_dict(self) -> dict[str, Any]:
         return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}

@@ -42,6 +42,7 @@ from tqdm import tqdm
 
 from epoet.checkpoint import save_run_state
 from epoet.config import Config
+from epoet.lifecycle import raise_if_stopped, stop_requested
 from epoet.rl.policy_file import POLICY_FILE, export_policy
 from epoet.rl.setup import (OBS, RunningObsNorm, Seeds, batch_plan, episode_metrics, evaluate,
                             hexapod, make_collector, make_env, obs_norm_of, set_threads)
@@ -205,10 +206,12 @@ class TrainingRun:
             self.state.next_eval += self.cfg.budget.eval_every
 
     def checkpoint_if_due(self, learner: Learner) -> None:
-        """Every `checkpoint_every` batches but the last (`finish` writes that one)."""
-        if (self.state.batches % self.cfg.checkpoint_every == 0
+        """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
+        signal asked the run to stop."""
+        if ((self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested())
                 and self.state.batches < self.plan.batches):
             self._checkpoint(learner)
+            raise_if_stopped(f"at frame {self.state.frames}")
             self.collector.reset()  # see the module docstring: checkpoints end the episode
 
     def finish(self, actor: ProbabilisticActor, learner: Learner) -> TrainResult:

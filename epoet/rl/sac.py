@@ -28,7 +28,7 @@ from torchrl.envs import EnvBase
 from epoet.config import Config, SacConfig, SacLearnerConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
 from epoet.rl.sac_loss import SacLoss, TwinQ
-from epoet.rl.setup import ACTIVATIONS, OBS, make_actor, policy_key
+from epoet.rl.setup import ACTIVATIONS, OBS, make_actor, policy_key, step_if_finite
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -79,23 +79,26 @@ class SacLearner:
         chunk (worth ~8% of the update rate, see bench/sac_updates.py).
         """
         total = torch.zeros(len(METRICS))
-        done = 0
+        done = stepped = 0
         while done < n:
             chunk = min(SAMPLE_CHUNK, n - done)
             for sample in self.buffer.sample(chunk * self.batch_size).split(self.batch_size):
                 out = self.update(sample)
-                with torch.no_grad():
-                    total += torch.stack([out[k] for k in METRICS])
+                if out is not None:
+                    stepped += 1
+                    with torch.no_grad():
+                        total += torch.stack([out[k] for k in METRICS])
             done += chunk
-        return dict(zip(METRICS, (total / n).tolist()))
+        means = dict(zip(METRICS, (total / stepped).tolist())) if stepped else {}
+        return {**means, "skipped_updates": n - stepped}
 
-    def update(self, sample: TensorDictBase) -> dict[str, torch.Tensor]:
-        """One gradient step of actor, critics and temperature, then the soft target update."""
+    def update(self, sample: TensorDictBase) -> dict[str, torch.Tensor] | None:
+        """One gradient step of actor, critics and temperature, then the soft target update;
+        None (and no change) when the loss is not finite."""
         out = self.loss(sample)
         total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
-        self.optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        self.optimizer.step()
+        if not step_if_finite(self.optimizer, total):
+            return None
         self.loss.update_targets(self.tau)
         return out
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import random
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -312,3 +313,22 @@ def episode_metrics(batch: TensorDictBase) -> dict[str, float]:
     return {"episode_return": float(batch["next", "episode_reward"][done].mean()),
             "episode_length": float(batch["next", "step_count"][done].float().mean()),
             "finish_rate": float(batch["next", "finished"][done].float().mean())}
+
+
+def step_if_finite(optimizer: torch.optim.Optimizer, total: torch.Tensor,
+                   clip: Sequence[Iterable[nn.Parameter]] = (),
+                   max_grad_norm: float | None = None) -> bool:
+    """Backpropagate `total` and step, unless the loss or a clipped gradient norm is not finite:
+    then nothing changes (weights and optimiser state) and False is returned, so one bad batch
+    cannot poison the networks. The caller counts the skips (`skipped_updates`)."""
+    optimizer.zero_grad(set_to_none=True)
+    if not torch.isfinite(total):
+        return False
+    total.backward()
+    if max_grad_norm is not None:
+        for params in clip:  # each group clipped on its own norm (actor and critic, say)
+            if not torch.isfinite(nn.utils.clip_grad_norm_(params, max_grad_norm)):
+                optimizer.zero_grad(set_to_none=True)
+                return False
+    optimizer.step()
+    return True

@@ -1,0 +1,166 @@
+"""workers=ray: the rollout backend on a Ray cluster, for runs that outgrow one machine.
+
+The design is the local pool's (`epoet.es.workers`), with Ray's processes and object store:
+- each Ray actor holds one `RolloutEngine`, built once;
+- a call ships every request's terrain and population *description* once (`ray.put`, fetched once
+  per node), and the (request, episode) items go into a feed actor that the rollout actors pull
+  from as their slots free up, so load balances per episode across machines;
+- results come back as (encoded indices, Episodes) parts and are split per request exactly as the
+  pool's are, so for a seed the results equal `workers=local` (an episode's result depends on its
+  parameters, spawn seed and terrain only).
+
+Items are taken in guided chunks (a share of what is left, shrinking to one), so a remote actor
+makes few round trips early and the tail still balances. An actor that dies (its node lost, the
+process killed) raises `WorkerLost`; the backend replaces the dead actors and runs the call again.
+`address` joins a running cluster (`ray start --head` on the head node); without it a local Ray
+starts with this process and stops with it.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import socket
+from collections.abc import Iterator, Sequence
+
+import numpy as np
+
+from epoet.config import AgentConfig, TerrainConfig
+from epoet.es.policy import LAYER_SIZES
+from epoet.es.rollout import DEFAULT_BATCH, Episodes, RolloutEngine
+from epoet.es.workers import (Population, Request, WorkerLost, _Backend, _jobs, _Relief, _split,
+                              fair_slots, reliefs_of)
+
+try:
+    import ray
+    from ray.exceptions import RayActorError, WorkerCrashedError
+except ImportError:  # the optional extra; RayEvaluator says how to install it
+    ray = None
+
+INSTALL_HINT = "pip install -c constraints.txt -e '.[distributed]'"
+
+
+def check_address(address: str) -> None:
+    """Fail in seconds, in one sentence, when a cluster address does not answer (`ray.init`
+    would retry for a minute). `auto` and `ray://` addresses are left to Ray."""
+    host, _, port = address.rpartition(":")
+    if address == "auto" or "://" in address or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
+    except OSError as exc:
+        raise ConnectionError(f"no Ray cluster answers at workers.address={address} "
+                              f"({exc.strerror or exc}); start one with `ray start --head`.") \
+            from exc
+
+
+class _Feed:
+    """The items of the current call, handed out in guided chunks."""
+
+    def __init__(self) -> None:
+        self._call = -1
+        self._items: list[tuple[int, int]] = []
+        self._next = 0
+        self._takers = 1
+
+    def load(self, call: int, items: list[tuple[int, int]], takers: int) -> None:
+        self._call, self._items, self._next, self._takers = call, items, 0, takers
+
+    def take(self, call: int) -> list[tuple[int, int]]:
+        if call != self._call:
+            return []  # a call that was abandoned (an actor died) and started again
+        left = len(self._items) - self._next
+        n = min(left, max(1, math.ceil(left / (4 * self._takers))))
+        chunk = self._items[self._next:self._next + n]
+        self._next += n
+        return chunk
+
+
+class _RolloutActor:
+    """One rollout engine on a Ray worker process."""
+
+    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
+                 layer_sizes: tuple[int, ...]) -> None:
+        self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
+
+    def ready(self) -> bool:
+        return True
+
+    def work(self, feed: object, call: int, reliefs: Sequence[_Relief],
+             populations: Sequence[Population], records: Sequence[int], slots: int
+             ) -> tuple[np.ndarray, Episodes]:
+        self.engine.set_terrains(reliefs)
+        return self.engine.run_jobs(_jobs(_pull(feed, call), populations, records), slots=slots)
+
+
+def _pull(feed: object, call: int) -> Iterator[tuple[int, int]]:
+    while chunk := ray.get(feed.take.remote(call)):
+        yield from chunk
+
+
+class RayEvaluator(_Backend):
+    """Rollout actors on a Ray cluster; `workers` actors (default: one per CPU of the cluster)."""
+
+    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | None = None,
+                 batch: int = DEFAULT_BATCH, layer_sizes: Sequence[int] = LAYER_SIZES,
+                 address: str | None = None) -> None:
+        if ray is None:
+            raise RuntimeError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
+        super().__init__(layer_sizes)
+        self._owns_ray = not ray.is_initialized()
+        if self._owns_ray:
+            try:
+                # Local: as many CPUs as workers (or the machine's); a cluster brings its own.
+                ray.init(address=address, num_cpus=None if address else workers,
+                         include_dashboard=False, configure_logging=False, log_to_driver=True)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise RuntimeError(f"cannot join the Ray cluster at {address}: {exc}") from exc
+        self.workers = int(workers or ray.cluster_resources().get("CPU", 1))
+        self.batch = int(batch)
+        self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
+        self._remote_actor = ray.remote(num_cpus=1)(_RolloutActor)
+        self._feed = ray.remote(num_cpus=0)(_Feed).remote()
+        self._calls = itertools.count()
+        self._actors: list = []
+        self._start()
+
+    def _start(self) -> None:
+        self._actors = [self._remote_actor.remote(*self._args) for _ in range(self.workers)]
+        try:
+            ray.get([a.ready.remote() for a in self._actors])
+        except (RayActorError, WorkerCrashedError) as exc:
+            raise WorkerLost(f"a Ray rollout actor died while starting: {exc}") from exc
+
+    def _restart(self) -> None:
+        for actor in self._actors:
+            ray.kill(actor)
+        self._start()
+
+    def _run(self, requests: Sequence[Request]) -> list[Episodes]:
+        if not self._actors:
+            raise RuntimeError("this evaluator is closed.")
+        call = next(self._calls)
+        sizes = [len(r.population) for r in requests]
+        items = [(k, e) for k, n in enumerate(sizes) for e in range(n)]
+        ray.get(self._feed.load.remote(call, items, self.workers))
+        shared = [ray.put(reliefs_of(requests)), ray.put([r.population for r in requests])]
+        slots = fair_slots(self.batch, len(items), self.workers)
+        futures = [a.work.remote(self._feed, call, *shared, [r.record for r in requests], slots)
+                   for a in self._actors]
+        try:
+            parts = ray.get(futures)
+        except (RayActorError, WorkerCrashedError) as exc:
+            ray.get(self._feed.load.remote(-1, [], 1))  # stop the survivors' pulls
+            ray.wait(futures, num_returns=len(futures))
+            raise WorkerLost(f"a Ray rollout actor died ({type(exc).__name__})") from exc
+        return _split(parts, sizes)
+
+    def close(self) -> None:
+        """Stop the actors, and the local Ray this evaluator started (idempotent)."""
+        if not self._actors:
+            return
+        for actor in self._actors:
+            ray.kill(actor)
+        ray.kill(self._feed)
+        self._actors = []
+        if self._owns_ray:
+            ray.shutdown()

@@ -1,0 +1,216 @@
+"""Faults a long run meets: its main process killed (any signal), a worker dying mid-call, a
+physics blow-up, a NaN in a learner update, a full or read-only disk at checkpoint time, and a
+resumed run re-logging metrics. Real processes, real signals, real MuJoCo, real file systems."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+
+import mlflow
+import numpy as np
+import pytest
+import torch
+
+from epoet.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from epoet.config import load
+from epoet.es.policy import init_params
+from epoet.es.rollout import RolloutEngine
+from epoet.es.workers import Mirrored, Request, make_evaluator
+from epoet.terrain import Terrain
+from epoet.tracking import MlflowTracker
+
+SMOKE = ["budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40"]
+CFG = load(SMOKE)
+
+
+def _tagged_processes(tag: str) -> list[int]:
+    """Pids of live processes whose environment holds EPOET_TEST_TAG=tag (a run's whole tree)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            environ = (entry / "environ").read_bytes()
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if f"EPOET_TEST_TAG={tag}".encode() in environ.split(b"\0") and state != "Z":
+            found.append(int(entry.name))
+    return found
+
+
+def _launch(args: list[str], tmp_path: Path, tag: str) -> subprocess.Popen:
+    env = {**os.environ, "EPOET_TEST_TAG": tag,
+           "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db"}
+    return subprocess.Popen([sys.executable, "-m", "epoet", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for(predicate, timeout: float = 120.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.1)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSEGV])
+def test_a_killed_run_leaves_no_worker_process_behind(sig, tmp_path: Path) -> None:
+    tag = f"orphans-{sig.name}-{os.getpid()}"
+    run_dir = tmp_path / "run"
+    proc = _launch([*SMOKE, "workers.num=2", "budget.iterations=1000", "checkpoint_every=1",
+                    f"hydra.run.dir={run_dir}"], tmp_path, tag)
+    try:
+        _wait_for(lambda: (run_dir / "checkpoint.pkl").exists())  # the workers are running
+        assert len(_tagged_processes(tag)) >= 4  # main, fork server, two workers
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=30)
+        _wait_for(lambda: not _tagged_processes(tag), timeout=5)
+    finally:
+        for pid in _tagged_processes(tag):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_sigterm_and_sigint_checkpoint_then_the_resumed_run_equals_an_uninterrupted_one(
+        sig, tmp_path: Path) -> None:
+    run_dir = tmp_path / "stopped"
+    overrides = [*SMOKE, "workers.num=2", "checkpoint_every=1000"]
+    proc = _launch([*overrides, "budget.iterations=1000", f"hydra.run.dir={run_dir}"],
+                   tmp_path, f"stop-{os.getpid()}")
+    lines = []
+    for line in proc.stdout:  # wait for the second iteration: no checkpoint is due before 1000
+        lines.append(line)
+        if line.startswith("[epoet] it 2/"):
+            break
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + sig, err
+    assert f"stopped by {sig.name}" in err and f"resume={run_dir}" in err, err
+    state = load_checkpoint(run_dir / "checkpoint.pkl")
+    stopped_at = state["poet"]["iteration"]
+    assert 2 <= stopped_at < 1000
+    client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    assert client.get_run(state["run_id"]).info.status == "KILLED"
+    assert not (run_dir / "DONE").exists()
+
+    total = stopped_at + 2
+    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db"}
+    for args in ([f"resume={run_dir}", f"hydra.run.dir={run_dir}"],
+                 [f"hydra.run.dir={tmp_path / 'straight'}"]):
+        out = subprocess.run([sys.executable, "-m", "epoet", *overrides,
+                              f"budget.iterations={total}", *args], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-2000:]
+    resumed = load_checkpoint(run_dir / "checkpoint.pkl")
+    straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")
+    assert resumed["poet"]["iteration"] == straight["poet"]["iteration"] == total
+    for a, b in zip(resumed["poet"]["active"], straight["poet"]["active"]):
+        np.testing.assert_array_equal(a["es"]["theta"], b["es"]["theta"])
+        assert a["scores"] == b["scores"]
+    steps = [m.step for m in client.get_metric_history(state["run_id"], "best_score")]
+    assert sorted(steps) == list(range(total))  # every iteration once: none lost, none twice
+
+
+def test_a_resumed_run_never_logs_a_metric_point_twice(tmp_path: Path) -> None:
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    with MlflowTracker(uri, "faults") as first:
+        run_id = first.start("killed")
+        for step in range(6):
+            first.log_metrics(step, {"a": step, "final/x": 1.0} if step == 5 else {"a": step})
+    # Resumed from a checkpoint at step 2: steps 3-5 are computed again, then the run goes on.
+    with MlflowTracker(uri, "faults") as resumed:
+        resumed.start("killed", resume_run_id=run_id)
+        for step in range(3, 8):
+            resumed.log_metrics(step, {"a": step})
+        resumed.log_metrics(5, {"final/x": 1.0})
+        resumed.log_metrics(8, {"final/x": 2.0})
+    client = mlflow.MlflowClient(uri)
+    assert sorted(m.step for m in client.get_metric_history(run_id, "a")) == list(range(8))
+    assert [(m.step, m.value) for m in client.get_metric_history(run_id, "final/x")] \
+        == [(5, 1.0), (8, 2.0)]
+
+
+def test_a_worker_killed_mid_call_is_replaced_and_the_results_are_unchanged() -> None:
+    terrain = Terrain(np.zeros((40, 40)), 0.0, CFG.terrain.size, "bowl", 0)
+    agent = replace(CFG.agent, max_episode_steps=200)
+    terrain_cfg = replace(CFG.terrain, grid=40)
+    es = Request(terrain, Mirrored.of(init_params(3), np.arange(40), 0.05, np.arange(40) + 100))
+    with make_evaluator(agent, terrain_cfg, workers=1, batch=4) as one:
+        expected = one.run([es])[0].returns
+    with make_evaluator(agent, terrain_cfg, workers=2, batch=4) as two:
+        victim = next(iter(two._pool._processes))
+        killer = threading.Timer(0.5, os.kill, (victim, signal.SIGKILL))
+        killer.start()
+        started = time.monotonic()
+        returns = two.run([es])[0].returns
+        killer.join()
+        assert time.monotonic() - started > 0.5, "the call ended before the kill: make it longer"
+        assert two.restarts == 1
+        np.testing.assert_array_equal(returns, expected)
+
+
+def test_a_physics_blow_up_ends_the_episode_as_a_failure(tmp_path: Path) -> None:
+    # A 1 s RK4 step makes the hexapod's physics diverge (NaN) within its first steps.
+    agent = replace(CFG.agent, timestep=1.0, integrator="rk4", max_episode_steps=50)
+    engine = RolloutEngine(agent, replace(CFG.terrain, grid=40), batch=4)
+    terrain = Terrain(np.zeros((40, 40)), 0.0, CFG.terrain.size, "bowl", 0)
+    params = np.stack([init_params(s) for s in range(4)])
+    episodes = engine.run(terrain, params, np.arange(4), record=True)
+    assert (episodes.lengths < 50).all() and not episodes.finished.any()
+    assert np.isfinite(episodes.returns).all()
+    t = episodes.transitions
+    assert all(np.isfinite(t[k]).all() for k in ("obs", "next_obs", "reward"))
+    assert t["terminated"][np.r_[np.flatnonzero(np.diff(t["episode"])), -1]].all()
+
+
+def test_a_non_finite_learner_loss_skips_the_update_and_counts_it() -> None:
+    from epoet.rl.sac import SacLearner
+    from epoet.rl.setup import make_env
+
+    cfg = load(["algo=sac", "budget=smoke", "algo.batch_size=8"])
+    env = make_env(cfg, obs_norm=False, seed=0)
+    learner = SacLearner(cfg.algo, env)
+    data = env.rollout(16)
+    data["next", "reward"][:] = float("nan")  # e.g. a corrupted transition in every sample
+    learner.add(data)
+    before = [p.detach().clone() for p in learner.loss.parameters()]
+    learned = learner.gradient_steps(2)
+    assert learned == {"skipped_updates": 2}
+    for old, new in zip(before, learner.loss.parameters()):
+        torch.testing.assert_close(old, new.detach(), rtol=0, atol=0)
+
+
+@contextmanager
+def _mounted(tmp_path: Path, size: str) -> Path:
+    """A real, tiny tmpfs (needs CAP_SYS_ADMIN, as root in a container has)."""
+    point = tmp_path / "mnt"
+    point.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(point)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs CAP_SYS_ADMIN")
+    try:
+        yield point
+    finally:
+        subprocess.run(["umount", "-l", str(point)], check=False)
+
+
+def test_a_full_or_read_only_disk_at_checkpoint_time_keeps_the_previous_checkpoint(
+        tmp_path: Path) -> None:
+    with _mounted(tmp_path, "256k") as disk:
+        path = disk / "checkpoint.pkl"
+        save_checkpoint(path, {"iteration": 1})
+        saved = path.read_bytes()
+        with pytest.raises(CheckpointError, match="No space left on device"):
+            save_checkpoint(path, {"iteration": 2, "replay": np.zeros(1 << 20)})
+        assert path.read_bytes() == saved and os.listdir(disk) == ["checkpoint.pkl"]
+        subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+        with pytest.raises(CheckpointError, match="Read-only file system"):
+            save_checkpoint(path, {"iteration": 2})
+        assert load_checkpoint(path) == {"iteration": 1}
