@@ -228,6 +228,8 @@ class _RetryingClient:
         self._client = client
 
     def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "_client":  # e.g. while a launcher unpickles it
+            raise AttributeError(name)
         attr = getattr(self._client, name)
         if not callable(attr):
             return attr

@@ -113,7 +113,10 @@ class RayEvaluator(_Backend):
                 ray.init(address=address, num_cpus=None if address else workers,
                          include_dashboard=False, configure_logging=False, log_to_driver=True)
             except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise RuntimeError(f"cannot join the Ray cluster at {address}: {exc}") from exc
+                raise RuntimeError(
+                    f"cannot join the Ray cluster at {address}: {exc} (a cluster started with "
+                    f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)") \
+                    from exc
         self.workers = int(workers or ray.cluster_resources().get("CPU", 1))
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))

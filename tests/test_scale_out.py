@@ -1,0 +1,109 @@
+"""Scaling out: workers=ray gives exactly workers=local's run, on a local Ray and on a cluster
+started with `ray start --head`; a joblib sweep runs its jobs in parallel into one sqlite store."""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import numpy as np
+import pytest
+
+from epoet.checkpoint import load_checkpoint
+
+SMOKE = ["budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40", "budget.iterations=2"]
+RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
+
+
+def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db", **env}
+    return subprocess.run([sys.executable, "-m", "epoet", *args], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=400)
+
+
+def _pool(run_dir: Path) -> list[dict]:
+    return load_checkpoint(run_dir / "checkpoint.pkl")["poet"]["active"]
+
+
+def _assert_same_pool(a: list[dict], b: list[dict]) -> None:
+    assert len(a) == len(b)
+    for pa, pb in zip(a, b):
+        assert pa["scores"] == pb["scores"]
+        np.testing.assert_array_equal(pa["es"]["theta"], pb["es"]["theta"])
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory) -> Path:
+    tmp = tmp_path_factory.mktemp("local")
+    out = _epoet([*SMOKE, "workers.num=2", f"hydra.run.dir={tmp / 'run'}"], tmp)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return tmp / "run"
+
+
+def test_a_local_ray_gives_exactly_the_local_pools_run(local_run: Path, tmp_path: Path) -> None:
+    out = _epoet([*SMOKE, "workers=ray", "workers.num=2", f"hydra.run.dir={tmp_path / 'run'}"],
+                 tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    _assert_same_pool(_pool(tmp_path / "run"), _pool(local_run))
+
+
+@pytest.fixture
+def ray_cluster(tmp_path: Path):
+    """A real Ray head node on this machine, as `ray start --head` starts one for users."""
+    port = 6390
+    env = {**os.environ, "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0"}
+    started = subprocess.run([RAY, "start", "--head", f"--port={port}", "--num-cpus=2",
+                              "--include-dashboard=false", "--disable-usage-stats"],
+                             capture_output=True, text=True, timeout=180, env=env)
+    assert started.returncode == 0, started.stderr[-2000:]
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        subprocess.run([RAY, "stop", "--force"], capture_output=True, timeout=120)
+
+
+@pytest.mark.skipif(RAY is None, reason="the ray command comes with the 'distributed' extra")
+def test_a_run_joins_a_running_ray_cluster_with_the_same_result(local_run: Path, ray_cluster: str,
+                                                                tmp_path: Path) -> None:
+    # `ray start` turns on token authentication; its token is in ~/.ray, as for users.
+    out = _epoet([*SMOKE, "workers=ray", f"workers.address={ray_cluster}",
+                  f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, RAY_AUTH_MODE="token")
+    assert out.returncode == 0, out.stderr[-2000:]
+    _assert_same_pool(_pool(tmp_path / "run"), _pool(local_run))
+
+
+def test_an_unreachable_ray_cluster_is_one_line_before_any_run(tmp_path: Path) -> None:
+    out = _epoet([*SMOKE, "workers=ray", "workers.address=127.0.0.1:9",
+                  f"hydra.run.dir={tmp_path / 'run'}"], tmp_path)
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == [out.stderr.strip()]
+    assert "no Ray cluster answers at workers.address=127.0.0.1:9" in out.stderr
+    assert not (tmp_path / "mlflow.db").exists() or not mlflow.MlflowClient(
+        f"sqlite:///{tmp_path}/mlflow.db").search_runs(["0"])
+
+
+def test_a_joblib_sweep_runs_two_jobs_in_parallel_into_one_store(tmp_path: Path) -> None:
+    out = _epoet(["-m", *SMOKE, "workers.num=1", "seed=1,2", "hydra/launcher=joblib",
+                  "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'sweep'}"], tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "database is locked" not in out.stderr
+    client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    runs = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    children = [r for r in runs if "mlflow.parentRunId" in r.data.tags]
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED"
+    assert sorted(c.data.tags["seed"] for c in children) == ["1", "2"]
+    assert all(c.data.tags["mlflow.parentRunId"] == parents[0].info.run_id for c in children)
+    assert all(c.info.status == "FINISHED" for c in children)
+    first, second = sorted(children, key=lambda c: c.info.start_time)
+    assert second.info.start_time < first.info.end_time  # the two jobs ran at the same time
+
+
+def test_the_slurm_launcher_config_composes(tmp_path: Path) -> None:
+    out = _epoet(["hydra/launcher=slurm", "--cfg", "hydra", "--package", "hydra.launcher"],
+                 tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "hydra_plugins.hydra_submitit_launcher" in out.stdout and "timeout_min" in out.stdout
