@@ -23,6 +23,8 @@ def _app(cfg: DictConfig) -> None:
         run(cfg, run_dir)
     except (ConfigError, TrackingError, CheckpointError) as err:
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
+    except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
+        fail(err)
     except Stopped as stop:  # SIGINT / SIGTERM: the checkpoint is written
         print(f"epoet: {stop}; checkpoint saved, continue with resume={run_dir}",
               file=sys.stderr)

@@ -34,3 +34,5 @@ def run_hydra_app(app: Callable[[], None]) -> None:
         app()
     except (HydraException, OmegaConfBaseException) as err:
         fail(err)
+    except OSError as err:  # e.g. an output folder that cannot be written (Hydra makes it)
+        fail(err)

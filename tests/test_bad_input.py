@@ -1,0 +1,133 @@
+"""The README's bad-input table, row by row, through `python -m epoet` as users type it: each bad
+input ends in one line on stderr and exit 2, before any training, and destroys nothing (the good
+run's checkpoint and MLflow run stay as they were, no other run is finished or deleted).
+
+The evaluation and analysis commands' rows are tested where those commands are
+(tests/test_evaluation.py::test_bad_inputs_are_one_line_errors, tests/test_analysis.py).
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import pytest
+
+SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40",
+         "budget.iterations=1"]
+
+# (row id, overrides ({good}: the good run's folder, {tmp}: a scratch folder), stderr must hold)
+ROWS = [
+    ("unknown algo", ["algo=foo"], "Could not find 'algo/foo' (available: epoet, epoet_sac"),
+    ("unknown agent", ["agent=foo"], "Could not find 'agent/foo'"),
+    ("unknown terrain", ["terrain=foo"], "Could not find 'terrain/foo'"),
+    ("unknown budget", ["budget=foo"], "Could not find 'budget/foo'"),
+    ("unknown workers", ["workers=foo"], "Could not find 'workers/foo'"),
+    ("unknown tracking", ["tracking=foo"], "Could not find 'tracking/foo'"),
+    ("unknown launcher", ["hydra/launcher=foo"], "Could not find 'hydra/launcher/foo'"),
+    ("unknown key", ["budget.iteration=3"], "Key 'iteration' not in"),
+    ("wrong type", ["seed=abc"], "seed"),
+    ("out of range", ["budget.n_pairs=-1"], "budget.n_pairs must be > 0"),
+    ("no workers", ["workers.num=0"], "workers.num must be > 0"),
+    ("terrain for ePOET", ["terrain=bowl"], "needs terrain=cppn"),
+    ("ePOET-SAC buffer", ["algo=epoet_sac", "algo.sac.buffer_size=8"],
+     "algo.sac.buffer_size (8) must hold at least one batch"),
+    ("ray for a baseline", ["algo=ppo", "workers=ray"], "use workers=local"),
+    ("address without ray", ["workers.address=127.0.0.1:6379"], "needs workers=ray"),
+    ("unreachable ray", ["workers=ray", "workers.address=127.0.0.1:9"],
+     "no Ray cluster answers at workers.address=127.0.0.1:9"),
+    ("resume missing", ["resume={tmp}/missing"], "does not exist"),
+    ("resume corrupt", ["resume={tmp}/corrupt.pkl"], "corrupt.pkl"),
+    ("resume other algo", ["algo=epoet_sac", "resume={good}"],
+     "is from algo=epoet, so it cannot resume algo=epoet_sac"),
+    ("resume changed config", ["resume={good}", "seed=1"], "seed (0 -> 1)"),
+    ("unreachable tracking", ["tracking.uri=http://127.0.0.1:9"], "http://127.0.0.1:9"),
+    ("store in a missing folder", ["tracking.uri=sqlite:///{tmp}/nowhere/m.db"],
+     "does not exist"),
+    ("output folder not a folder", ["hydra.run.dir={tmp}/a_file/run"], "Not a directory"),
+]
+
+
+def _epoet(args: list[str], cwd: Path, uri: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "epoet", *args], cwd=cwd,
+                            env={**os.environ, "MLFLOW_TRACKING_URI": uri},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _runs(uri: str) -> dict[str, str]:
+    client = mlflow.MlflowClient(uri)
+    return {r.info.run_id: r.info.status
+            for r in client.search_runs([e.experiment_id for e in client.search_experiments()])}
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory) -> tuple[Path, str]:
+    """A finished smoke run with its checkpoint, which no bad input may touch."""
+    tmp = tmp_path_factory.mktemp("bad_input")
+    uri = f"sqlite:///{tmp}/mlflow.db"
+    proc = _epoet([*SMOKE, f"hydra.run.dir={tmp / 'good'}"], tmp, uri)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err[-2000:]
+    return tmp, uri
+
+
+def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) -> None:
+    tmp, uri = good
+    checkpoint = tmp / "good" / "checkpoint.pkl"
+    saved = checkpoint.read_bytes()
+    (tmp / "corrupt.pkl").write_bytes(saved[: len(saved) // 2])
+    (tmp / "a_file").write_text("not a folder")
+    before = _runs(uri)
+    procs = {}
+    for i, (name, overrides, _) in enumerate(ROWS):  # all at once: each waits on imports
+        args = [a.format(good=tmp / "good", tmp=tmp) for a in overrides]
+        if not any(a.startswith("hydra.run.dir") for a in args):
+            args.append(f"hydra.run.dir={tmp / 'bad' / str(i)}")
+        base = SMOKE if "algo=ppo" not in args else [a for a in SMOKE if "algo.es" not in a]
+        procs[name] = _epoet([*base, *args], tmp, uri)
+    for name, _, message in ROWS:
+        _, err = procs[name].communicate(timeout=300)
+        assert procs[name].returncode == 2, (name, err[-2000:])
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), (name, err[-2000:])
+        assert message.format(tmp=tmp) in lines[0], (name, lines[0])
+    assert checkpoint.read_bytes() == saved
+    assert _runs(uri) == before  # no run created, finished, failed or deleted
+    assert not list((tmp / "bad").rglob("checkpoint.pkl"))
+
+
+def _mount(point: Path, options: str) -> None:
+    point.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs CAP_SYS_ADMIN")
+
+
+def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> None:
+    tmp, uri = good
+    read_only, full = tmp / "read_only", tmp / "full"
+    _mount(read_only, "size=1m,ro")
+    _mount(full, "size=64k")  # room for Hydra's files, not for the first checkpoint
+    try:
+        before = _runs(uri)
+        proc = _epoet([*SMOKE, f"hydra.run.dir={read_only}/run"], tmp, uri)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 2 and err.strip().splitlines() == [err.strip()], err[-2000:]
+        assert "Read-only file system" in err
+        assert _runs(uri) == before
+
+        # The default network: a checkpoint (~110 kB) larger than the disk.
+        proc = _epoet([*[a for a in SMOKE if not a.startswith("algo.es")], "checkpoint_every=1",
+                       f"hydra.run.dir={full}/run"], tmp, uri)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 2 and err.strip().splitlines() == [err.strip()], err[-2000:]
+        assert "cannot save checkpoint" in err and "No space left on device" in err
+        assert not [p for p in (full / "run").iterdir() if "checkpoint" in p.name]
+        new = {k: v for k, v in _runs(uri).items() if k not in before}
+        assert list(new.values()) == ["FAILED"]  # its own new run, nobody else's
+        assert {k: _runs(uri)[k] for k in before} == before
+    finally:
+        for point in (read_only, full):
+            subprocess.run(["umount", "-l", str(point)], check=False)
