@@ -1,10 +1,12 @@
-"""ES-step throughput with a 2-worker process pool over the in-process (1-worker) backend.
+"""ES-step throughput with a 2-worker process pool over the in-process (1-worker) backend, and
+with 2 Ray actors (workers=ray, a local Ray) over the 2-worker pool.
 
 One ES step = the episodes of a mirrored population (theta +- sigma * eps) on one terrain, as the
 ePOET loop runs it. Both backends evaluate the same population with the same seeds (the returns
 must match exactly); each is timed best-of-`repeats`, interleaved, so a burst of load from other
-processes hurts neither side more. Pool start-up is reported separately (paid once per run). The
-last line is `scaling_2w = X`; the machine has 2 cores, so 2.0 is the ceiling.
+processes hurts neither side more. Start-up is reported separately (paid once per run). Prints
+`scaling_2w = X` (2 cores: 2.0 is the ceiling), then `ray/local = X` (target >= 0.9; Ray's own
+processes share the two cores with its actors).
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import numpy as np
 
 from epoet.config import load
 from epoet.es.policy import init_params
+from epoet.es.ray_workers import RayEvaluator
 from epoet.es.rollout import DEFAULT_BATCH
 from epoet.es.workers import Evaluator, Mirrored, Request, make_evaluator
 from epoet.terrain import make_terrain
@@ -47,23 +50,31 @@ def main() -> None:
     start = time.perf_counter()
     pool = make_evaluator(agent, terrain_cfg, workers=2, batch=args.batch)
     startup = time.perf_counter() - start
+    start = time.perf_counter()
+    ray = RayEvaluator(agent, terrain_cfg, workers=2, batch=args.batch)
+    ray_startup = time.perf_counter() - start
     serial = make_evaluator(agent, terrain_cfg, workers=1, batch=args.batch)
-    with pool, serial:
-        one = two = np.inf
+    with pool, serial, ray:
+        one = two = on_ray = np.inf
         for _ in range(args.repeats):
             seconds, returns_1 = es_step(serial)
             one = min(one, seconds)
             seconds, returns_2 = es_step(pool)
             two = min(two, seconds)
+            seconds, returns_ray = es_step(ray)
+            on_ray = min(on_ray, seconds)
             assert np.array_equal(returns_1, returns_2), "1 and 2 workers disagree"
+            assert np.array_equal(returns_2, returns_ray), "Ray and the local pool disagree"
 
     episodes = 2 * args.pairs
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())} "
           f"on {os.cpu_count()} cores")
-    print(f"pool start-up: {startup:.2f} s")
+    print(f"start-up: pool {startup:.2f} s, Ray {ray_startup:.2f} s")
     print(f"1 worker:  {episodes / one:.1f} episodes/s ({one:.2f} s per ES step)")
     print(f"2 workers: {episodes / two:.1f} episodes/s ({two:.2f} s per ES step)")
+    print(f"2 Ray actors: {episodes / on_ray:.1f} episodes/s ({on_ray:.2f} s per ES step)")
     print(f"scaling_2w = {one / two:.2f}")
+    print(f"ray/local = {two / on_ray:.2f}")
 
 
 if __name__ == "__main__":

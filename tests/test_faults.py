@@ -23,6 +23,7 @@ from epoet.config import load
 from epoet.es.policy import init_params
 from epoet.es.rollout import RolloutEngine
 from epoet.es.workers import Mirrored, Request, make_evaluator
+from epoet.lifecycle import processes_with_env
 from epoet.terrain import Terrain
 from epoet.tracking import MlflowTracker
 
@@ -31,19 +32,7 @@ CFG = load(SMOKE)
 
 
 def _tagged_processes(tag: str) -> list[int]:
-    """Pids of live processes whose environment holds EPOET_TEST_TAG=tag (a run's whole tree)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            environ = (entry / "environ").read_bytes()
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if f"EPOET_TEST_TAG={tag}".encode() in environ.split(b"\0") and state != "Z":
-            found.append(int(entry.name))
-    return found
+    return processes_with_env("EPOET_TEST_TAG", tag)
 
 
 def _launch(args: list[str], tmp_path: Path, tag: str) -> subprocess.Popen:
