@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing as mp
+import os
 import sys
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -44,6 +45,7 @@ from epoet.config import (AgentConfig, ConfigError, EvaluateConfig, TerrainConfi
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.es.workers import default_workers
 from epoet.files import atomic_write
+from epoet.lifecycle import end_with
 from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, load_suite,
                                  terrain_config_for)
 from epoet.tracking import TrackingError
@@ -148,7 +150,9 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
             # The fork server imports this module (MuJoCo, the env, MLflow) once; each
             # worker is then a cheap fork instead of ~5 s of imports per process and call.
             ctx.set_forkserver_preload([__name__])
-            pool = stack.enter_context(ProcessPoolExecutor(workers, mp_context=ctx))
+            # Workers end with this process, however it ends (epoet.lifecycle).
+            pool = stack.enter_context(ProcessPoolExecutor(
+                workers, mp_context=ctx, initializer=end_with, initargs=(os.getpid(),)))
             done = (f.result() for f in as_completed([pool.submit(run_task, t) for t in tasks]))
         with tqdm(total=len(tasks) * cfg.episodes, unit="episode", file=sys.stdout,
                   desc=f"evaluate {run.label}", disable=not progress) as bar:

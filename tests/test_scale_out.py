@@ -1,11 +1,15 @@
-"""Scaling out: workers=ray gives exactly workers=local's run, on a local Ray and on a cluster
-started with `ray start --head`; a joblib sweep runs its jobs in parallel into one sqlite store."""
+"""Scaling out: workers=ray gives exactly workers=local's results, on a local Ray (which replaces
+a killed actor) and, for a whole run, on a cluster started with `ray start --head`; a joblib
+sweep runs its jobs in parallel into one sqlite store; the SLURM launcher config composes."""
 from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import threading
+from dataclasses import replace
 from pathlib import Path
 
 import mlflow
@@ -13,6 +17,10 @@ import numpy as np
 import pytest
 
 from epoet.checkpoint import load_checkpoint
+from epoet.config import load
+from epoet.es.policy import init_params
+from epoet.es.workers import Mirrored, Request, make_evaluator
+from epoet.terrain import Terrain
 
 SMOKE = ["budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40", "budget.iterations=2"]
 RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
@@ -43,11 +51,27 @@ def local_run(tmp_path_factory) -> Path:
     return tmp / "run"
 
 
-def test_a_local_ray_gives_exactly_the_local_pools_run(local_run: Path, tmp_path: Path) -> None:
-    out = _epoet([*SMOKE, "workers=ray", "workers.num=2", f"hydra.run.dir={tmp_path / 'run'}"],
-                 tmp_path)
-    assert out.returncode == 0, out.stderr[-2000:]
-    _assert_same_pool(_pool(tmp_path / "run"), _pool(local_run))
+def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> None:
+    from epoet.es.ray_workers import RayEvaluator
+
+    cfg = load(SMOKE)
+    agent, terrain_cfg = replace(cfg.agent, max_episode_steps=200), cfg.terrain
+    terrain = Terrain(np.zeros((40, 40)), 0.0, terrain_cfg.size, "bowl", 0)
+    es = Request(terrain, Mirrored.of(init_params(3), np.arange(40), 0.05, np.arange(40) + 100),
+                 record=3)
+    with make_evaluator(agent, terrain_cfg, workers=1, batch=4) as one:
+        (expected,) = one.run([es])
+    with RayEvaluator(agent, terrain_cfg, workers=2, batch=4) as on_ray:  # starts a local Ray
+        (episodes,) = on_ray.run([es])
+        np.testing.assert_array_equal(episodes.returns, expected.returns)
+        for key, value in expected.transitions.items():
+            np.testing.assert_array_equal(episodes.transitions[key], value)
+        killer = threading.Timer(1.0, os.kill, (on_ray.pids[0], signal.SIGKILL))
+        killer.start()
+        (episodes,) = on_ray.run([es])
+        killer.join()
+        assert on_ray.restarts == 1
+        np.testing.assert_array_equal(episodes.returns, expected.returns)
 
 
 @pytest.fixture

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import socket
 from collections.abc import Iterator, Sequence
 
@@ -82,8 +83,9 @@ class _RolloutActor:
                  layer_sizes: tuple[int, ...]) -> None:
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
-    def ready(self) -> bool:
-        return True
+    def ready(self) -> int:
+        """This actor's process id, once its engine is built."""
+        return os.getpid()
 
     def work(self, feed: object, call: int, reliefs: Sequence[_Relief],
              populations: Sequence[Population], records: Sequence[int], slots: int
@@ -129,7 +131,7 @@ class RayEvaluator(_Backend):
     def _start(self) -> None:
         self._actors = [self._remote_actor.remote(*self._args) for _ in range(self.workers)]
         try:
-            ray.get([a.ready.remote() for a in self._actors])
+            self.pids = ray.get([a.ready.remote() for a in self._actors])
         except (RayActorError, WorkerCrashedError) as exc:
             raise WorkerLost(f"a Ray rollout actor died while starting: {exc}") from exc
 
