@@ -12,11 +12,13 @@ from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.cli import fail, run_hydra_app
 from epoet.config import CONF_DIR, ConfigError
 from epoet.lifecycle import Stopped
-from epoet.tracking import TrackingError
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def _app(cfg: DictConfig) -> None:
+    # Imported here, after Hydra composed the config: mlflow takes ~3 s to import, which a
+    # composition error (a typo in an override) should not wait for.
     from epoet.run import run
+    from epoet.tracking import TrackingError
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:

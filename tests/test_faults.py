@@ -23,7 +23,8 @@ from epoet.config import load
 from epoet.es.policy import init_params
 from epoet.es.rollout import RolloutEngine
 from epoet.es.workers import Mirrored, Request, make_evaluator
-from epoet.lifecycle import processes_with_env
+from epoet.lifecycle import (StopOnSignal, Stopped, processes_with_env, raise_if_stopped,
+                             stop_requested)
 from epoet.terrain import Terrain
 from epoet.tracking import MlflowTracker
 
@@ -66,9 +67,26 @@ def test_a_killed_run_leaves_no_worker_process_behind(tmp_path: Path) -> None:
             os.kill(pid, signal.SIGKILL)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_sigterm_and_sigint_checkpoint_then_the_resumed_run_equals_an_uninterrupted_one(
-        sig, tmp_path: Path) -> None:
+def test_sigint_and_sigterm_request_a_stop_and_a_second_signal_stops_at_once() -> None:
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with StopOnSignal():
+            assert not stop_requested()
+            raise_if_stopped("nowhere")  # nothing asked for yet
+            os.kill(os.getpid(), sig)
+            assert stop_requested()
+            with pytest.raises(Stopped) as stopped:
+                raise_if_stopped("after iteration 3")
+            assert stopped.value.exit_code == 128 + sig
+            assert str(stopped.value) == f"stopped by {sig.name} after iteration 3"
+            with pytest.raises(KeyboardInterrupt):
+                os.kill(os.getpid(), sig)
+        assert not stop_requested()  # the handlers are gone with the context
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+
+
+def test_sigterm_checkpoints_then_the_resumed_run_equals_an_uninterrupted_one(
+        tmp_path: Path) -> None:
+    sig = signal.SIGTERM  # SLURM's preemption; SIGINT takes the same path (test above)
     run_dir = tmp_path / "stopped"
     overrides = [*SMOKE, "workers.num=2", "checkpoint_every=1000"]
     proc = _launch([*overrides, "budget.iterations=1000", f"hydra.run.dir={run_dir}"],
@@ -88,17 +106,14 @@ def test_sigterm_and_sigint_checkpoint_then_the_resumed_run_equals_an_uninterrup
     client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
     assert client.get_run(state["run_id"]).info.status == "KILLED"
     assert not (run_dir / "DONE").exists()
-    if sig == signal.SIGINT:
-        return  # the same stop path; resuming it once (below) is enough
 
     total = stopped_at + 2
-    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db"}
-    for args in ([f"resume={run_dir}", f"hydra.run.dir={run_dir}"],
-                 [f"hydra.run.dir={tmp_path / 'straight'}"]):
-        out = subprocess.run([sys.executable, "-m", "epoet", *overrides,
-                              f"budget.iterations={total}", *args], cwd=tmp_path, env=env,
-                             capture_output=True, text=True, timeout=300)
-        assert out.returncode == 0, out.stderr[-2000:]
+    both = [_launch([*overrides, f"budget.iterations={total}", *args], tmp_path, "resume")
+            for args in ([f"resume={run_dir}", f"hydra.run.dir={run_dir}"],
+                         [f"hydra.run.dir={tmp_path / 'straight'}"])]
+    for proc in both:
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err[-2000:]
     resumed = load_checkpoint(run_dir / "checkpoint.pkl")
     straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")
     assert resumed["poet"]["iteration"] == straight["poet"]["iteration"] == total

@@ -11,7 +11,6 @@ from epoet.config import Config, EpoetSacConfig
 from epoet.es.policy import LAYER_SIZES
 from epoet.es.workers import Evaluator, evaluator_for
 from epoet.lifecycle import raise_if_stopped, stop_requested
-from epoet.poet.epoet_sac import make_epoet_sac
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
 
@@ -28,6 +27,8 @@ def make_loop(cfg: Config, evaluator: Evaluator) -> EPOET:
               "transfer_interval": budget.transfer_interval,
               "reproduce_interval": budget.reproduce_interval}
     if isinstance(cfg.algo, EpoetSacConfig):
+        # Imported on demand: torch and TorchRL take seconds to import, which ePOET never needs.
+        from epoet.poet.epoet_sac import make_epoet_sac
         return make_epoet_sac(cfg, evaluator, **common)
     return EPOET(cfg.algo, cfg.terrain, evaluator, **common)
 
