@@ -147,7 +147,8 @@ def test_a_worker_killed_mid_call_is_replaced_and_the_results_are_unchanged() ->
     terrain = Terrain(np.zeros((40, 40)), 0.0, CFG.terrain.size, "bowl", 0)
     agent = replace(CFG.agent, max_episode_steps=200)
     terrain_cfg = replace(CFG.terrain, grid=40)
-    es = Request(terrain, Mirrored.of(init_params(3), np.arange(40), 0.05, np.arange(40) + 100))
+    seeds = np.arange(80)  # a call of seconds, so the kill lands inside it
+    es = Request(terrain, Mirrored.of(init_params(3), seeds, 0.05, seeds + 100))
     with make_evaluator(agent, terrain_cfg, workers=1, batch=4) as one:
         expected = one.run([es])[0].returns
     with make_evaluator(agent, terrain_cfg, workers=2, batch=4) as two:

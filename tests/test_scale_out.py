@@ -57,8 +57,8 @@ def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> No
     cfg = load(SMOKE)
     agent, terrain_cfg = replace(cfg.agent, max_episode_steps=200), cfg.terrain
     terrain = Terrain(np.zeros((40, 40)), 0.0, terrain_cfg.size, "bowl", 0)
-    es = Request(terrain, Mirrored.of(init_params(3), np.arange(40), 0.05, np.arange(40) + 100),
-                 record=3)
+    seeds = np.arange(80)  # a call of seconds, so the kill lands inside it
+    es = Request(terrain, Mirrored.of(init_params(3), seeds, 0.05, seeds + 100), record=3)
     with make_evaluator(agent, terrain_cfg, workers=1, batch=4) as one:
         (expected,) = one.run([es])
     with RayEvaluator(agent, terrain_cfg, workers=2, batch=4) as on_ray:  # starts a local Ray
@@ -66,7 +66,7 @@ def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> No
         np.testing.assert_array_equal(episodes.returns, expected.returns)
         for key, value in expected.transitions.items():
             np.testing.assert_array_equal(episodes.transitions[key], value)
-        killer = threading.Timer(1.0, os.kill, (on_ray.pids[0], signal.SIGKILL))
+        killer = threading.Timer(0.5, os.kill, (on_ray.pids[0], signal.SIGKILL))
         killer.start()
         (episodes,) = on_ray.run([es])
         killer.join()
