@@ -75,7 +75,9 @@ class HexapodTask:
         np.greater(sensordata[:, lay.contact], 0.0, out=out[:, 47:53])
         # A blown-up robot's (terminal) observation is stored as zeros, never NaN: a replay
         # buffer multiplies terminal next-observations' values by zero, and NaN * 0 is NaN.
-        np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+        # (The check is cheap; nan_to_num itself costs ~20 us a step, paid only on a blow-up.)
+        if not np.isfinite(out).all():
+            np.nan_to_num(out, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         return out
 
     def begin(self, qpos: np.ndarray, state: EpisodeState, rows: np.ndarray | slice) -> None:
@@ -128,9 +130,13 @@ class HexapodTask:
         # A physics blow-up (NaN, Inf or a huge state; MuJoCo's automatic reset is disabled in
         # build_model) ends the episode as a fall would, and its step earns nothing: the
         # episode's return is what it earned while the physics was sound.
-        state.unstable[:] = ~((np.abs(qpos) <= MAX_STATE).all(axis=1)
-                              & (np.abs(qvel) <= MAX_STATE).all(axis=1))
-        if state.unstable.any():
+        # One whole-batch test per step (NaN fails it too); rows are sorted out only when it
+        # fails, which is rare, so the rollout hot path pays ~8 us instead of ~17.
+        if np.abs(qvel).max() <= MAX_STATE and np.abs(qpos).max() <= MAX_STATE:
+            state.unstable[:] = False
+        else:
+            state.unstable[:] = ~((np.abs(qpos) <= MAX_STATE).all(axis=1)
+                                  & (np.abs(qvel) <= MAX_STATE).all(axis=1))
             reward[state.unstable] = 0.0
             state.finished &= ~state.unstable
         # Falling off: below the terrain's lowest point (height 0) or past its edge.
