@@ -14,7 +14,7 @@ from typing import Any, Callable
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
-from epoet.config import Config, ConfigError, validate
+from epoet.config import Config, validate
 from epoet.files import atomic_write
 from epoet.lifecycle import StopOnSignal
 from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
@@ -78,11 +78,8 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
                 f"checkpoint {path} was made with a different config ({', '.join(changed)}); "
                 f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change).")
     if cfg.workers.address is not None:
-        from epoet.es.ray_workers import check_address
-        try:
-            check_address(cfg.workers.address)
-        except ConnectionError as exc:
-            raise ConfigError(str(exc)) from exc
+        from epoet.es.ray_workers import check_address  # the optional extra, on demand
+        check_address(cfg.workers.address)
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,

@@ -25,7 +25,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.config import AgentConfig, ConfigError, TerrainConfig
 from epoet.es.policy import LAYER_SIZES
 from epoet.es.rollout import DEFAULT_BATCH, Episodes, RolloutEngine
 from epoet.es.workers import (Population, Request, WorkerLost, _Backend, _jobs, _Relief, _split,
@@ -49,9 +49,8 @@ def check_address(address: str) -> None:
     try:
         socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
     except OSError as exc:
-        raise ConnectionError(f"no Ray cluster answers at workers.address={address} "
-                              f"({exc.strerror or exc}); start one with `ray start --head`.") \
-            from exc
+        raise ConfigError(f"no Ray cluster answers at workers.address={address} "
+                          f"({exc.strerror or exc}); start one with `ray start --head`.") from None
 
 
 class _Feed:
