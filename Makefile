@@ -15,8 +15,10 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[dev]'
 	touch $(STAMP)
 
+# One test process per core; a file's tests share a process (module fixtures run once, and the Ray
+# tests, which stop every Ray process on the machine, never overlap one another).
 test: install
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n auto --dist loadfile tests
 
 # The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
 train: install

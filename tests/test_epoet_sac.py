@@ -56,6 +56,18 @@ def test_the_join_follows_algorithm_1() -> None:
     paper.close()
 
 
+def test_the_laptop_budget_holds_two_joins() -> None:
+    """conf/algo_budget/epoet_sac_laptop.yaml shortens ePOET-SAC's laptop run (without it the
+    budget's iterations would hold a third join) and leaves ePOET's laptop budget alone."""
+    cfg = load(["algo=epoet_sac"])
+    assert cfg.budget.iterations < load([]).budget.iterations
+    evaluator = make_evaluator(cfg.agent, cfg.terrain, 1, 8, layer_sizes(cfg))
+    laptop = make_loop(cfg, evaluator)
+    with evaluator:
+        assert [t for t in range(cfg.budget.iterations) if laptop.join_due(t)] == [38, 78]
+    laptop.close()
+
+
 def test_replay_mix_counts_what_the_buffer_still_holds() -> None:
     mix = ReplayMix(capacity=10)
     mix.add("es", 6)
