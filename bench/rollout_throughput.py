@@ -54,9 +54,12 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int, default=400)
     parser.add_argument("--terrain", default="cppn", choices=["bowl", "cppn"])
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("overrides", nargs="*", help="config overrides on the paper budget, "
+                                                      "e.g. agent.integrator=implicitfast")
     args = parser.parse_args()
 
-    paper = load(["budget=paper", f"algo={'epoet' if args.terrain == 'cppn' else 'ppo'}"])
+    paper = load(["budget=paper", f"algo={'epoet' if args.terrain == 'cppn' else 'ppo'}",
+                  *args.overrides])
     agent = replace(paper.agent, max_episode_steps=args.max_steps)
     terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)

@@ -1,21 +1,26 @@
 """The batched rollout engine: many episodes, stepped in lockstep in one process.
 
-Episodes run in `batch` slots, one MjData each. The terrains of a call are loaded once each into
-their own copy of the model (an MjData steps with any copy of the model it was made for), so
-slots on different terrains run side by side and a job stream may mix terrains freely: a worker
-never drains its slots at the boundary between two populations. Per control step the engine makes
-one batched policy call (each slot its own parameters), writes the targets into each active
-MjData, steps it (`epoet.envs.model.step`), copies qpos/qvel/sensordata into (B, n) buffers, and
-then computes reward, termination and the next observation for the whole batch with the
-vectorised `HexapodTask`. Python work per slot is the physics step and four row copies;
-everything else is one numpy call per step.
+Episodes run in `batch` slots, the simulations of one `mujoco.batch.Batch` (persistent: an MjData
+each). The terrains of a call are loaded once each into their own copy of the model, and each
+slot steps with its episode's copy (`Batch.set_models`), so slots on different terrains run side
+by side and a job stream may mix terrains freely: a worker never drains its slots at the boundary
+between two populations. Per control step the engine makes one batched policy call (each slot its
+own parameters), writes the targets into the batch's ctrl rows, steps every running slot in one C
+call, and computes reward, termination and the next observation for the whole batch with the
+vectorised `HexapodTask`, reading the batch's bound qpos/qvel/sensordata arrays in place. No
+Python runs per slot within a step.
+
+Each step is mj_step followed by the position and velocity stages at the new state
+(`mjSTAGE_VEL`), so the contact sensors describe the state the joint angles do; a persistent batch
+starts its next step from those stages, so this costs nothing extra (the same work as
+`epoet.envs.model.stepper`, bit for bit).
 
 When an episode ends, its slot takes the next job straight away (spawned from that job's own
 seed), so slots stay busy until the job stream runs dry; then finished slots simply stop being
 stepped. An episode's result depends only on its parameters, its spawn seed and its terrain,
 never on the batch size, the slot it ran in, the other terrains of the call or the worker that ran
-it: each spawn resets its MjData (warmstart included) and each policy row is computed
-independently.
+it: each spawn settles on a fresh MjData and hands the slot its whole integration state
+(warmstart included), and each policy row is computed independently.
 """
 from __future__ import annotations
 
@@ -25,10 +30,11 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import mujoco
+import mujoco.batch
 import numpy as np
 
 from epoet.config import AgentConfig, TerrainConfig
-from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
+from epoet.envs.model import Ground, action_to_targets, build_model, layout
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
 from epoet.es.policy import LAYER_SIZES, BatchedPolicy, num_params
@@ -39,6 +45,8 @@ TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated
 # the fixed per-step cost (task, policy call) wants many. Measured (bench/rollout_throughput.py,
 # RK4 hexapod): rollout/raw 0.82 at 8, 0.86 at 12-24, 0.85 at 32, 0.80 at 64.
 DEFAULT_BATCH = 16
+_STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
 Job = tuple[int, np.ndarray, int, int, bool]
 """One episode to run: (episode index, policy parameters (P,), spawn seed, terrain index,
@@ -169,20 +177,17 @@ class RolloutEngine:
                              f"actions, got {self.layer_sizes}.")
         self.num_params = num_params(self.layer_sizes)
         self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
-        self._step = stepper(self.model)
         self.task = HexapodTask(agent, layout(self.model), Ground(self.model).half_x)
         self._fields: list[_Field] = []
         m, b = self.model, self.batch
-        self._datas = [mujoco.MjData(m) for _ in range(b)]
-        self._qpos, self._qvel = np.zeros((b, m.nq)), np.zeros((b, m.nv))
-        self._sensor = np.zeros((b, m.nsensordata))
-        self._obs, self._ctrl = np.zeros((b, OBS_DIM)), np.zeros((b, ACT_DIM))
-        self._actions = np.zeros((b, ACT_DIM))
+        # nthread=1: a worker process is one core's worth of work; the pool runs one per core.
+        self._sims = mujoco.batch.Batch(m, nsim=b, nthread=1, persistent=True)
+        # Live (b, n) views: state rows (qpos, qvel, ctrl) and the outputs refreshed by each call.
+        self._qpos, self._qvel = self._sims.bind("qpos"), self._sims.bind("qvel")
+        self._ctrl, self._sensor = self._sims.bind("ctrl"), self._sims.bind("sensordata")
+        self._spawn_data = mujoco.MjData(m)  # episodes settle here, then move into their slot
+        self._obs, self._actions = np.zeros((b, OBS_DIM)), np.zeros((b, ACT_DIM))
         self._params = np.zeros((b, self.num_params))  # staging rows for BatchedPolicy.set_params
-        # Per slot: the MjData and (source, destination) array pairs, bound once. The bindings make
-        # a new numpy wrapper on every `data.qpos` access, and a row view costs the same.
-        self._slots = [(d, d.ctrl, self._ctrl[i], d.qpos, self._qpos[i], d.qvel, self._qvel[i],
-                        d.sensordata, self._sensor[i]) for i, d in enumerate(self._datas)]
         self._slot_model = [self.model] * b  # the model (terrain) each slot steps with
         self._policies: dict[int, BatchedPolicy] = {}
 
@@ -195,6 +200,7 @@ class RolloutEngine:
             field = self._fields[k]
             field.ground.set(field.model, np.asarray(terrain.heightmap),
                              float(terrain.max_height), float(terrain.size))
+        self._sims.set_models(self._slot_model)  # the batch re-reads edited models when set again
 
     def run(self, terrain: TerrainLike, params: np.ndarray, episode_seeds: np.ndarray, *,
             record: bool = False) -> Episodes:
@@ -231,20 +237,14 @@ class RolloutEngine:
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
         obs, ctrl, actions = self._obs[:width], self._ctrl[:width], self._actions[:width]
         done = np.zeros(width, dtype=bool)
-        step = self._step
         results: list[tuple[int, float, int, bool]] = []
 
         self._start(run, range(width))
         active, recorded = self._active(run)
-        while active:
+        while active is None or len(active):
             run.policy(obs, out=actions)
-            action_to_targets(actions, out=ctrl)
-            for model, d, ctrl_in, ctrl_row, qp, qp_row, qv, qv_row, sd, sd_row in active:
-                np.copyto(ctrl_in, ctrl_row)
-                step(model, d)
-                np.copyto(qp_row, qp)
-                np.copyto(qv_row, qv)
-                np.copyto(sd_row, sd)
+            action_to_targets(actions, out=ctrl)  # idle slots get targets too; they never step
+            self._sims.step(active, stage=_STAGE_VEL)
             # Idle slots ride along in the vectorised task (their rows are stale and ignored):
             # one numpy call over all rows is cheaper than selecting the active ones every step.
             reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state)
@@ -266,12 +266,13 @@ class RolloutEngine:
                 active, recorded = self._active(run)
         return self._collect(results, run.recorder)
 
-    def _active(self, run: _Run) -> tuple[list[tuple], np.ndarray]:
-        """(model, *slot bindings) of every running slot, and the running slots whose episode
-        is recorded (both change only when episodes start or end)."""
+    def _active(self, run: _Run) -> tuple[np.ndarray | None, np.ndarray]:
+        """The running slots as the batch's ids (None: every simulation, the batch's fast path),
+        and the running slots whose episode is recorded (both change only when episodes start or
+        end)."""
         running = np.flatnonzero(run.running)
-        return ([(self._slot_model[i], *self._slots[i]) for i in running],
-                running[run.recording[running]])
+        ids = None if len(running) == self.batch else running.astype(np.int32)
+        return ids, running[run.recording[running]]
 
     def _start(self, run: _Run, slots: Iterable[int]) -> None:
         """Spawn the next jobs into free `slots`; slots left without a job stay idle."""
@@ -283,11 +284,9 @@ class RolloutEngine:
             index, params, seed, terrain, record = job
             field = self._fields[terrain]
             self._slot_model[i] = field.model
-            d, _, _, qp, qp_row, qv, qv_row, sd, sd_row = self._slots[i]
-            spawn(field.model, d, field.ground, self.agent, np.random.default_rng(seed))
-            np.copyto(qp_row, qp)
-            np.copyto(qv_row, qv)
-            np.copyto(sd_row, sd)
+            spawn(field.model, self._spawn_data, field.ground, self.agent,
+                  np.random.default_rng(seed))
+            mujoco.mj_getState(field.model, self._spawn_data, self._sims.state[i], _INTEGRATION)
             self._params[i] = params
             run.episode[i], run.running[i], run.returns[i] = index, True, 0.0
             run.recording[i] = record
@@ -296,9 +295,15 @@ class RolloutEngine:
             started.append(i)
         if not started:
             return
+        started = np.array(started, dtype=np.int32)
+        started.sort()
+        self._sims.set_models(self._slot_model)
+        # The settled states' position and velocity stages (contacts and their sensors), as a
+        # step leaves them; the slot's first step starts from them.
+        self._sims.forward(started, stage=_STAGE_VEL)
         width = run.policy.batch
         run.policy.set_params(self._params[:width])
-        self.task.begin(self._qpos[:width], run.state, np.array(started))
+        self.task.begin(self._qpos[:width], run.state, started)
         # Recomputing the observation of every row is cheaper than selecting the new ones.
         self.task.observe(self._qpos[:width], self._qvel[:width], self._sensor[:width],
                           self._obs[:width])
