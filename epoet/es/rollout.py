@@ -200,7 +200,6 @@ class RolloutEngine:
             field = self._fields[k]
             field.ground.set(field.model, np.asarray(terrain.heightmap),
                              float(terrain.max_height), float(terrain.size))
-        self._sims.set_models(self._slot_model)  # the batch re-reads edited models when set again
 
     def run(self, terrain: TerrainLike, params: np.ndarray, episode_seeds: np.ndarray, *,
             record: bool = False) -> Episodes:
@@ -295,8 +294,8 @@ class RolloutEngine:
             started.append(i)
         if not started:
             return
-        started = np.array(started, dtype=np.int32)
-        started.sort()
+        started = np.array(started, dtype=np.int32)  # ascending, as `slots` are
+        # Also makes the batch re-read models that set_terrains edited (it reads them when set).
         self._sims.set_models(self._slot_model)
         # The settled states' position and velocity stages (contacts and their sensors), as a
         # step leaves them; the slot's first step starts from them.

@@ -400,11 +400,9 @@ class PoolEvaluator(_Backend):
             return [f.result() for f in futures]
         except BrokenProcessPool as err:
             # The broken executor terminates the other workers with SIGTERM, which they ignore
-            # (epoet.lifecycle), then joins the feeder thread of its task queue, which blocks
-            # writing task arguments (terrains) into a pipe nobody reads any more: kill the
-            # workers and close the pipe's read end, so that write fails and the join returns.
+            # (epoet.lifecycle), then joins them: kill them, so that join returns. (It closes
+            # its task pipe's read end itself, gh-94777; closing it here too raced that close.)
             self._kill_workers()
-            self._pool._call_queue._reader.close()
             raise WorkerLost("a rollout worker process died") from err
 
     def _run(self, requests: Sequence[Request]) -> list[Episodes]:
