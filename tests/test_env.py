@@ -12,7 +12,8 @@ from gymnasium.utils.env_checker import check_env
 from epoet.config import ConfigError, TerrainConfig
 from epoet.envs import ENV_ID, HexapodEnv
 from epoet.envs.model import TerrainMismatchError, action_to_targets, layout
-from epoet.envs.task import EpisodeState, HexapodTask, heading_deviation, roll_pitch
+from epoet.envs.task import (REWARD_TERMS, EpisodeState, HexapodTask, heading_deviation,
+                             roll_pitch)
 from epoet.terrain import Terrain, make_terrain
 
 
@@ -64,6 +65,7 @@ def test_reward_terms_match_reference_formulas() -> None:
     state = EpisodeState.zeros(1)
     state.prev_heading[:] = 0.5; state.prev_y[:] = -0.3; state.best_x[:] = 0.0
     reward, terminated, truncated, terms = task.step(qpos, qvel, sensordata, state)
+    terms = dict(zip(REWARD_TERMS, terms[0]))
 
     vx, vy, vz = qvel[0, :3]
     q = qpos[0, 3:7]
@@ -75,12 +77,37 @@ def test_reward_terms_match_reference_formulas() -> None:
     r_neg = (0.1 * 0.2 ** 2 + 0.1 * dev ** 2 + 0.5 * pitch ** 2 + 0.5 * roll ** 2
              + 1e-4 * np.mean(sensordata[0, 6:] ** 2) + 0.7 * vz ** 2)
     assert reward[0] == pytest.approx(r_pos - r_neg, rel=1e-12)
-    assert terms["velocity"][0] == pytest.approx(6 * r_vel)
-    assert terms["penalty"][0] == pytest.approx(-r_neg)
-    assert heading_deviation(q[None])[0] == pytest.approx(dev)
-    assert roll_pitch(q[None])[0][0] == pytest.approx(roll)
+    assert terms["velocity"] == pytest.approx(6 * r_vel)
+    assert terms["penalty"] == pytest.approx(-r_neg)
+    assert heading_deviation(q[0]) == pytest.approx(dev)
+    assert roll_pitch(*q) == pytest.approx((roll, pitch))
     assert r_vel <= 1 - 1 / 1.4 + 1e-12  # the velocity term's maximum, reached at vx = 0.4
     assert not terminated[0] and not truncated[0]
+
+
+def test_a_blown_up_row_ends_without_reward_and_leaves_the_others_alone() -> None:
+    env = HexapodEnv(terrain={"kind": "bowl", "grid": 40})
+    task = HexapodTask(replace(env.agent_cfg, finish_x=0.5), layout(env.model), 10.0)
+    qpos = np.zeros((4, 25)); qpos[:, 3] = 1.0; qpos[:, 2] = 0.2; qpos[:, 0] = 1.0
+    qvel = np.full((4, 24), 0.1); sd = np.ones((4, 24))
+    qpos[1, 5] = np.nan      # NaN
+    qvel[2, 7] = 1e11        # beyond mjMAXVAL
+    qpos[3, 8] = np.inf      # infinite
+    state = EpisodeState.zeros(4)
+    reward, terminated, truncated, _ = task.step(qpos, qvel, sd, state)
+    np.testing.assert_array_equal(state.unstable, [False, True, True, True])
+    np.testing.assert_array_equal(reward[1:], 0.0)  # every row crossed the line: no bonus either
+    np.testing.assert_array_equal(state.finished, [True, False, False, False])
+    assert terminated.all() and not truncated.any()
+    alone = EpisodeState.zeros(1)
+    assert reward[0] == task.step(qpos[:1], qvel[:1], sd[:1], alone)[0][0]
+    assert reward[0] > 400  # the finish bonus
+    obs = task.observe(qpos, qvel, sd, np.empty((4, 53)))
+    stepped = np.full((4, 53), np.nan)
+    task.step(qpos, qvel, sd, EpisodeState.zeros(4), stepped)  # step observes as observe does
+    np.testing.assert_array_equal(stepped, obs)
+    assert np.isfinite(obs).all() and obs[1, 42:46].tolist() == [1.0, 0.0, 0.0, 0.0]
+    assert obs[3, 1] == 0.0 and obs[2, 19] == 1e11  # inf reads as zero, finite values stay
 
 
 def test_finish_bonus_paid_once() -> None:
@@ -90,11 +117,12 @@ def test_finish_bonus_paid_once() -> None:
     qvel = np.zeros((1, 24)); sd = np.zeros((1, 24))
     state = EpisodeState.zeros(1)
     qpos[0, 0] = 5.9
-    assert task.step(qpos, qvel, sd, state)[3]["bonus"][0] == 0.0
+    bonus = REWARD_TERMS.index("bonus")
+    assert task.step(qpos, qvel, sd, state)[3][0, bonus] == 0.0
     qpos[0, 0] = 6.1
     _, terminated, _, terms = task.step(qpos, qvel, sd, state)
-    assert terms["bonus"][0] == 500.0 and terminated[0] and state.finished[0]
-    assert task.step(qpos, qvel, sd, state)[3]["bonus"][0] == 0.0
+    assert terms[0, bonus] == 500.0 and terminated[0] and state.finished[0]
+    assert task.step(qpos, qvel, sd, state)[3][0, bonus] == 0.0
 
 
 def test_finish_in_env_reports_finished(flat: Terrain) -> None:

@@ -1,4 +1,4 @@
-"""The numpy ES policy and the OpenAI-ES optimiser."""
+"""The ES policy (compiled MLP) and the OpenAI-ES optimiser."""
 from dataclasses import replace
 
 import numpy as np
@@ -7,7 +7,8 @@ import pytest
 from epoet.config import load
 from epoet.es.optimizer import (OpenAIES, adam_step, centered_ranks, es_gradient,
                                 mirrored_population, noise)
-from epoet.es.policy import LAYER_SIZES, BatchedPolicy, forward, init_params, num_params, unflatten
+from epoet.es.policy import (LAYER_SIZES, forward, forward_rows, init_params, num_params,
+                             sizes_array, unflatten)
 
 SMALL = (5, 4, 3)  # a 2-layer net keeps policy tests tiny
 ES = load(["budget=paper"]).algo.es  # the paper's ES settings
@@ -46,6 +47,19 @@ def test_forward_matches_hand_computation():
     np.testing.assert_allclose(forward(params, np.array([1.0, -1.0]), (2, 1)), [np.tanh(-0.5)])
 
 
+@pytest.mark.parametrize("std", [0.3, 30.0])  # 30: saturated units, tanh of |x| in the hundreds
+def test_forward_equals_the_numpy_mlp(std: float):
+    rng = np.random.default_rng(5)
+    params = rng.normal(0, std, num_params())
+    obs = rng.standard_normal((8, 53))
+    h = obs
+    for w, b in unflatten(params, LAYER_SIZES):
+        h = np.tanh(h @ w + b)
+    got = forward(params, obs)
+    np.testing.assert_allclose(got, h, rtol=0, atol=1e-14)
+    assert np.all(np.abs(got) <= 1.0)
+
+
 def test_forward_single_and_batch_of_observations_agree():
     params = init_params(0)
     obs = np.random.default_rng(1).standard_normal((4, 53))
@@ -56,44 +70,35 @@ def test_forward_single_and_batch_of_observations_agree():
     assert np.all(np.abs(batch) < 1.0)  # tanh on the output layer
 
 
-def test_batched_policy_equals_per_row_forward():
+def test_forward_rows_equals_forward_row_by_row():
     rng = np.random.default_rng(2)
     params = rng.normal(0, 0.3, size=(6, num_params()))
     obs = rng.standard_normal((6, 53))
-    policy = BatchedPolicy(6)
-    policy.set_params(params)
-    actions = policy(obs)
-    assert actions.shape == (6, 18)
-    for i in range(6):
-        np.testing.assert_allclose(actions[i], forward(params[i], obs[i]), rtol=0, atol=1e-12)
+    actions = np.empty((6, 18))
+    forward_rows(params, sizes_array(LAYER_SIZES), obs, actions)
+    for i in range(6):  # one implementation: the engine's actions are forward's, bit for bit
+        np.testing.assert_array_equal(actions[i], forward(params[i], obs[i]))
 
 
-def test_batched_policy_reuses_buffers_and_follows_new_params():
+def test_forward_rows_rows_do_not_depend_on_each_other():
     rng = np.random.default_rng(3)
-    policy = BatchedPolicy(3, SMALL)
-    first = rng.standard_normal((3, num_params(SMALL)))
-    second = rng.standard_normal((3, num_params(SMALL)))
-    obs = rng.standard_normal((3, 5))
-    policy.set_params(first)
-    a1 = policy(obs).copy()
-    policy.set_params(second)
-    a2 = policy(obs.astype(np.float32))  # float32 observations are accepted
-    for i in range(3):
-        np.testing.assert_allclose(a1[i], forward(first[i], obs[i], SMALL), atol=1e-12)
-        np.testing.assert_allclose(a2[i], forward(second[i], obs[i].astype(np.float32), SMALL),
-                                   atol=1e-12)
-    assert policy(obs) is policy(obs)  # same workspace every call: no per-step allocation
-    out = np.empty((3, 3))
-    assert policy(obs, out=out) is out
-    np.testing.assert_array_equal(out, policy(obs))
+    params = rng.standard_normal((3, num_params(SMALL)))
+    obs = rng.standard_normal((3, 5)).astype(np.float32)  # float32 observations are accepted
+    before, after = np.empty((3, 3)), np.empty((3, 3))
+    forward_rows(params, sizes_array(SMALL), obs, before)
+    params[1] += 1.0
+    forward_rows(params, sizes_array(SMALL), obs, after)
+    np.testing.assert_array_equal(after[[0, 2]], before[[0, 2]])
+    assert not np.allclose(after[1], before[1])
+    np.testing.assert_allclose(after[1], forward(params[1], obs[1].astype(np.float64), SMALL),
+                               rtol=0, atol=1e-15)
 
 
 @pytest.mark.parametrize("call", [
     lambda: forward(np.zeros(10), np.zeros(53)),
     lambda: forward(init_params(0), np.zeros(52)),
-    lambda: BatchedPolicy(0),
-    lambda: BatchedPolicy(2, SMALL).set_params(np.zeros((3, num_params(SMALL)))),
-    lambda: BatchedPolicy(2, SMALL)(np.zeros((2, 4))),
+    lambda: forward(np.zeros((2, num_params(SMALL))), np.zeros(5), SMALL),
+    lambda: sizes_array((53,)),
     lambda: num_params((53,)),
 ])
 def test_policy_bad_input_raises_value_error(call):

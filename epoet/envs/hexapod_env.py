@@ -12,7 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from epoet.config import CONF_DIR, AgentConfig, TerrainConfig, compose
 from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
-from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
+from epoet.envs.task import ACT_DIM, OBS_DIM, REWARD_TERMS, EpisodeState, HexapodTask
 from epoet.terrain import Terrain, make_terrain
 
 
@@ -107,10 +107,10 @@ class HexapodEnv(gym.Env):
         action_to_targets(action, out=self.data.ctrl)
         self._step(self.model, self.data)
         qpos, qvel, sensordata = self._gather()
-        reward, terminated, truncated, terms = self.task.step(qpos, qvel, sensordata, self._state)
-        self.task.observe(qpos, qvel, sensordata, self._obs)
+        reward, terminated, truncated, terms = self.task.step(qpos, qvel, sensordata, self._state,
+                                                              self._obs)
         info = self._info(qpos)
-        info["reward_terms"] = {k: float(v[0]) for k, v in terms.items()}
+        info["reward_terms"] = dict(zip(REWARD_TERMS, terms[0].tolist()))
         return (self._obs[0].copy(), float(reward[0]), bool(terminated[0]), bool(truncated[0]),
                 info)
 

@@ -6,9 +6,10 @@ slot steps with its episode's copy (`Batch.set_models`), so slots on different t
 by side and a job stream may mix terrains freely: a worker never drains its slots at the boundary
 between two populations. Per control step the engine makes one batched policy call (each slot its
 own parameters), writes the targets into the batch's ctrl rows, steps every running slot in one C
-call, and computes reward, termination and the next observation for the whole batch with the
-vectorised `HexapodTask`, reading the batch's bound qpos/qvel/sensordata arrays in place. No
-Python runs per slot within a step.
+call, and computes reward, termination and the next observation for the whole batch with
+`HexapodTask`, reading the batch's bound qpos/qvel/sensordata arrays in place. Policy, task and
+bookkeeping are compiled (numba), one call each over all rows: no Python runs per slot within a
+step, and the time outside MuJoCo is a small share of a step (bench/epoet_iteration.py).
 
 Each step is mj_step followed by the position and velocity stages at the new state
 (`mjSTAGE_VEL`), so the contact sensors describe the state the joint angles do; a persistent batch
@@ -32,12 +33,13 @@ from typing import Protocol
 import mujoco
 import mujoco.batch
 import numpy as np
+from numba import njit
 
 from epoet.config import AgentConfig, TerrainConfig
-from epoet.envs.model import Ground, action_to_targets, build_model, layout
+from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
-from epoet.es.policy import LAYER_SIZES, BatchedPolicy, num_params
+from epoet.es.policy import LAYER_SIZES, forward_rows, num_params, sizes_array
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
 
@@ -144,7 +146,7 @@ class _Recorder:
 class _Run:
     """Bookkeeping of one `run_jobs` call over its slots (arrays of shape (width,))."""
 
-    policy: BatchedPolicy
+    width: int
     state: EpisodeState
     returns: np.ndarray
     episode: np.ndarray      # job index per slot; -1 while idle
@@ -162,6 +164,29 @@ class _Field:
     ground: Ground
 
 
+@njit(cache=True)
+def _act(params: np.ndarray, layer_sizes: np.ndarray, obs: np.ndarray, actions: np.ndarray,
+         ctrl: np.ndarray) -> None:
+    """Every slot's actions (its own parameters) and their joint targets, in one compiled
+    call."""
+    forward_rows(params, layer_sizes, obs, actions)
+    targets_rows(actions, ctrl)
+
+
+@njit(cache=True)
+def _tally(reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
+           running: np.ndarray, returns: np.ndarray, done: np.ndarray) -> bool:
+    """Add the running slots' rewards to their returns and mark those whose episode ended in
+    `done`; whether any did. (One compiled call for what took four numpy calls a step.)"""
+    any_done = False
+    for i in range(running.size):
+        if running[i]:
+            returns[i] += reward[i]
+        done[i] = running[i] and (terminated[i] or truncated[i])
+        any_done = any_done or done[i]
+    return any_done
+
+
 class RolloutEngine:
     """Runs episodes of many parameter vectors on given terrains at close to raw MuJoCo speed."""
 
@@ -176,6 +201,7 @@ class RolloutEngine:
             raise ValueError(f"layer_sizes must map {OBS_DIM} observations to {ACT_DIM} "
                              f"actions, got {self.layer_sizes}.")
         self.num_params = num_params(self.layer_sizes)
+        self._sizes = sizes_array(self.layer_sizes)
         self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
         self.task = HexapodTask(agent, layout(self.model), Ground(self.model).half_x)
         self._fields: list[_Field] = []
@@ -187,9 +213,8 @@ class RolloutEngine:
         self._ctrl, self._sensor = self._sims.bind("ctrl"), self._sims.bind("sensordata")
         self._spawn_data = mujoco.MjData(m)  # episodes settle here, then move into their slot
         self._obs, self._actions = np.zeros((b, OBS_DIM)), np.zeros((b, ACT_DIM))
-        self._params = np.zeros((b, self.num_params))  # staging rows for BatchedPolicy.set_params
+        self._params = np.zeros((b, self.num_params))  # each slot's policy parameters
         self._slot_model = [self.model] * b  # the model (terrain) each slot steps with
-        self._policies: dict[int, BatchedPolicy] = {}
 
     def set_terrains(self, terrains: Sequence[TerrainLike]) -> None:
         """The terrains that jobs name by index, each written into its own model copy."""
@@ -228,34 +253,28 @@ class RolloutEngine:
         worker sharing a job queue should not hoard more jobs than its share.
         """
         width = self.batch if slots is None else max(1, min(int(slots), self.batch))
-        if width not in self._policies:
-            self._policies[width] = BatchedPolicy(width, self.layer_sizes)
-        run = _Run(self._policies[width], EpisodeState.zeros(width), np.zeros(width),
+        run = _Run(width, EpisodeState.zeros(width), np.zeros(width),
                    np.full(width, -1, dtype=np.int64), np.zeros(width, dtype=bool),
                    np.zeros(width, dtype=bool), iter(jobs))
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
         obs, ctrl, actions = self._obs[:width], self._ctrl[:width], self._actions[:width]
+        params = self._params[:width]
         done = np.zeros(width, dtype=bool)
         results: list[tuple[int, float, int, bool]] = []
 
         self._start(run, range(width))
         active, recorded = self._active(run)
         while active is None or len(active):
-            run.policy(obs, out=actions)
-            action_to_targets(actions, out=ctrl)  # idle slots get targets too; they never step
+            _act(params, self._sizes, obs, actions, ctrl)  # idle slots' targets are never used
             self._sims.step(active, stage=_STAGE_VEL)
-            # Idle slots ride along in the vectorised task (their rows are stale and ignored):
-            # one numpy call over all rows is cheaper than selecting the active ones every step.
-            reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state)
-            np.add(run.returns, reward, out=run.returns, where=run.running)
             if len(recorded):
                 before = obs[recorded].astype(np.float32)
-            self.task.observe(qpos, qvel, sensor, obs)
+            # Idle slots ride along in the task (their rows are stale and ignored): one call over
+            # all rows is cheaper than selecting the active ones every step.
+            reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state, obs)
             if len(recorded):
                 run.recorder.add(recorded, run.episode, before, actions, reward, obs, terminated)
-            np.logical_or(terminated, truncated, out=done)
-            done &= run.running
-            if done.any():
+            if _tally(reward, terminated, truncated, run.running, run.returns, done):
                 ended = np.flatnonzero(done)
                 results += [(int(run.episode[i]), float(run.returns[i]),
                              int(run.state.steps[i]), bool(run.state.finished[i])) for i in ended]
@@ -300,8 +319,7 @@ class RolloutEngine:
         # The settled states' position and velocity stages (contacts and their sensors), as a
         # step leaves them; the slot's first step starts from them.
         self._sims.forward(started, stage=_STAGE_VEL)
-        width = run.policy.batch
-        run.policy.set_params(self._params[:width])
+        width = run.width
         self.task.begin(self._qpos[:width], run.state, started)
         # Recomputing the observation of every row is cheaper than selecting the new ones.
         self.task.observe(self._qpos[:width], self._qvel[:width], self._sensor[:width],
