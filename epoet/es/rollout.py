@@ -43,10 +43,12 @@ from epoet.es.policy import LAYER_SIZES, forward_rows, num_params, sizes_array
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
 
-# Slots per engine. Each MjData's working set is ~0.45 MB, so stepping many in lockstep leaves L2;
-# the fixed per-step cost (task, policy call) wants many. Measured (bench/rollout_throughput.py,
-# RK4 hexapod): rollout/raw 0.82 at 8, 0.86 at 12-24, 0.85 at 32, 0.80 at 64.
-DEFAULT_BATCH = 16
+# Slots per engine. Each slot's MjData touches ~130 KB a step (36 KB buffer, up to 94 KB of arena),
+# so a dozen already overflow this CPU's 512 KB L2, and two workers then contend for L3; the fixed
+# per-step cost (three calls) wants many. Measured on the laptop configuration with the compiled
+# step (bench/epoet_iteration.py, 2 workers; noisy machine): iteration/raw 0.95, 0.81 at 8;
+# 0.93, 0.93, 0.82, 0.88 at 12; 0.76-0.89 (median 0.85, 8 runs) at 16.
+DEFAULT_BATCH = 12
 _STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
