@@ -6,13 +6,13 @@ see. Inputs are raw MuJoCo arrays gathered per step: qpos (B, 25), qvel (B, 24),
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import NamedTuple
+from collections import namedtuple
+from dataclasses import astuple, dataclass, fields
 
 import numpy as np
 from numba import njit
 
-from epoet.config import AgentConfig
+from epoet.config import AgentConfig, RewardConfig
 from epoet.envs.model import Layout
 
 OBS_DIM = 53
@@ -41,29 +41,12 @@ class EpisodeState:
                    np.zeros(batch, bool), np.zeros(batch, bool))
 
 
-class _Constants(NamedTuple):
-    """What the compiled step reads of the config and the model layout (numba takes a tuple of
-    floats and ints where it cannot take a dataclass)."""
-
-    target_speed: float
-    lateral_speed_penalty: float
-    v_ref: float
-    w_velocity: float
-    w_heading: float
-    w_lateral: float
-    c_lateral: float
-    c_heading: float
-    c_pitch: float
-    c_roll: float
-    c_actuator: float
-    c_vertical: float
-    finish_bonus: float
-    finish_x: float
-    progress_margin: float
-    half_size: float
-    max_episode_steps: int
-    no_progress_steps: int
-    actuator_force: int     # first sensordata index of the 18 actuator forces
+# What the compiled step reads of the config and the model layout, as a namedtuple (numba takes
+# one where it cannot take a dataclass): every reward weight under its config name, then the
+# episode rules and the index of the first actuator-force sensor.
+_Constants = namedtuple("_Constants", [f.name for f in fields(RewardConfig)] + [
+    "v_ref", "finish_x", "progress_margin", "half_size", "max_episode_steps",
+    "no_progress_steps", "actuator_force"])
 
 
 @njit(cache=True)
@@ -212,11 +195,9 @@ class HexapodTask:
     def __init__(self, agent: AgentConfig, layout: Layout, half_size: float) -> None:
         rw = agent.reward
         self._c = _Constants(
-            rw.target_speed, rw.lateral_speed_penalty, 1.0 / (1.0 + rw.target_speed),
-            rw.w_velocity, rw.w_heading, rw.w_lateral, rw.c_lateral, rw.c_heading, rw.c_pitch,
-            rw.c_roll, rw.c_actuator, rw.c_vertical, rw.finish_bonus, agent.finish_x,
-            agent.progress_margin, float(half_size), agent.max_episode_steps,
-            agent.no_progress_steps, layout.actuator_force.start)
+            *astuple(rw), 1.0 / (1.0 + rw.target_speed), agent.finish_x, agent.progress_margin,
+            float(half_size), agent.max_episode_steps, agent.no_progress_steps,
+            layout.actuator_force.start)
         self._at = (layout.joint_qpos.start, layout.joint_qvel.start, layout.contact.start)
 
     def observe(self, qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
