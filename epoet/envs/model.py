@@ -132,8 +132,8 @@ _SPAN = TARGET_HIGH - TARGET_LOW
 
 @njit(cache=True)
 def targets_rows(action: np.ndarray, out: np.ndarray) -> None:
-    """`action_to_targets` of (B, 18) actions, compiled (the rollout engine calls it from its
-    own compiled step)."""
+    """`action_to_targets` of (B, 18) actions, compiled (the rollout engine writes its batch's
+    ctrl rows with it)."""
     for b in range(action.shape[0]):
         for j in range(action.shape[1]):
             a = min(max(action[b, j], -1.0), 1.0)

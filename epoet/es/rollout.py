@@ -45,7 +45,7 @@ TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated
 
 # Slots per engine. Each slot's MjData touches ~130 KB a step (36 KB buffer, up to 94 KB of arena),
 # so a dozen already overflow this CPU's 512 KB L2, and two workers then contend for L3; the fixed
-# per-step cost (three calls) wants many. Measured on the laptop configuration with the compiled
+# per-step cost (four compiled calls) wants many. Measured on the laptop configuration with the compiled
 # step (bench/epoet_iteration.py, 2 workers; noisy machine): iteration/raw 0.95, 0.81 at 8;
 # 0.93, 0.93, 0.82, 0.88 at 12; 0.76-0.89 (median 0.85, 8 runs) at 16.
 DEFAULT_BATCH = 12
@@ -167,15 +167,6 @@ class _Field:
 
 
 @njit(cache=True)
-def _act(params: np.ndarray, layer_sizes: np.ndarray, obs: np.ndarray, actions: np.ndarray,
-         ctrl: np.ndarray) -> None:
-    """Every slot's actions (its own parameters) and their joint targets, in one compiled
-    call."""
-    forward_rows(params, layer_sizes, obs, actions)
-    targets_rows(actions, ctrl)
-
-
-@njit(cache=True)
 def _tally(reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
            running: np.ndarray, returns: np.ndarray, done: np.ndarray) -> bool:
     """Add the running slots' rewards to their returns and mark those whose episode ended in
@@ -267,7 +258,10 @@ class RolloutEngine:
         self._start(run, range(width))
         active, recorded = self._active(run)
         while active is None or len(active):
-            _act(params, self._sizes, obs, actions, ctrl)  # idle slots' targets are never used
+            # Two calls, not one compiled function calling both: numba's on-disk cache would not
+            # notice an edit to a function from another module inside it.
+            forward_rows(params, self._sizes, obs, actions)
+            targets_rows(actions, ctrl)  # idle slots get targets too; they never step
             self._sims.step(active, stage=_STAGE_VEL)
             if len(recorded):
                 before = obs[recorded].astype(np.float32)
