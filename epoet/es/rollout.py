@@ -47,7 +47,7 @@ TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated
 # so a dozen already overflow this CPU's 512 KB L2, and two workers then contend for L3; the fixed
 # per-step cost (four compiled calls) wants many. Measured on the laptop configuration with the compiled
 # step (bench/epoet_iteration.py, 2 workers; noisy machine): iteration/raw 0.95, 0.81 at 8;
-# 0.93, 0.93, 0.82, 0.88 at 12; 0.76-0.89 (median 0.85, 8 runs) at 16.
+# 0.93, 0.93, 0.82, 0.88, 0.83 at 12; 0.76-0.89 (median 0.85, 8 runs) at 16.
 DEFAULT_BATCH = 12
 _STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
