@@ -13,7 +13,7 @@ from epoet.envs import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
 from epoet.es.optimizer import mirrored_population
 from epoet.es.policy import forward, init_params
-from epoet.es.rollout import RolloutEngine
+from epoet.es.rollout import DEFAULT_BATCH, RolloutEngine
 from epoet.es.workers import Agents, Mirrored, Request, make_evaluator
 from epoet.terrain import Terrain, make_terrain
 
@@ -54,6 +54,12 @@ def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
         assert episodes.lengths[e] == steps
         assert episodes.finished[e] == info["finished"]
     assert len(set(episodes.lengths.tolist())) > 1  # the refill path was exercised
+
+
+def test_runs_and_the_engine_default_to_the_same_batch():
+    # the value lives in conf/workers/local.yaml (ray.yaml inherits it) and, for direct API use,
+    # in DEFAULT_BATCH
+    assert load([]).workers.batch == load(["workers=ray"]).workers.batch == DEFAULT_BATCH
 
 
 def test_results_do_not_depend_on_batch_size(terrain):

@@ -43,10 +43,11 @@ from epoet.es.policy import LAYER_SIZES, forward_rows, num_params, sizes_array
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
 
-# Slots per engine. Each slot's MjData touches ~130 KB a step (36 KB buffer, up to 94 KB of arena),
-# so a dozen already overflow this CPU's 512 KB L2, and two workers then contend for L3; the fixed
-# per-step cost (four compiled calls) wants many. Measured on the laptop configuration with the compiled
-# step (bench/epoet_iteration.py, 2 workers; noisy machine): iteration/raw 0.95, 0.81 at 8;
+# Slots per engine (conf/workers/local.yaml gives runs the same value). Each slot's MjData touches
+# ~130 KB a step (36 KB buffer, up to 94 KB of arena), so a dozen already overflow this CPU's
+# 512 KB L2, and two workers then contend for L3; the fixed per-step cost (four compiled calls)
+# wants many. Measured on the laptop configuration with the compiled step
+# (bench/epoet_iteration.py, 2 workers; noisy machine): iteration/raw 0.95, 0.81 at 8;
 # 0.93, 0.93, 0.82, 0.88, 0.83 at 12; 0.76-0.89 (median 0.85, 8 runs) at 16.
 DEFAULT_BATCH = 12
 _STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
@@ -148,7 +149,6 @@ class _Recorder:
 class _Run:
     """Bookkeeping of one `run_jobs` call over its slots (arrays of shape (width,))."""
 
-    width: int
     state: EpisodeState
     returns: np.ndarray
     episode: np.ndarray      # job index per slot; -1 while idle
@@ -246,7 +246,7 @@ class RolloutEngine:
         worker sharing a job queue should not hoard more jobs than its share.
         """
         width = self.batch if slots is None else max(1, min(int(slots), self.batch))
-        run = _Run(width, EpisodeState.zeros(width), np.zeros(width),
+        run = _Run(EpisodeState.zeros(width), np.zeros(width),
                    np.full(width, -1, dtype=np.int64), np.zeros(width, dtype=bool),
                    np.zeros(width, dtype=bool), iter(jobs))
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
@@ -315,7 +315,7 @@ class RolloutEngine:
         # The settled states' position and velocity stages (contacts and their sensors), as a
         # step leaves them; the slot's first step starts from them.
         self._sims.forward(started, stage=_STAGE_VEL)
-        width = run.width
+        width = len(run.running)
         self.task.begin(self._qpos[:width], run.state, started)
         # Recomputing the observation of every row is cheaper than selecting the new ones.
         self.task.observe(self._qpos[:width], self._qvel[:width], self._sensor[:width],
