@@ -22,7 +22,7 @@ from epoet.config import Config, compose, validate
 from epoet.envs import HexapodEnv
 from epoet.envs.model import action_to_targets
 from epoet.es.policy import forward, init_params
-from epoet.terrain import Terrain, make_terrain, mutate_genome
+from epoet.terrain import Terrain, cppn_inputs, make_terrain, mutate_genome
 
 INTEGRATORS = ("rk4", "implicitfast")
 
@@ -35,7 +35,8 @@ def rough_terrains(cfg: Config, n: int, generations: int) -> list[Terrain]:
     for i in range(n):
         genome = make_terrain(tc, seed=i).genome
         for g in range(generations):
-            genome = mutate_genome(genome, tc.cppn, tc.mutation, seed=1000 * i + g, grid=tc.grid)
+            genome = mutate_genome(genome, tc.cppn, tc.mutation, seed=1000 * i + g,
+                                   field=cppn_inputs(tc))
         terrains.append(make_terrain(tc, seed=i, iteration=cap, genome=genome,
                                      generation=generations))
     return terrains

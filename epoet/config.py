@@ -182,22 +182,23 @@ class MutationConfig:
     KEY: ClassVar[str] = "terrain.mutation"
 
     min_genome_distance: float
-    check_grid: int
+    check_grid: int                  # samples per side of the check grid, in CPPN units
     min_range: float                 # max of (output - output at the first point) must exceed this
     min_variance: float
-    response_rescale_low: float      # outside [low, high] the output response is reset
-    response_rescale_high: float
-    response_target_low: float       # to U(target_low, target_high) / peak (reference)
-    response_target_high: float
+    response_rescale_low: float      # a peak below low resets the output response to
+    small_peak_response: list[float]  # U(lo, hi) / peak,
+    response_rescale_high: float     # a peak above high resets it to
+    large_peak_response: list[float]  # U(lo, hi) / peak (the reference's two rules)
     output_response: float           # the reference sets the output node's response before mutating
     max_tries: int                   # with no connection mutations, deep genomes need many tries
 
     def __post_init__(self) -> None:
-        _positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high",
-                  "response_target_low")
-        _check(self.response_target_low <= self.response_target_high,
-               f"terrain.mutation.response_target_low ({self.response_target_low}) must not "
-               f"exceed response_target_high ({self.response_target_high}).")
+        _positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high")
+        for name in ("small_peak_response", "large_peak_response"):
+            lo_hi = getattr(self, name)
+            _check(len(lo_hi) == 2 and 0.0 < lo_hi[0] <= lo_hi[1],
+                   f"terrain.mutation.{name} must be [low, high] with 0 < low <= high, got "
+                   f"{list(lo_hi)}.")
         _non_negative(self, "min_genome_distance", "min_range", "min_variance")
 
 
@@ -215,6 +216,8 @@ class TerrainConfig:
     max_height_step: float           # +S per iteration (paper)
     max_height_limit: float          # cap on S (reference)
     bowl_weight: float               # heightmap = w bowl + (1 - w) CPPN; 1.0 = bowl only
+    cppn_scale: float                # CPPN input units per metre (the reference's feature size)
+    cppn_origin: list[float]         # (x, y) metres where the CPPN's input is (0, 0)
     bump_grid: int
     bump_low: float
     bump_high: float
@@ -224,7 +227,7 @@ class TerrainConfig:
     def __post_init__(self) -> None:
         _check(self.kind in ("bowl", "cppn"),
                f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.")
-        _positive(self, "grid", "size", "base", "bump_grid", "max_height_limit")
+        _positive(self, "grid", "size", "base", "bump_grid", "max_height_limit", "cppn_scale")
         _non_negative(self, "max_height", "max_height_step")
         _check(self.grid >= 8, f"terrain.grid must be >= 8 samples, got {self.grid}.")
         _check(0.0 <= self.bowl_weight <= 1.0,
@@ -232,6 +235,8 @@ class TerrainConfig:
         _check(0.0 < self.bump_low <= self.bump_high,
                f"terrain.bump_low/bump_high must satisfy 0 < low <= high, got "
                f"{self.bump_low}/{self.bump_high}.")
+        _check(len(self.cppn_origin) == 2,
+               f"terrain.cppn_origin must be [x, y] metres, got {list(self.cppn_origin)}.")
         _check(self.max_height <= self.max_height_limit,
                f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
                f"({self.max_height_limit}).")

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from epoet.config import ConfigError, TerrainConfig, compose, load, validate
-from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, evaluate,
-                           genome_config, grid_inputs, make_terrain, max_height_at, mix,
+from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, check_inputs,
+                           cppn_inputs, evaluate, genome_config, make_terrain, max_height_at, mix,
                            mutate_genome, mutate_terrain, new_genome, normalize, random_bowl)
 from epoet.terrain.cppn import _ACTIVATIONS, fingerprint, has_input_output_path
 
@@ -44,7 +44,10 @@ def test_vectorised_cppn_equals_neat_feed_forward_network(cfg, aggregations):
     genomes = [new_genome(cfg.cppn, 3)]
     terrain = make_terrain(cfg, 3, genome=genomes[0])
     for seed in range(11, 23):  # a chain of mutations: nodes are added and deleted
-        terrain = mutate_terrain(terrain, cfg, seed)
+        try:
+            terrain = mutate_terrain(terrain, cfg, seed)
+        except CppnMutationError:
+            continue  # a seed whose tries found no valid child; the chain goes on from here
         genomes.append(terrain.genome)
     assert max(len(g.nodes) for g in genomes) > len(genomes[0].nodes)
     points = np.random.default_rng(0).uniform(-1.0, 1.0, size=(200, 2))
@@ -63,10 +66,21 @@ def test_every_numpy_activation_equals_neats():
         np.testing.assert_allclose(fn(z), expected, rtol=1e-13, atol=1e-15, err_msg=name)
 
 
-def test_grid_inputs_put_x_along_columns_and_y_along_rows():
-    x, y = grid_inputs(5)
-    assert x[0, 0] == -1.0 and x[0, -1] == 1.0 and np.all(x[:, 2] == x[0, 2])
-    assert y[0, 0] == -1.0 and y[-1, 0] == 1.0 and np.all(y[2, :] == y[2, 0])
+def test_cppn_inputs_put_x_along_columns_and_y_along_rows(cfg):
+    x, y = cppn_inputs(cfg)
+    assert np.all(x[:, 2] == x[0, 2]) and np.all(y[2, :] == y[2, 0])
+    assert x[0, 1] > x[0, 0] and y[1, 0] > y[0, 0]
+    # Input (0, 0) lies at terrain.cppn_origin, and the inputs advance cppn_scale per metre.
+    metres = np.linspace(-cfg.size / 2, cfg.size / 2, cfg.grid)
+    np.testing.assert_allclose(x[0], (metres - cfg.cppn_origin[0]) * cfg.cppn_scale)
+    np.testing.assert_allclose(y[:, 0], (metres - cfg.cppn_origin[1]) * cfg.cppn_scale)
+
+
+def test_the_check_grid_is_the_references():
+    """The reference checks children on ((i - 10) / 10, (j - 10) / 10) for i, j < 20."""
+    x, y = check_inputs(20)
+    assert x.shape == (20, 20) and x[0, 0] == y[0, 0] == -1.0
+    assert x[0, -1] == pytest.approx(0.9) and y[-1, 0] == pytest.approx(0.9)
 
 
 def test_genome_creation_is_seeded_and_leaves_the_global_random_stream_alone(cfg):
@@ -89,7 +103,7 @@ def test_mutated_child_obeys_the_validity_rules(cfg):
     assert has_input_output_path(child.genome)                                   # (a)
     assert parent.genome.distance(child.genome, gc) > rules.min_genome_distance  # (b), and
     # test_children_are_far_enough_from_parents_whose_response_needs_no_reset below
-    out = evaluate(child.genome, *grid_inputs(rules.check_grid))                 # (c)
+    out = evaluate(child.genome, *check_inputs(rules.check_grid))                # (c)
     shifted = out - out[0, 0]
     assert shifted.max() > rules.min_range and shifted.var() > rules.min_variance
     assert child.generation == parent.generation + 1 and child.parent_id == parent.id
@@ -102,22 +116,50 @@ def test_children_are_far_enough_from_parents_whose_response_needs_no_reset(cfg)
     rules, gc = cfg.mutation, genome_config(cfg.cppn)
     parent = make_terrain(cfg, 1).genome
     parent.nodes[0].response = rules.output_response
-    distances = [parent.distance(mutate_genome(parent, cfg.cppn, rules, seed, cfg.grid), gc)
-                 for seed in range(12)]
+    distances = [parent.distance(mutate_genome(parent, cfg.cppn, rules, seed, cppn_inputs(cfg)),
+                                 gc) for seed in range(12)]
     assert min(distances) > rules.min_genome_distance
 
 
-def test_an_out_of_range_output_is_rescaled_as_the_reference_does(cfg):
-    """Peak outside [rescale_low, rescale_high]: response = U(target_low, target_high) / peak."""
-    rules = cfg.mutation
-    child = mutate_genome(make_terrain(cfg, 1).genome, cfg.cppn, rules, 11, cfg.grid)
+def _judged_peak(child: neat.DefaultGenome, rules) -> float:
+    """The check-grid peak the rescale rule saw: the child's output at `output_response`."""
     probe = copy.deepcopy(child)
-    probe.nodes[0].response = rules.output_response  # the output the rule judged
-    out = evaluate(probe, *grid_inputs(rules.check_grid))
-    peak = float((out - out.flat[0]).max())
-    assert rules.min_range < peak < rules.response_rescale_low, "seed 11 must need a rescale"
-    response = child.nodes[0].response
-    assert rules.response_target_low / peak <= response <= rules.response_target_high / peak
+    probe.nodes[0].response = rules.output_response
+    out = evaluate(probe, *check_inputs(rules.check_grid))
+    return float((out - out.flat[0]).max())
+
+
+def test_out_of_range_outputs_are_rescaled_as_the_reference_does(cfg):
+    """The reference: a peak below 0.25 sets the response to U(0.25, 0.75) / peak, a peak above 16
+    to U(12, 16) / peak; within [0.25, 16] the response stays at output_response."""
+    rules, root = cfg.mutation, make_terrain(cfg, 1).genome
+    steep = copy.deepcopy(root)  # a square output with strong inputs: its peaks pass 16
+    steep.nodes[0].activation = "square"
+    for (_, out), gene in steep.connections.items():
+        gene.weight *= 4.0 if out == 0 else 1.0
+    seen = {"small": False, "large": False, "kept": False}
+    for seed in range(30):
+        child = mutate_genome((root, steep)[seed % 2], cfg.cppn, rules, seed, cppn_inputs(cfg))
+        peak, response = _judged_peak(child, rules), child.nodes[0].response
+        if peak < 0.25:
+            assert 0.25 / peak <= response <= 0.75 / peak
+            seen["small"] = True
+        elif peak > 16.0:
+            assert 12.0 / peak <= response <= 16.0 / peak
+            seen["large"] = True
+        else:
+            assert response == rules.output_response
+            seen["kept"] = True
+    assert all(seen.values()), f"seeds 0-29 must cover every case, saw {seen}"
+
+
+def test_only_the_root_output_is_forced_to_sin(cfg):
+    """The reference sets sin on the root genome; children keep the activation mutation gives."""
+    root = make_terrain(cfg, 1).genome
+    assert root.nodes[0].activation == "sin"
+    children = [mutate_genome(root, cfg.cppn, cfg.mutation, seed, cppn_inputs(cfg))
+                for seed in range(40)]
+    assert {c.nodes[0].activation for c in children} - {"sin"}
 
 
 def test_mutation_is_deterministic_per_seed(cfg):
@@ -157,7 +199,7 @@ def test_mixed_heightmap_is_in_unit_range_and_weight_one_is_bowl_only(cfg):
     assert terrain.heightmap.min() >= 0.0 and terrain.heightmap.max() <= 1.0
     assert terrain.heightmap.max() == 1.0 and terrain.kind == "cppn"
     bowl = random_bowl(np.random.default_rng(2), 40, 0.2)
-    cppn = evaluate(terrain.genome, *grid_inputs(40))
+    cppn = evaluate(terrain.genome, *cppn_inputs(cfg))
     np.testing.assert_array_equal(mix(bowl, cppn, 1.0), bowl)
     np.testing.assert_allclose(mix(bowl, cppn, 0.3),
                                normalize(0.3 * bowl + 0.7 * normalize(cppn)))
@@ -174,25 +216,38 @@ def test_max_height_schedule_grows_by_the_step_and_stops_at_the_limit(cfg):
 
 
 # ---------------------------------------------------------------- files
-def test_terrains_keep_the_reference_feature_scale():
-    """Features live in normalised coordinates, so the extent sets the slopes: at the same S the
-    terrain users run must be as steep as the reference's 40 m x 40 m, 200 x 200 field (a 20 m
-    field would be twice as steep)."""
-    users = CPPN
-    reference = replace(users, size=40.0, grid=200)
+def _wavelength(profile: np.ndarray, spacing: float) -> float:
+    """Mean wavelength (metres) of a height profile, 2 pi rms(h) / rms(dh/dx) after removing its
+    linear trend: exact for a sinusoid, and not snapped to a short window's frequency bins."""
+    x = np.arange(profile.size)
+    h = profile - np.polyval(np.polyfit(x, profile, 1), x)
+    return float(2 * np.pi * np.sqrt(np.mean(h ** 2))
+                 / np.sqrt(np.mean((np.diff(h) / spacing) ** 2)))
 
-    def max_slope(tc: TerrainConfig, genome: neat.DefaultGenome) -> float:
-        """Steepest grid step per metre of S (budgets change S's schedule, not the geometry)."""
-        t = make_terrain(tc, seed=4, iteration=50, genome=genome)
-        metres = t.heightmap  # in units of S
-        spacing = tc.size / (tc.grid - 1)
-        return max(np.abs(np.diff(metres, axis=0)).max(), np.abs(np.diff(metres, axis=1)).max()) \
-            / spacing
 
-    genome = mutate_genome(new_genome(reference.cppn, 2), reference.cppn, reference.mutation, 5,
-                           reference.grid)
-    assert max_slope(users, genome) == pytest.approx(max_slope(reference, genome), rel=0.1)
-
+@pytest.mark.parametrize("seed", [3, 8, 10, 11])
+def test_cppn_features_have_the_reference_wavelength(seed):
+    """The reference evaluates its CPPN at cell (row r, column c < 120) on x = (c/5 - 17 - 12)
+    pi/12, y = (r/5 - 20 - 12) pi/12, with the spawn at c = 85 (x = 0) and 5 cells per metre.
+    Along the spawn row (r = 100), the features our terrain puts on the same metres must have
+    the same dominant wavelength (the old [-1, 1]-over-the-field inputs made them ~5x longer)."""
+    cfg = replace(CPPN, bowl_weight=0.0, max_height=1.0)  # the CPPN part alone
+    genome = new_genome(cfg.cppn, seed)
+    for step in range(3):
+        genome = mutate_genome(genome, cfg.cppn, cfg.mutation, 100 * seed + step,
+                               cppn_inputs(cfg))
+    cells = np.arange(120)
+    reference = evaluate(genome, (cells / 5 - 17 - 12) * np.pi / 12,
+                         np.full(cells.size, (100 / 5 - 20 - 12) * np.pi / 12))
+    expected = _wavelength(reference, 0.2)
+    assert expected < 12.0, "the window must hold a few features for the measure to mean much"
+    # Our field, on the same metres: robot-frame x (c/5 - 17) sits at agent.start_x + that.
+    start_x = load([]).agent.start_x
+    metres = np.linspace(-cfg.size / 2, cfg.size / 2, cfg.grid)
+    cols = (metres >= start_x - 17) & (metres < start_x + 7)
+    row = int(np.argmin(np.abs(metres)))
+    ours = make_terrain(cfg, seed=1, genome=genome).heightmap[row, cols]
+    assert _wavelength(ours, cfg.size / (cfg.grid - 1)) == pytest.approx(expected, rel=0.2)
 
 
 @pytest.mark.parametrize("kind", ["bowl", "cppn"])
@@ -204,7 +259,7 @@ def test_save_load_round_trips_exactly(tmp_path, kind):
     for name in ("id", "kind", "seed", "generation", "parent_id", "max_height", "size"):
         assert getattr(loaded, name) == getattr(terrain, name)
     if kind == "cppn":
-        x, y = grid_inputs(40)
+        x, y = check_inputs(40)
         np.testing.assert_array_equal(evaluate(loaded.genome, x, y), evaluate(terrain.genome, x, y))
     else:
         assert loaded.genome is None

@@ -30,7 +30,8 @@ from epoet.es.rollout import Episodes
 from epoet.es.workers import Agents, Evaluator, Mirrored, Request
 from epoet.poet.novelty import pata_ec, rank_by_novelty
 from epoet.poet.pairs import Environment, Pair
-from epoet.terrain import CppnMutationError, Terrain, make_terrain, mutate_genome, new_genome
+from epoet.terrain import (CppnMutationError, Terrain, cppn_inputs, make_terrain, mutate_genome,
+                           new_genome)
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
     from epoet.tracking import Tracker
@@ -399,7 +400,7 @@ class EPOET:
             try:
                 genome = mutate_genome(parent.env.genome, tc.cppn, tc.mutation,
                                        self._seed(Key.CHILD_GENOME, parent.env.index, t, slot),
-                                       tc.grid)
+                                       cppn_inputs(tc))
             except CppnMutationError:
                 continue  # this parent yielded no valid child in max_tries; propose the next
             env = Environment(index=-1, genome=genome, generation=parent.env.generation + 1,

@@ -1,8 +1,11 @@
 """CPPN part of a terrain: real neat-python 2.0 genomes, evaluated over a grid with numpy.
 
 Conventions (fixed here, used everywhere in the package):
-- Inputs: node -1 is x, node -2 is y, both spanning [-1, 1] across the terrain's extent (corner
-  to corner), so a genome describes the same shape at any grid resolution. Output: node 0.
+- Inputs: node -1 is x, node -2 is y. On a terrain the inputs are metres from
+  `terrain.cppn_origin` times `terrain.cppn_scale` (`field_inputs`): the reference's coordinates,
+  so a genome makes features of the same size in metres at any grid resolution. The validity
+  rules look at the genome on its own check grid over [-1, 1) CPPN units (`check_inputs`), as
+  the reference does. Output: node 0.
 - neat-python draws from the global `random` module. Genome creation and mutation run inside
   `seeded_random(seed)`, which seeds the global generator and restores its previous state
   afterwards, so every genome is a function of its seed and callers' random streams are
@@ -17,7 +20,7 @@ from __future__ import annotations
 
 import copy
 import random
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import fields
 
@@ -68,8 +71,10 @@ def seeded_random(seed: int) -> Iterator[None]:
 def new_genome(cfg: CppnConfig, seed: int) -> neat.DefaultGenome:
     """A root CPPN: neat's initial genome (Table 5: 2 hidden nodes, full_nodirect).
 
-    As in the reference, the output activation is forced to sin; its response stays at neat's
-    initial value (1.0), so roots are smooth and complexity comes from mutation.
+    As in the reference, the root's output activation is set to sin; its response stays at
+    neat's initial value (1.0), so roots are smooth and complexity comes from mutation. Children
+    keep whatever output activation mutation gives them (the reference forces sin on the root
+    only).
     """
     gc = genome_config(cfg)
     genome = neat.DefaultGenome(0)
@@ -79,11 +84,22 @@ def new_genome(cfg: CppnConfig, seed: int) -> neat.DefaultGenome:
     return genome
 
 
-def grid_inputs(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(x, y) input arrays of shape (n, n): rows follow y, columns follow x, both over [-1, 1]."""
-    axis = np.linspace(-1.0, 1.0, n)
-    x, y = np.meshgrid(axis, axis, indexing="xy")
-    return x, y
+def field_inputs(grid: int, size: float, origin: Sequence[float], scale: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) CPPN inputs at a terrain's (grid, grid) samples: rows follow y, columns x.
+
+    The samples span `size` metres centred at the origin (MuJoCo's hfield layout); each input is
+    the sample's metres from `origin`, times `scale` CPPN units per metre.
+    """
+    axis = np.linspace(-size / 2.0, size / 2.0, grid)
+    return np.meshgrid((axis - origin[0]) * scale, (axis - origin[1]) * scale, indexing="xy")
+
+
+def check_inputs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The reference's check grid: (i - n/2) / (n/2) for i < n on both inputs, so [-1, 1) with
+    the first point at (-1, -1)."""
+    axis = (np.arange(n) - n / 2.0) / (n / 2.0)
+    return np.meshgrid(axis, axis, indexing="xy")
 
 
 def _clip60(z: np.ndarray) -> np.ndarray:
@@ -190,31 +206,36 @@ def _fresh_counters(gc: neat.genome.DefaultGenomeConfig, parent: neat.DefaultGen
     gc.innovation_tracker = neat.InnovationTracker(start_number=last)
 
 
-def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationConfig,
-                  seed: int, grid: int) -> neat.DefaultGenome:
-    """A mutated child that passes the reference's validity rules (REFERENCE.md section 4).
+def _rescaled_response(peak: float, rules: MutationConfig) -> float | None:
+    """The reference's output-response reset for a peak outside the allowed range, else None."""
+    if peak < rules.response_rescale_low:
+        return random.uniform(*rules.small_peak_response) / peak
+    if peak > rules.response_rescale_high:
+        return random.uniform(*rules.large_peak_response) / peak
+    return None
 
-    Each attempt copies the parent, forces the output activation to sin and its response to
-    `rules.output_response` (the reference), applies one neat mutation, and accepts it if
-    (a) an input-output path exists, (b) its distance to the parent exceeds
-    `min_genome_distance`, (c) on a check_grid x check_grid grid the output minus its value at
-    the first point has max > min_range and variance > min_variance, and the output is finite
-    on the terrain's own grid (our addition: chained square/inv nodes can overflow).
-    Then, as the reference does, when that max lies outside [response_rescale_low,
-    response_rescale_high] the output response is set to U(response_target_low,
-    response_target_high) / max, drawn from the same seeded stream.
+
+def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationConfig,
+                  seed: int, field: tuple[np.ndarray, np.ndarray]) -> neat.DefaultGenome:
+    """A mutated child that passes the reference's validity rules (docs/reference.md).
+
+    Each attempt copies the parent, sets the output response to `rules.output_response` (the
+    reference), applies one neat mutation, and accepts it if (a) an input-output path exists,
+    (b) its distance to the parent exceeds `min_genome_distance`, (c) on the check grid the
+    output minus its value at the first point has max > min_range and variance > min_variance,
+    and the output is finite on the terrain's inputs `field` (our addition: chained square/inv
+    nodes can overflow). Then, as the reference does, a peak below `response_rescale_low` sets
+    the output response to U(small_peak_response) / peak and one above `response_rescale_high`
+    to U(large_peak_response) / peak, drawn from the same seeded stream.
     """
     gc = genome_config(cppn)
-    check_x, check_y = grid_inputs(rules.check_grid)
-    full_x, full_y = grid_inputs(grid)
+    check_x, check_y = check_inputs(rules.check_grid)
     with seeded_random(seed):
         for _ in range(rules.max_tries):
             child = copy.deepcopy(parent)
             child.key = parent.key + 1
             child.fitness = None
-            output = child.nodes[OUTPUT_KEY]
-            output.activation = "sin"
-            output.response = rules.output_response
+            child.nodes[OUTPUT_KEY].response = rules.output_response
             _fresh_counters(gc, parent)
             child.mutate(gc)
             if not has_input_output_path(child):
@@ -227,11 +248,11 @@ def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationC
             if not (np.all(np.isfinite(out)) and peak > rules.min_range
                     and float(np.var(shifted)) > rules.min_variance):
                 continue
-            if not np.all(np.isfinite(evaluate(child, full_x, full_y))):
+            if not np.all(np.isfinite(evaluate(child, *field))):
                 continue
-            if not rules.response_rescale_low <= peak <= rules.response_rescale_high:
-                target = random.uniform(rules.response_target_low, rules.response_target_high)
-                child.nodes[OUTPUT_KEY].response = target / peak
+            response = _rescaled_response(peak, rules)
+            if response is not None:
+                child.nodes[OUTPUT_KEY].response = response
             return child
     raise CppnMutationError(
         f"no valid CPPN child in {rules.max_tries} tries (seed {seed}); relax "

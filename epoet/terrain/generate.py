@@ -11,7 +11,7 @@ import numpy as np
 
 from epoet.config import TerrainConfig
 from epoet.terrain.bowl import random_bowl
-from epoet.terrain.cppn import evaluate, grid_inputs, mutate_genome, new_genome
+from epoet.terrain.cppn import evaluate, field_inputs, mutate_genome, new_genome
 from epoet.terrain.terrain import KINDS, Terrain, normalize
 
 
@@ -23,6 +23,11 @@ def max_height_at(cfg: TerrainConfig, iteration: int) -> float:
     if iteration < 0:
         raise ValueError(f"iteration must be >= 0, got {iteration}.")
     return min(cfg.max_height + iteration * cfg.max_height_step, cfg.max_height_limit)
+
+
+def cppn_inputs(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The CPPN's (x, y) inputs at the terrain's samples (the reference's metres per unit)."""
+    return field_inputs(cfg.grid, cfg.size, cfg.cppn_origin, cfg.cppn_scale)
 
 
 def mix(bowl: np.ndarray, cppn: np.ndarray, bowl_weight: float) -> np.ndarray:
@@ -58,7 +63,7 @@ def make_terrain(cfg: TerrainConfig, seed: int, iteration: int = 0,
         return Terrain(bowl, height, cfg.size, "bowl", seed, generation, parent_id)
     if genome is None:
         genome = new_genome(cfg.cppn, seed)
-    cppn = evaluate(genome, *grid_inputs(cfg.grid))
+    cppn = evaluate(genome, *cppn_inputs(cfg))
     if not np.all(np.isfinite(cppn)):
         raise ValueError(f"the CPPN genome gives non-finite heights on the {cfg.grid} x "
                          f"{cfg.grid} grid.")
@@ -76,6 +81,6 @@ def mutate_terrain(parent: Terrain, cfg: TerrainConfig, seed: int,
     if parent.kind != "cppn" or cfg.kind != "cppn":
         raise ValueError(f"only CPPN terrains mutate; got a {parent.kind!r} parent and "
                          f"terrain.kind={cfg.kind!r}.")
-    child = mutate_genome(parent.genome, cfg.cppn, cfg.mutation, seed, cfg.grid)
+    child = mutate_genome(parent.genome, cfg.cppn, cfg.mutation, seed, cppn_inputs(cfg))
     return make_terrain(cfg, seed, iteration, child, generation=parent.generation + 1,
                         parent_id=parent.id)
