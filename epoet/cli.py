@@ -16,7 +16,7 @@ def fail(err: BaseException) -> NoReturn:
     """Exit 2 with the error's first line, plus its cause's (Hydra wraps OmegaConf's errors)."""
     text = first_line(err)
     cause = err.__cause__
-    if cause is not None and str(cause).strip():
+    if cause is not None and str(cause).strip() and first_line(cause) not in text:
         text += f": {first_line(cause)}"
     if isinstance(err, MissingConfigException) and err.options:
         # Schemas are registered in the same groups; users choose among the YAML files only.

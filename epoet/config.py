@@ -409,6 +409,7 @@ class SuiteConfig:
 
     terrain: TerrainConfig
     agent: AgentConfig               # the course (start_x .. finish_x) the roughness is read along
+    episode_ratio: float             # evaluation episodes last this x the agent's training ones
     seed: int
     children: int                    # children per round (lineages)
     max_heights: list[float]         # S of each round, metres: one round per entry
@@ -418,7 +419,7 @@ class SuiteConfig:
 
     def __post_init__(self) -> None:
         _non_negative(self, "seed")
-        _positive(self, "children", "max_tries")
+        _positive(self, "children", "max_tries", "episode_ratio")
         _check(len(self.max_heights) > 0 and all(0 < s <= self.terrain.max_height_limit
                                                  for s in self.max_heights),
                f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "

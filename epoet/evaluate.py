@@ -3,9 +3,10 @@
 
 Every terrain of the suite is run `episodes` times (the paper: 32 x 5 = 160 episodes), each from
 a start keyed by (seed, terrain, episode), so two agents meet the same starts. The agent runs
-with the episode rules it was trained with (its run's agent config: episode length, integrator)
-and "solved" means the paper's: the finish line reached with a return of at least `solve_score`
-x the run's budget score scale (2000 on the paper's 2000-step episodes).
+with the episode rules it was trained with (its run's agent config: integrator, reward) on the
+suite's course: its start and finish line, and episodes `episode_ratio` x the run's training
+episodes (the reference's 5000 steps for the paper's 2000). "Solved" means the paper's: the
+finish line reached with a return of at least `solve_score` x the run's budget score scale.
 
 Writes to the results folder (`out`, default `<run folder>/evaluation`, or
 `evaluation/<label>/` for an MLflow run or a policy file):
@@ -135,7 +136,7 @@ def summarize(episodes: pd.DataFrame) -> dict[str, float]:
 def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
              progress: bool = True) -> Evaluation:
     """Every terrain's episodes, in parallel over `workers` processes (1: in this process)."""
-    agent_cfg = run.agent_config(cfg.agent)
+    agent_cfg = suite.course.rules(run.agent_config(cfg.agent))
     terrain_cfg = terrain_config_for(suite.terrains)
     tasks = [Task(k, terrain, run.agent, agent_cfg, terrain_cfg,
                   episode_seeds(cfg.seed, k, cfg.episodes), cfg.solve_score * run.score_scale,

@@ -2,8 +2,9 @@
 [steps=N] [width=640] [height=480] [out=path.mp4]`: one episode of a trained agent as an mp4.
 
 `run` is what `python -m epoet.evaluate` takes (an MLflow run id, a run folder or a policy file);
-the agent walks with the episode rules it was trained with (its run's agent config), for
-`steps` steps or its episode length, from the start `seed` keys. The video plays in real time
+the agent walks with the episode rules it was trained with (its run's agent config), on a suite
+terrain along the suite's course as evaluation runs it, for `steps` steps or its episode length,
+from the start `seed` keys. The video plays in real time
 (1 / agent.timestep frames per second) from the env's tracking camera, and goes to `out`
 (default `videos/<run label>_<terrain>.mp4`) and, for an MLflow run, to its artifacts under
 `videos/`.
@@ -102,12 +103,14 @@ def open_gl() -> str:
     return backend
 
 
-def load_terrain(spec: str, suite: str | None) -> tuple[Any, str]:
-    """A terrain file (`.npz`) or a suite terrain's name; with the name the video carries."""
+def load_terrain(spec: str, suite: str | None) -> tuple[Any, str, Any]:
+    """A terrain file (`.npz`) or a suite terrain's name; with the name the video carries, and
+    the suite's course for a suite terrain (None for a file: the run's own course)."""
     if spec.endswith(".npz") or Path(spec).is_file():
-        return Terrain.load(spec), Path(spec).stem
+        return Terrain.load(spec), Path(spec).stem, None
     from epoet.terrain.suite import load_suite  # imports mujoco: after open_gl
-    return load_suite(suite).by_name(spec), spec
+    loaded = load_suite(suite)
+    return loaded.by_name(spec), spec, loaded.course
 
 
 def _slug(text: str) -> str:
@@ -156,13 +159,16 @@ class Video:
                 f"{self.episode_return:.1f}, finished {self.finished}: {self.path}")
 
 
-def record(cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str,
+def record(cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str, course: Any,
            imageio: ModuleType) -> Video:
-    """One episode of the run's agent on the terrain, every frame into the mp4."""
+    """One episode of the run's agent on the terrain (on `course`, as evaluation runs it, when
+    it is a suite terrain), every frame into the mp4."""
     from epoet.envs.hexapod_env import HexapodEnv  # imports mujoco: after open_gl
     from epoet.terrain.suite import terrain_config_for
 
     agent = run.agent_config(cfg.agent)
+    if course is not None:
+        agent = course.rules(agent)
     if cfg.steps is not None:
         agent = dataclasses.replace(agent, max_episode_steps=cfg.steps)
     path = Path(cfg.out) if cfg.out else Path(VIDEOS) / f"{_slug(run.label)}_{_slug(name)}.mp4"
@@ -204,8 +210,8 @@ def main(argv: list[str] | None = None) -> None:
     from epoet.envs.model import TerrainMismatchError
     from epoet.terrain.suite import SuiteError
     try:
-        terrain, name = load_terrain(cfg.terrain, cfg.suite)
-        video = record(cfg, run, terrain, name, imageio)
+        terrain, name, course = load_terrain(cfg.terrain, cfg.suite)
+        video = record(cfg, run, terrain, name, course, imageio)
         print(video.summary(), flush=True)  # before logging: the video exists whatever follows
         if run.stored is not None:
             run.stored.log_results({}, artifacts={video.path: VIDEOS})

@@ -86,7 +86,8 @@ def test_every_algorithm_is_trained_evaluated_and_logged(paper):
         assert metrics["suite/return_mean"] == pytest.approx(csv["return"].mean())
         assert metrics["suite/forward_distance_mean"] == pytest.approx(
             csv.forward_distance.mean())
-        assert (csv.length <= 50).all() and (csv.length > 0).all()   # the smoke episode length
+        # the suite's episodes: 2.5 x the smoke budget's 50 steps
+        assert (csv.length <= 125).all() and (csv.length > 0).all()
         assert not csv.solved.any() or (csv["return"][csv.solved] >= 2000 * 0.025).all()
 
 

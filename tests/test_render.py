@@ -64,7 +64,8 @@ def suite(tmp_path: Path) -> Path:
     heights = np.random.default_rng(0).uniform(0.0, 1.0, (40, 40))
     np.savez(folder / "heights.npz", bumps=heights)
     (folder / "suite.json").write_text(json.dumps({
-        "format": "epoet-suite/1", "size": 20.0, "grid": 40,
+        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
+        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35, "episode_ratio": 2.5},
         "terrains": [{"name": "bumps", "max_height": 0.2}]}))
     return folder
 

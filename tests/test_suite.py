@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from epoet.config import compose, validate
+from epoet.config import compose, load, validate
 from epoet.terrain.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,
                                  level_of, load_suite, quantize, write_suite)
 
@@ -61,7 +61,7 @@ def test_course_roughness_reads_only_the_strip_the_robot_walks():
     hm = np.zeros((n, n))
     axis = np.linspace(-size / 2, size / 2, n)
     hm[:, axis < -10] = np.random.default_rng(0).random((n, int((axis < -10).sum())))
-    course = Course(-6.0, 6.0, 0.35)
+    course = Course(-6.0, 6.0, 0.35, 2.5)
     assert course.roughness(hm, 1.0, size) < 1e-12      # rough ground behind the start only
     hm2 = hm.copy()
     hm2[n // 2, n // 2] = 1.0                           # one spike on the course
@@ -72,9 +72,10 @@ def test_course_roughness_reads_only_the_strip_the_robot_walks():
 def test_a_suite_written_by_write_suite_loads_back(tmp_path):
     cfg = suite_cfg("max_heights=[0.4]", "children=2", "max_tries=2")
     terrains, entries = generate(cfg)
-    write_suite(tmp_path, terrains, entries, Course.of(cfg.agent))
+    write_suite(tmp_path, terrains, entries, Course.of(cfg.agent, cfg.episode_ratio))
     suite = load_suite(tmp_path)
     assert [t.name for t in suite.terrains] == ["r0l0", "r0l1"]
+    assert suite.course == Course(cfg.agent.start_x, cfg.agent.finish_x, 0.35, cfg.episode_ratio)
     assert np.array_equal(quantize(suite.terrains[0].heightmap), quantize(terrains[0].heightmap))
 
 
@@ -83,6 +84,9 @@ def test_a_suite_written_by_write_suite_loads_back(tmp_path):
     (lambda d: (d / "heights.npz").unlink(), "has no heights.npz"),
     (lambda d: (d / "suite.json").write_text("{not json"), "is malformed"),
     (lambda d: (d / "suite.json").write_text(json.dumps({"format": "other"})), "is malformed"),
+    (lambda d: (d / "suite.json").write_text(json.dumps(
+        {**json.loads((d / "suite.json").read_text()), "format": "epoet-suite/1"})),
+     "epoet-suite/1.*regenerate"),
     (lambda d: np.savez(d / "heights.npz", r0l0=np.zeros((3, 3))), "is malformed"),
 ])
 def test_a_malformed_suite_folder_is_one_clear_error(tmp_path, damage, message):
@@ -91,6 +95,27 @@ def test_a_malformed_suite_folder_is_one_clear_error(tmp_path, damage, message):
     damage(folder)
     with pytest.raises(SuiteError, match=message):
         load_suite(folder)
+
+
+def test_the_course_is_part_of_the_fingerprint(tmp_path):
+    """A suite with another course (start, finish or time limit) is another suite: runs evaluated
+    on the old one are evaluated again (analysis/tables.py compares fingerprints)."""
+    folder = tmp_path / "suite"
+    shutil.copytree(SHIPPED, folder)
+    index = json.loads((folder / "suite.json").read_text())
+    index["course"]["episode_ratio"] = 1.0
+    (folder / "suite.json").write_text(json.dumps(index))
+    assert load_suite(folder).fingerprint != load_suite().fingerprint
+
+
+def test_evaluation_runs_the_suites_course():
+    """The agent walks the suite's course: its start and finish line, and episodes 2.5 x its
+    training ones (the reference's 5000 steps for the paper's 2000)."""
+    suite = load_suite()
+    for budget, steps in (("paper", 5000), ("smoke", 125)):
+        rules = suite.course.rules(load([f"budget={budget}"]).agent)
+        assert (rules.start_x, rules.finish_x, rules.max_episode_steps) == (
+            suite.course.start_x, suite.course.finish_x, steps)
 
 
 def test_check_command_reports_a_mismatch_in_one_line(tmp_path):

@@ -17,8 +17,9 @@ under the robot along its own path; a fixed course makes the level a property of
 the same for every agent.
 
 Suite folder format (any folder in this format can be evaluated, `suite=<folder>`):
-- `suite.json`: {"format": "epoet-suite/1", "size": metres per side, "grid": samples per side,
-  "course": {"start_x", "finish_x", "half_width"}, "terrains": [{"name", "max_height", and
+- `suite.json`: {"format": "epoet-suite/2", "size": metres per side, "grid": samples per side,
+  "course": {"start_x", "finish_x", "half_width", "episode_ratio"}, "terrains": [{"name",
+  "max_height", and
   optionally "level", "roughness", "round", "lineage", "seed", "generation"}, ...]};
   a terrain without "level" gets it from its roughness along "course".
 - `heights.npz`: one (grid, grid) array per terrain name with heights in [0, 1] (uint16 as
@@ -53,7 +54,8 @@ from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain
 
-SUITE_FORMAT = "epoet-suite/1"
+# 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
+SUITE_FORMAT = "epoet-suite/2"
 SHIPPED = Path(__file__).resolve().parent.parent / "suite"
 LEVELS = ("easy", "medium", "hard", "extreme")
 LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)   # m^2 of patch variance between consecutive levels
@@ -66,15 +68,23 @@ class SuiteError(ValueError):
 
 @dataclass(frozen=True)
 class Course:
-    """The strip the robot walks: x from start_x to finish_x, |y| <= half_width (metres)."""
+    """The strip the robot walks: x from start_x to finish_x, |y| <= half_width (metres); an
+    evaluation episode may last episode_ratio x the agent's training episodes."""
 
     start_x: float
     finish_x: float
     half_width: float
+    episode_ratio: float
 
     @classmethod
-    def of(cls, agent: AgentConfig) -> Course:
-        return cls(agent.start_x, agent.finish_x, FOOTPRINT)
+    def of(cls, agent: AgentConfig, episode_ratio: float) -> Course:
+        return cls(agent.start_x, agent.finish_x, FOOTPRINT, episode_ratio)
+
+    def rules(self, agent: AgentConfig) -> AgentConfig:
+        """`agent`'s episode rules on this course: its start, finish line and time limit."""
+        return dataclasses.replace(
+            agent, start_x=self.start_x, finish_x=self.finish_x,
+            max_episode_steps=max(1, round(self.episode_ratio * agent.max_episode_steps)))
 
     def roughness(self, heightmap: np.ndarray, max_height: float, size: float) -> float:
         """Mean 5 x 5 patch variance of the heights (metres) over the course's cells."""
@@ -138,6 +148,7 @@ class SuiteTerrain:
 class Suite:
     folder: Path
     terrains: list[SuiteTerrain]
+    course: Course
 
     def by_name(self, name: str) -> SuiteTerrain:
         for terrain in self.terrains:
@@ -149,7 +160,7 @@ class Suite:
     @functools.cached_property
     def fingerprint(self) -> str:
         """Identifies the suite's contents, so a store knows which runs were evaluated on it."""
-        digest = hashlib.sha1()
+        digest = hashlib.sha1(json.dumps(dataclasses.asdict(self.course)).encode())
         for terrain in self.terrains:
             digest.update(terrain.name.encode())
             digest.update(repr(terrain.max_height).encode())
@@ -177,7 +188,7 @@ def _at_height(cfg: TerrainConfig, max_height: float) -> TerrainConfig:
 
 def generate(cfg: SuiteConfig, progress: bool = False) -> tuple[list[Terrain], list[dict]]:
     """The suite's terrains (heightmaps already quantised as stored) and their index entries."""
-    course = Course.of(cfg.agent)
+    course = Course.of(cfg.agent, cfg.episode_ratio)
     # Each (round, lineage) draws its mutation seeds from its own key, so a suite with fewer
     # rounds or lineages is an exact prefix of a bigger one.
     root_seed = int(np.random.SeedSequence(cfg.seed).generate_state(1)[0])
@@ -279,10 +290,10 @@ def load_suite(folder: str | Path | None = None) -> Suite:
     try:
         index = json.loads((folder / "suite.json").read_text())
         if index.get("format") != SUITE_FORMAT:
-            raise ValueError(f"format is {index.get('format')!r}, not {SUITE_FORMAT!r}")
+            raise ValueError(f"format is {index.get('format')!r}, not {SUITE_FORMAT!r} "
+                             "(regenerate it with python -m epoet.terrain.suite out=<folder>)")
         size, grid = float(index["size"]), int(index["grid"])
-        course = Course(**index.get("course", {"start_x": -6.0, "finish_x": 6.0,
-                                               "half_width": FOOTPRINT}))
+        course = Course(**index["course"])
         terrains = []
         with np.load(folder / "heights.npz", allow_pickle=False) as heights:
             for entry in index["terrains"]:
@@ -309,7 +320,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
         raise SuiteError(f"suite {folder} lists no terrains.")
     if len({t.name for t in terrains}) != len(terrains):
         raise SuiteError(f"suite {folder} lists a terrain name twice.")
-    return Suite(folder, terrains)
+    return Suite(folder, terrains, course)
 
 
 # --- command --------------------------------------------------------------------------------
@@ -332,7 +343,7 @@ def _app(raw: DictConfig) -> None:
                                 f"{'; '.join(found[:5])}."))
             print(f"suite {folder} matches the regenerated suite bit for bit")
             return
-        write_suite(folder, terrains, entries, Course.of(cfg.agent))
+        write_suite(folder, terrains, entries, Course.of(cfg.agent, cfg.episode_ratio))
         counts = load_suite(folder).level_counts()
         print(f"wrote {len(terrains)} terrains to {folder}/: "
               + ", ".join(f"{n} {level}" for level, n in counts.items()))
