@@ -16,7 +16,8 @@ torch.set_num_threads(1)
 
 @pytest.fixture
 def terrain_cfg() -> TerrainConfig:
-    return replace(load(["budget=paper"]).terrain, grid=40, size=20.0, max_height=0.3, bowl_weight=0.3)
+    return replace(load(["budget=paper"]).terrain, grid=40, size=40.0, max_height=0.3,
+                   bowl_weight=0.3)
 
 
 @pytest.fixture

@@ -217,6 +217,27 @@ def test_propose_from_a_candidate_theta_uses_this_pairs_adam_state():
     np.testing.assert_array_equal(es.propose(seeds, pos, neg, theta=candidate), expected)
 
 
+def test_an_sgd_proposal_ignores_the_adam_state_and_the_decayed_lr():
+    """The reference's default proposal (SimpleSGD at the initial lr): a pair that has taken
+    steps proposes what a fresh optimiser at the same sigma would, along the ES gradient."""
+    seeds, pos, neg = [1, 2, 3], np.array([1.0, 4.0, 2.0]), np.array([3.0, 0.0, 5.0])
+    candidate = np.array([1.0, -1.0, 0.5, 0.0])
+    used, fresh = OpenAIES(np.full(4, 0.2), 2, ES, n_pairs=3), OpenAIES(np.zeros(4), 9, ES, 3)
+    _advance(used, 3)
+    fresh.sigma = used.sigma
+    assert used.lr < ES.lr and used.t == 3
+    proposal = used.propose(seeds, pos, neg, theta=candidate, step="sgd")
+    np.testing.assert_array_equal(proposal, fresh.propose(seeds, pos, neg, theta=candidate,
+                                                          step="sgd"))
+    assert not np.array_equal(proposal, used.propose(seeds, pos, neg, theta=candidate))
+    # Without the L2 term the step is the initial lr times the gradient itself (Adam's first
+    # step would instead move every coordinate by about lr).
+    no_l2 = OpenAIES(np.zeros(4), 2, replace(ES, l2_coeff=0.0), n_pairs=3)
+    g = es_gradient(seeds, pos, neg, no_l2.sigma, 4)
+    np.testing.assert_allclose(no_l2.propose(seeds, pos, neg, theta=candidate, step="sgd")
+                               - candidate, ES.lr * g, rtol=1e-12)
+
+
 def test_reset_restores_initial_lr_sigma_and_adam_state():
     es = OpenAIES(np.zeros(4), 3, ES, n_pairs=2)
     _advance(es, 3)

@@ -192,6 +192,29 @@ def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) 
         assert not any(np.array_equal(pair.theta, theta) for theta in before)
 
 
+def test_the_transfer_bar_is_the_best_of_the_last_evaluations(terrain_cfg: TerrainConfig
+                                                               ) -> None:
+    """The reference's bar: the best of the target's last 5 evaluations; a great score 6
+    evaluations ago no longer guards the agent."""
+    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
+    assert poet.cfg.transfer_bar_window == 5
+    poet.iterate()
+    poet.reproduce()
+    for pair in poet.active:
+        pair.scores[:] = [1e9] + [-1e9] * 5
+    assert poet.transfer() == len(poet.active)
+    for pair in poet.active:
+        pair.scores[:] = [-1e9] + [1e9] + [-1e9] * 4
+    assert poet.transfer() == 0
+
+
+@pytest.mark.parametrize("later, due", [(None, [75, 150, 225]), (15, [75, 90, 105, 120])])
+def test_reproduction_schedule(terrain_cfg: TerrainConfig, later, due) -> None:
+    """The paper reproduces every 75 iterations; the reference at 75 and then every 15."""
+    poet = make_poet(terrain_cfg, later_reproduce_interval=later)
+    assert [t for t in range(1, 121 if later else 226) if poet.reproduce_due(t)] == due
+
+
 def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
         terrain_cfg: TerrainConfig) -> None:
     # Learn the child's scores on the real engine (they do not depend on the thresholds) ...

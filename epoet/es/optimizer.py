@@ -181,16 +181,23 @@ class OpenAIES:
         return stats
 
     def propose(self, seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray,
-                theta: np.ndarray | None = None) -> np.ndarray:
-        """The theta `tell` would produce, without touching any state (transfer's "proposal").
+                theta: np.ndarray | None = None, step: str = "adam") -> np.ndarray:
+        """One step's theta without touching any state (transfer's and admission's "proposal").
 
-        `theta` is the point the population was sampled around (default: this optimiser's theta);
-        transfer passes a candidate agent's theta and uses this pair's Adam state, lr and sigma,
-        as the reference does.
+        `theta` is the point the population was sampled around (default: this optimiser's theta).
+        `step` "adam" is the step `tell` would take (this pair's Adam state and lr); "sgd" is
+        the reference's default proposal, plain gradient descent at the initial lr with no
+        state. Either way the population was sampled at this optimiser's sigma.
         """
-        new_theta, *_ = self._step(self.theta if theta is None else theta, seeds, returns_pos,
-                                   returns_neg)
-        return new_theta
+        theta = self.theta if theta is None else theta
+        if step == "adam":
+            new_theta, *_ = self._step(theta, seeds, returns_pos, returns_neg)
+            return new_theta
+        if step != "sgd":
+            raise ValueError(f"proposal step must be 'adam' or 'sgd', got {step!r}.")
+        theta = _check_theta(theta)
+        g = es_gradient(seeds, returns_pos, returns_neg, self.sigma, theta.size)
+        return theta - self.cfg.lr * (-g + self.cfg.l2_coeff * theta)
 
     def state_dict(self) -> dict[str, Any]:
         """Everything needed to continue bit-for-bit: arrays, scalars and the Generator state."""

@@ -145,6 +145,8 @@ class EPOET:
         self.transfer_interval = transfer_interval or algo.iterations_before_transfer
         self.reproduce_interval = (reproduce_interval
                                    or algo.adjust_interval * algo.iterations_before_transfer)
+        self.later_reproduce_interval = (algo.later_reproduce_interval
+                                         or self.reproduce_interval)
         self.iteration = 0
         self.active: list[Pair] = []
         self.archived: list[Pair] = []
@@ -220,7 +222,7 @@ class EPOET:
                                         self._seeds(self.n_pairs, spawn_key, *job.ids)))
                     for job, seeds in zip(jobs, noise)]
         return [job.es.propose(seeds, e.returns[:len(seeds)], e.returns[len(seeds):],
-                               theta=job.theta)
+                               theta=job.theta, step=self.cfg.proposal_step)
                 for job, seeds, e in zip(jobs, noise, self._run(requests))]
 
     # --- one iteration ----------------------------------------------------------------------
@@ -279,7 +281,10 @@ class EPOET:
         return {}
 
     def reproduce_due(self, t: int) -> bool:
-        return t > 0 and t % self.reproduce_interval == 0
+        """At the first interval, then every later interval (the reference: 75, then every 15;
+        the paper: every 75)."""
+        first = self.reproduce_interval
+        return t > 0 and t % (first if t <= first else self.later_reproduce_interval) == 0
 
     def transfer_due(self, t: int) -> bool:
         return len(self.active) > 1 and t % self.transfer_interval == 0
@@ -346,14 +351,14 @@ class EPOET:
         incumbent's recent best replaces it, resetting its optimiser.
 
         As the reference: direct transfers are evaluated first; those that beat the target's
-        best score over the last `transfer_interval` evaluations are refined by one proposal ES
-        step with the target's optimiser, and only a proposal that also beats that bar can be
-        accepted (an untuned direct transfer never replaces an agent).
+        best score over its last `transfer_bar_window` evaluations are refined by one proposal
+        ES step (`proposal_step`) at the target's sigma, and only a proposal that also beats
+        that bar can be accepted (an untuned direct transfer never replaces an agent).
         """
         t = self.iteration
         thetas = np.stack([p.theta for p in self.active])  # agents before any replacement
         others = [[j for j in range(len(self.active)) if j != m] for m in range(len(self.active))]
-        bars = [max(p.scores[-self.transfer_interval:]) for p in self.active]
+        bars = [max(p.scores[-self.cfg.transfer_bar_window:]) for p in self.active]
         direct = self._scores([self._eval_request(self.terrain(target.env), thetas[others[m]],
                                                   Key.TRANSFER, target.env.index, t, 0)
                                for m, target in enumerate(self.active)])
@@ -448,7 +453,8 @@ class EPOET:
 
     def _best_agent_for(self, child: Child) -> tuple[float, np.ndarray]:
         """(score, theta) of the best active agent on a child, directly or after one
-        fine-tuning ES step with a fresh optimiser (as the reference's new pair would take)."""
+        fine-tuning ES step (`proposal_step`) with a fresh optimiser, as the reference's
+        candidate pair takes it."""
         t, slot = self.iteration, child.slot
         thetas = np.stack([p.theta for p in self.active])
         direct = self._scores([self._eval_request(child.terrain, thetas, Key.ADMIT, t, slot,
