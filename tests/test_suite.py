@@ -97,6 +97,17 @@ def test_a_malformed_suite_folder_is_one_clear_error(tmp_path, damage, message):
         load_suite(folder)
 
 
+def test_the_course_is_the_references():
+    """The reference's finish: hfield column int((x + 17) * 5) past 200 - 5, i.e. x > 22 m with
+    the spawn at x = 0, and its heightfield centred 2.7 m ahead of the spawn (so 0.7 m of
+    terrain lie beyond the line). Our terrain is centred at the origin."""
+    finish_from_spawn = (200 - 5) / 5 - 17
+    for course in (load_suite().course, Course.of(load([]).agent, 2.5)):
+        assert course.finish_x - course.start_x == pytest.approx(finish_from_spawn)
+        assert course.start_x == pytest.approx(-2.7)
+    assert load_suite().course.episode_ratio * 2000 == 5000  # the reference env's limit
+
+
 def test_the_course_is_part_of_the_fingerprint(tmp_path):
     """A suite with another course (start, finish or time limit) is another suite: runs evaluated
     on the old one are evaluated again (analysis/tables.py compares fingerprints)."""
