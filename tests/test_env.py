@@ -235,8 +235,8 @@ def test_roughness_is_patch_variance(terrain_cfg: TerrainConfig) -> None:
     terrain = make_terrain(terrain_cfg, seed=3)
     env.set_terrain(terrain)
     r, c = 20, 10
-    x = (c / (terrain.grid - 1) * 2 - 1) * 10.0
-    y = (r / (terrain.grid - 1) * 2 - 1) * 10.0
+    x = (c / (terrain.grid - 1) * 2 - 1) * terrain_cfg.size / 2
+    y = (r / (terrain.grid - 1) * 2 - 1) * terrain_cfg.size / 2
     expected = (terrain.heightmap[r - 2:r + 3, c - 2:c + 3] * terrain.max_height).var()
     assert env.ground.roughness(x, y)[0] == pytest.approx(expected)
 
@@ -253,7 +253,7 @@ def test_bad_input_is_clear(flat: Terrain, terrain_cfg: TerrainConfig) -> None:
     with pytest.raises(TerrainMismatchError, match="heightfield"):
         env.set_terrain(too_big)
     with pytest.raises(TerrainMismatchError, match="elevation"):
-        env.set_terrain(Terrain(np.zeros((40, 40)), 5.0, 20.0, "bowl", 0))
+        env.set_terrain(Terrain(np.zeros((40, 40)), 5.0, 40.0, "bowl", 0))
     env.reset(seed=0)
     with pytest.raises(ValueError, match="NaN"):
         env.step(np.full(18, np.nan))
