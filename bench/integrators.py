@@ -6,7 +6,9 @@ ratio means something). Stability: episodes through the gymnasium env on CPPN te
 mutations deep at the height cap (S = terrain.max_height_limit), with uniform random actions,
 random ES policies, and any trained policies given with --policy (`policies/env<N>.npz` of an
 ePOET run); an episode is unstable if the state goes non-finite or MuJoCo raises a warning.
-The last line is `implicitfast/rk4 = X`.
+Self-collision: the same bare rate with the robot's geoms allowed to collide with each other
+(every geom's conaffinity 1, the model before it followed the reference), for each integrator.
+The last line is `implicitfast/rk4 = X`; `--speed-only` skips the stability episodes.
 """
 from __future__ import annotations
 
@@ -42,12 +44,15 @@ def rough_terrains(cfg: Config, n: int, generations: int) -> list[Terrain]:
     return terrains
 
 
-def steps_per_second(cfg: Config, integrator: str, terrain: Terrain, steps: int) -> float:
+def steps_per_second(cfg: Config, integrator: str, terrain: Terrain, steps: int,
+                     self_collision: bool = False) -> float:
     """Bare mj_step rate on the env's model (terrain and spawn set by the env, not timed)."""
     cfg.agent.integrator = integrator
     env = HexapodEnv(cfg.agent, cfg.terrain)
     env.reset(seed=0, options={"terrain": terrain})
     model, data = env.model, env.data
+    if self_collision:
+        model.geom_conaffinity[:] = 1
     targets = action_to_targets(np.random.default_rng(0).uniform(-1, 1, (steps, 18)))
     start = time.perf_counter()
     for row in targets:
@@ -101,6 +106,7 @@ def main() -> None:
     parser.add_argument("--generations", type=int, default=6)
     parser.add_argument("--random-policies", type=int, default=2)
     parser.add_argument("--policy", type=Path, action="append", default=[])
+    parser.add_argument("--speed-only", action="store_true", help="skip the stability episodes")
     args = parser.parse_args()
 
     cfg: Config = validate(compose(["terrain=cppn",
@@ -108,19 +114,23 @@ def main() -> None:
     terrains = rough_terrains(cfg, args.terrains, args.generations)
     print(f"terrains: {len(terrains)} CPPN, {args.generations} mutations deep, "
           f"S = {terrains[0].max_height:.2f} m")
-    for name, policy in policies(args.policy, args.random_policies).items():
+    for name, policy in ({} if args.speed_only else
+                         policies(args.policy, args.random_policies)).items():
         for integrator in INTEGRATORS:
             n, bad, steps = unstable_episodes(cfg, integrator, terrains, policy, args.episodes)
             print(f"stability {integrator:12s} {name}: {bad}/{n} unstable episodes "
                   f"({steps} steps)")
-    best = dict.fromkeys(INTEGRATORS, 0.0)
+    runs = [(integrator, collide) for integrator in INTEGRATORS for collide in (False, True)]
+    best = dict.fromkeys(runs, 0.0)
     for _ in range(args.repeats):
-        for integrator in INTEGRATORS:
-            rate = steps_per_second(cfg, integrator, terrains[0], args.steps)
-            best[integrator] = max(best[integrator], rate)
-    for integrator, rate in best.items():
-        print(f"{integrator}: {rate:,.0f} physics steps/s")
-    print(f"implicitfast/rk4 = {best['implicitfast'] / best['rk4']:.2f}")
+        for integrator, collide in runs:
+            rate = steps_per_second(cfg, integrator, terrains[0], args.steps, collide)
+            best[integrator, collide] = max(best[integrator, collide], rate)
+    for integrator in INTEGRATORS:
+        plain, collide = best[integrator, False], best[integrator, True]
+        print(f"{integrator}: {plain:,.0f} physics steps/s ({collide:,.0f} with robot "
+              f"self-collision: no-self-collision/self-collision = {plain / collide:.2f})")
+    print(f"implicitfast/rk4 = {best['implicitfast', False] / best['rk4', False]:.2f}")
 
 
 if __name__ == "__main__":

@@ -176,6 +176,28 @@ def test_contact_flags_describe_the_state_after_the_step(integrator: str,
     assert 0.05 < flags.mean() < 0.95 and (np.diff(flags, axis=0) != 0).any()
 
 
+def test_robot_geoms_never_collide_with_each_other(terrain_cfg: TerrainConfig) -> None:
+    """As the reference's robot (conaffinity 0): in a crouch with every tibia folded onto its
+    coxa (past the tibia's limit; the old model reported 6 self-contacts here) no contact joins
+    two robot geoms, while the torso resting on the ground still touches it."""
+    env = HexapodEnv(terrain=replace(terrain_cfg, max_height=0.0))  # flat ground
+    env.reset(seed=0)
+    model, data = env.model, env.data
+    terrain = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "terrain")
+    robot = [g for g in range(model.ngeom) if g != terrain]
+    for a in robot:  # MuJoCo's filter: contype of one & conaffinity of the other
+        assert model.geom_contype[a] & model.geom_conaffinity[terrain]
+        for b in robot:
+            assert not model.geom_contype[a] & model.geom_conaffinity[b]
+    mujoco.mj_resetData(model, data)
+    data.qpos[:3] = env.agent_cfg.start_x, 0.0, 0.01  # the torso on the ground
+    data.qpos[3] = 1.0
+    data.qpos[7:] = np.tile([0.0, 0.3, 2.0], 6)
+    mujoco.mj_forward(model, data)
+    pairs = [(c.geom1, c.geom2) for c in data.contact[:data.ncon]]
+    assert pairs and all(terrain in pair for pair in pairs)
+
+
 def test_spawn_above_local_ground_on_rough_terrain(terrain_cfg: TerrainConfig) -> None:
     cfg = replace(terrain_cfg, max_height=1.5, max_height_step=0.0)
     env = HexapodEnv(agent={"settle_steps": 0}, terrain=cfg)
