@@ -324,13 +324,20 @@ class BudgetConfig:
     transfer_interval: Optional[int]     # null: the algorithm's
     reproduce_interval: Optional[int]    # null: the algorithm's
     sac_frames_per_iteration: Optional[int]  # ePOET-SAC; null: the algorithm's
+    hours: Optional[float]           # wall-clock stop: hours of training over resumes; null: none
 
     def __post_init__(self) -> None:
         _positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
                   "eval_every", "score_scale")
+        _check(self.hours is None or self.hours > 0,
+               f"budget.hours must be > 0 or null, got {self.hours}.")
         for name in ("transfer_interval", "reproduce_interval", "sac_frames_per_iteration"):
             value = getattr(self, name)
             _check(value is None or value > 0, f"budget.{name} must be > 0 or null, got {value}.")
+
+    def time_is_up(self, seconds: float) -> bool:
+        """Whether `seconds` of training (summed over resumes) have used up `hours`."""
+        return self.hours is not None and seconds >= self.hours * 3600.0
 
 
 @dataclass

@@ -20,6 +20,11 @@ import sys
 import threading
 import time
 from types import FrameType, TracebackType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from epoet.config import BudgetConfig
+    from epoet.tracking import Tracker
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -139,3 +144,15 @@ def processes_with_env(name: str, value: str) -> list[int]:
         if marker in environ.split(b"\0") and state != "Z":
             found.append(int(entry.name))
     return found
+
+
+def report_stop(tracker: Tracker, name: str, budget: BudgetConfig, out_of_time: bool,
+                done: str, seconds: float) -> None:
+    """Tag why the run ended (`stop_reason`: hours, or the budget's iterations or frames) and
+    say so when the wall clock ended it: a resume with a larger `budget.hours` continues."""
+    reason = "hours" if out_of_time else done.split()[-1]
+    tracker.set_tags({"stop_reason": reason})
+    if out_of_time:
+        print(f"[{name}] stopped at the wall-clock budget (budget.hours={budget.hours:g}) after "
+              f"{done} and {seconds / 3600:.3g} h of training; resume with a larger "
+              f"budget.hours to continue", flush=True)

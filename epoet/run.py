@@ -33,7 +33,8 @@ AUTO = "auto"     # resume=auto: continue this run folder's checkpoint if any, s
 DONE = "DONE"     # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
-RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations")
+RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations",
+             "budget.hours")
 
 Runner = Callable[[Config, Tracker, Path, "dict[str, Any] | None"], Any]
 

@@ -67,6 +67,8 @@ class Tracker(Protocol):
 
     def log_dict(self, obj: Any, artifact_file: str) -> None: ...
 
+    def set_tags(self, tags: Mapping[str, str]) -> None: ...
+
     def flush(self) -> None: ...
 
     def close(self, status: str = "FINISHED") -> None: ...
@@ -272,6 +274,7 @@ class MemoryTracker:
         self.metrics: dict[str, list[tuple[int, float]]] = {}
         self.artifacts: list[tuple[Path, str | None]] = []
         self.dicts: dict[str, Any] = {}
+        self.tags: dict[str, str] = {}
         self.flushes = 0
         self.status: str | None = None  # None while the run is open
 
@@ -285,6 +288,9 @@ class MemoryTracker:
 
     def log_dict(self, obj: Any, artifact_file: str) -> None:
         self.dicts[artifact_file] = copy.deepcopy(obj)  # a snapshot, as an uploaded file would be
+
+    def set_tags(self, tags: Mapping[str, str]) -> None:
+        self.tags.update(tags)
 
     def flush(self) -> None:
         self.flushes += 1
@@ -478,6 +484,14 @@ class MlflowTracker:
             self.client.log_dict(run_id, obj, artifact_file)
         except (MlflowException, OSError, TypeError) as exc:
             raise TrackingError(f"cannot upload {artifact_file}: {_reason(exc)}") from exc
+
+    def set_tags(self, tags: Mapping[str, str]) -> None:
+        """Set run tags now (e.g. why the run stopped)."""
+        run_id = self._require_open()
+        try:
+            self.client.log_batch(run_id, tags=[RunTag(k, str(v)) for k, v in tags.items()])
+        except MlflowException as exc:
+            raise TrackingError(f"cannot tag MLflow run {run_id}: {_reason(exc)}") from exc
 
     def close(self, status: str = "FINISHED") -> None:
         """Flush and terminate the run (FINISHED, FAILED or KILLED); closing twice is a no-op."""

@@ -10,7 +10,7 @@ from epoet.checkpoint import save_run_state
 from epoet.config import Config, EpoetSacConfig
 from epoet.es.policy import LAYER_SIZES
 from epoet.es.workers import Evaluator, evaluator_for
-from epoet.lifecycle import raise_if_stopped, stop_requested
+from epoet.lifecycle import raise_if_stopped, report_stop, stop_requested
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
 
@@ -52,17 +52,22 @@ def _iterate(poet: EPOET, cfg: Config, tracker: Tracker, run_dir: Path,
         print(f"[{cfg.algo.name}] resumed at iteration {poet.iteration}", flush=True)
     started = time.perf_counter()
     restarts = poet.evaluator.restarts
-    while poet.iteration < budget.iterations:
+
+    def done() -> bool:
+        return poet.iteration >= budget.iterations or budget.time_is_up(poet.elapsed)
+
+    while not done():
         metrics = poet.iterate()
         if poet.evaluator.restarts > restarts:  # a worker died; the iteration ran unchanged
             metrics["workers/restarts"] = poet.evaluator.restarts - restarts
             restarts = poet.evaluator.restarts
         tracker.log_metrics(poet.iteration - 1, metrics)
         _progress(cfg.algo.name, poet, metrics, budget.iterations, time.perf_counter() - started)
-        if (poet.iteration % cfg.checkpoint_every == 0 or poet.iteration == budget.iterations
-                or stop_requested()):
+        if poet.iteration % cfg.checkpoint_every == 0 or done() or stop_requested():
             save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
             raise_if_stopped(f"after iteration {poet.iteration}")
+    report_stop(tracker, cfg.algo.name, budget, poet.iteration < budget.iterations,
+                f"{poet.iteration} iterations", poet.elapsed)
     poet.log_artifacts(run_dir, tracker)
 
 

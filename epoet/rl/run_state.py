@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 from epoet.checkpoint import save_run_state
 from epoet.config import Config
-from epoet.lifecycle import raise_if_stopped, stop_requested
+from epoet.lifecycle import raise_if_stopped, report_stop, stop_requested
 from epoet.rl.policy_file import POLICY_FILE, export_policy
 from epoet.rl.setup import (OBS, RunningObsNorm, Seeds, batch_plan, episode_metrics, evaluate,
                             hexapod, make_collector, make_env, obs_norm_of, set_threads)
@@ -164,9 +164,9 @@ class TrainingRun:
     # --- the loop's steps -------------------------------------------------------------------------
 
     def batches(self) -> Iterator[TensorDictBase]:
-        """Collector batches until the budget's frames are collected."""
+        """Collector batches until the budget's frames are collected or its hours are used."""
         stream = iter(self.collector)
-        while self.state.batches < self.plan.batches:
+        while not self._done():
             self._batch_start = time.perf_counter()
             yield next(stream)
 
@@ -209,7 +209,7 @@ class TrainingRun:
         """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
         signal asked the run to stop."""
         if ((self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested())
-                and self.state.batches < self.plan.batches):
+                and not self._done()):
             self._checkpoint(learner)
             raise_if_stopped(f"at frame {self.state.frames}")
             self.collector.reset()  # see the module docstring: checkpoints end the episode
@@ -224,11 +224,18 @@ class TrainingRun:
         policy_path = export_policy(self.run_dir / POLICY_FILE, actor, self.env,
                                     self.cfg.algo.hidden, self.cfg.algo.activation)
         self.tracker.log_artifact(policy_path)
+        report_stop(self.tracker, self.cfg.algo.name, self.cfg.budget,
+                    self.state.batches < self.plan.batches, f"{self.state.frames} frames",
+                    self.state.wall_time)
         self.tracker.flush()
         return TrainResult(self.state.frames, self.state.batches, dict(self.state.last_eval),
                            policy_path, learner)
 
     # --- helpers ----------------------------------------------------------------------------------
+
+    def _done(self) -> bool:
+        return (self.state.batches >= self.plan.batches
+                or self.cfg.budget.time_is_up(self.state.wall_time))
 
     def _evaluate(self, actor: ProbabilisticActor) -> None:
         if self.obs_stats is not None:  # the evaluation env normalises as the training env
