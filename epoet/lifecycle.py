@@ -147,12 +147,12 @@ def processes_with_env(name: str, value: str) -> list[int]:
 
 
 def report_stop(tracker: Tracker, name: str, budget: BudgetConfig, out_of_time: bool,
-                done: str, seconds: float) -> None:
-    """Tag why the run ended (`stop_reason`: hours, or the budget's iterations or frames) and
-    say so when the wall clock ended it: a resume with a larger `budget.hours` continues."""
-    reason = "hours" if out_of_time else done.split()[-1]
-    tracker.set_tags({"stop_reason": reason})
+                count: int, unit: str, seconds: float) -> None:
+    """Tag why the run ended (`stop_reason`: hours, or the budget's `unit`, iterations or
+    frames) and say so when the wall clock ended it: a resume with a larger `budget.hours`
+    continues."""
+    tracker.set_tags({"stop_reason": "hours" if out_of_time else unit})
     if out_of_time:
         print(f"[{name}] stopped at the wall-clock budget (budget.hours={budget.hours:g}) after "
-              f"{done} and {seconds / 3600:.3g} h of training; resume with a larger "
+              f"{count} {unit} and {seconds / 3600:.3g} h of training; resume with a larger "
               f"budget.hours to continue", flush=True)

@@ -67,7 +67,7 @@ def _iterate(poet: EPOET, cfg: Config, tracker: Tracker, run_dir: Path,
             save_run_state(run_dir, tracker, cfg, {"poet": poet.state_dict()})
             raise_if_stopped(f"after iteration {poet.iteration}")
     report_stop(tracker, cfg.algo.name, budget, poet.iteration < budget.iterations,
-                f"{poet.iteration} iterations", poet.elapsed)
+                poet.iteration, "iterations", poet.elapsed)
     poet.log_artifacts(run_dir, tracker)
 
 

@@ -225,7 +225,7 @@ class TrainingRun:
                                     self.cfg.algo.hidden, self.cfg.algo.activation)
         self.tracker.log_artifact(policy_path)
         report_stop(self.tracker, self.cfg.algo.name, self.cfg.budget,
-                    self.state.batches < self.plan.batches, f"{self.state.frames} frames",
+                    self.state.batches < self.plan.batches, self.state.frames, "frames",
                     self.state.wall_time)
         self.tracker.flush()
         return TrainResult(self.state.frames, self.state.batches, dict(self.state.last_eval),
