@@ -24,7 +24,8 @@ import pandas as pd
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
-from analysis.store import connect, in_order, require_runs, run_command, seed_of, select_runs
+from analysis.store import (AnalysisError, connect, in_order, require_runs, run_command, seed_of,
+                            select_runs)
 from epoet.config import compose, validate
 from epoet.evaluate import RESULTS, evaluate_run
 from epoet.terrain.suite import LEVELS, load_suite
@@ -125,13 +126,25 @@ def to_markdown(frame: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def write_tables(episodes: pd.DataFrame, out: Path) -> list[Path]:
+def course_scale(runs: Sequence[Run]) -> str:
+    """The one course scale the runs were evaluated at (a budget's episodes set it: "solved"
+    on a fifth of the course is not "solved" on all of it, so scales are never mixed)."""
+    scales = {r.data.tags.get("eval_course_scale", "1") for r in runs}
+    if len(scales) > 1:
+        raise AnalysisError(f"the runs were evaluated at different course scales "
+                            f"({', '.join(sorted(scales))}): table one budget's runs at a time "
+                            f"(one experiment per budget, or --run).")
+    return scales.pop()
+
+
+def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1") -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     t1, t2 = table1(episodes), table2(episodes)
     shown1, shown2 = formatted(t1, t2)
     written = []
-    titles = {"table1": "Table 1: success rate (%) by difficulty, mean ± std over runs",
-              "table2": "Table 2: return over the easy and medium terrains"}
+    at = f" (course scale {scale})"
+    titles = {"table1": f"Table 1: success rate (%) by difficulty, mean ± std over runs{at}",
+              "table2": f"Table 2: return over the easy and medium terrains{at}"}
     for name, raw, shown in (("table1", t1, shown1), ("table2", t2, shown2)):
         raw.to_csv(out / f"{name}.csv", index=False)
         markdown = to_markdown(shown)
@@ -152,7 +165,7 @@ def make_tables(experiment: str, out: Path, suite: str | None = None,
     fingerprint = load_suite(suite).fingerprint
     ensure_evaluated(runs, uri, suite, fingerprint, workers, out, episodes)
     runs = [client.get_run(r.info.run_id) for r in runs]  # tags after evaluation
-    return write_tables(episodes_of(client, runs), out)
+    return write_tables(episodes_of(client, runs), out, course_scale(runs))
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:

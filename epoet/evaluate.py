@@ -195,16 +195,21 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True) -> tuple[Evaluation
     suite = load_suite(cfg.suite)
     folder = results_folder(cfg, run)
     workers = cfg.processes or default_workers()
+    rules = suite.course.rules(run.agent_config(cfg.agent))
     print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
-          f"episodes ({suite.folder}), {workers} processes", flush=True)
+          f"episodes ({suite.folder}), {workers} processes; course "
+          f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
+          flush=True)
+    scale = suite.course.scale(run.agent_config(cfg.agent))
     result = evaluate(run, suite, cfg, workers, progress)
     info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
             "suite": str(suite.folder), "suite_fingerprint": suite.fingerprint,
-            "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
+            "course_scale": scale, "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
     paths = write_results(result, folder, info)
     if run.stored is not None:
         run.stored.log_results(result.metrics,
                                tags={"eval_suite": suite.fingerprint,
+                                     "eval_course_scale": f"{scale:g}",
                                      "eval_episodes": str(cfg.episodes)},
                                artifacts={path: RESULTS for path in paths.values()})
     return result, folder

@@ -122,3 +122,19 @@ def test_store_without_usable_runs_exits_2_in_one_line(
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "no ePOET runs" in lines[0], out.stderr
     assert not (tmp_path / "f").exists()
+
+
+def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path) -> None:
+    """A laptop run's "solved" (a fifth of the course) is not a paper run's: never one table."""
+    from analysis.store import AnalysisError
+    from analysis.tables import course_scale
+    client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    exp = client.create_experiment("scales")
+    runs = []
+    for scale in ("0.2", "1", "0.2"):
+        run_id = client.create_run(exp).info.run_id
+        client.set_tag(run_id, "eval_course_scale", scale)
+        runs.append(client.get_run(run_id))
+    assert course_scale([runs[0], runs[2]]) == "0.2"
+    with pytest.raises(AnalysisError, match=r"different course scales \(0.2, 1\)"):
+        course_scale(runs)

@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 
 from epoet.config import compose, load, validate
+from epoet.envs import HexapodEnv
+from epoet.envs.model import layout
+from epoet.envs.task import EpisodeState, HexapodTask
 from epoet.terrain.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,
                                  level_of, load_suite, quantize, write_suite)
 
@@ -61,7 +64,7 @@ def test_course_roughness_reads_only_the_strip_the_robot_walks():
     hm = np.zeros((n, n))
     axis = np.linspace(-size / 2, size / 2, n)
     hm[:, axis < -10] = np.random.default_rng(0).random((n, int((axis < -10).sum())))
-    course = Course(-6.0, 6.0, 0.35, 2.5)
+    course = Course(-6.0, 6.0, 0.35, 2000, 2.5)
     assert course.roughness(hm, 1.0, size) < 1e-12      # rough ground behind the start only
     hm2 = hm.copy()
     hm2[n // 2, n // 2] = 1.0                           # one spike on the course
@@ -75,7 +78,8 @@ def test_a_suite_written_by_write_suite_loads_back(tmp_path):
     write_suite(tmp_path, terrains, entries, Course.of(cfg.agent, cfg.episode_ratio))
     suite = load_suite(tmp_path)
     assert [t.name for t in suite.terrains] == ["r0l0", "r0l1"]
-    assert suite.course == Course(cfg.agent.start_x, cfg.agent.finish_x, 0.35, cfg.episode_ratio)
+    assert suite.course == Course(cfg.agent.start_x, cfg.agent.finish_x, 0.35,
+                                  cfg.agent.max_episode_steps, cfg.episode_ratio)
     assert np.array_equal(quantize(suite.terrains[0].heightmap), quantize(terrains[0].heightmap))
 
 
@@ -102,7 +106,7 @@ def test_the_course_is_the_references():
     the spawn at x = 0, and its heightfield centred 2.7 m ahead of the spawn (so 0.7 m of
     terrain lie beyond the line). Our terrain is centred at the origin."""
     finish_from_spawn = (200 - 5) / 5 - 17
-    for course in (load_suite().course, Course.of(load([]).agent, 2.5)):
+    for course in (load_suite().course, Course.of(load(["budget=paper"]).agent, 2.5)):
         assert course.finish_x - course.start_x == pytest.approx(finish_from_spawn)
         assert course.start_x == pytest.approx(-2.7)
     assert load_suite().course.episode_ratio * 2000 == 5000  # the reference env's limit
@@ -119,14 +123,47 @@ def test_the_course_is_part_of_the_fingerprint(tmp_path):
     assert load_suite(folder).fingerprint != load_suite().fingerprint
 
 
-def test_evaluation_runs_the_suites_course():
-    """The agent walks the suite's course: its start and finish line, and episodes 2.5 x its
+def test_evaluation_runs_the_suites_course_scaled_to_the_episode():
+    """The agent walks the suite's course: from its start, as far as its training episodes
+    allow at the course's pace (a 400-step budget: a fifth of the 22 m), in episodes 2.5x its
     training ones (the reference's 5000 steps for the paper's 2000)."""
-    suite = load_suite()
-    for budget, steps in (("paper", 5000), ("smoke", 125)):
-        rules = suite.course.rules(load([f"budget={budget}"]).agent)
-        assert (rules.start_x, rules.finish_x, rules.max_episode_steps) == (
-            suite.course.start_x, suite.course.finish_x, steps)
+    course = load_suite().course
+    for budget, steps, length in (("paper", 5000, 22.0), ("workstation", 5000, 22.0),
+                                  ("laptop", 1000, 4.4), ("smoke", 125, 0.55)):
+        rules = course.rules(load([f"budget={budget}"]).agent)
+        assert rules.start_x == course.start_x and rules.max_episode_steps == steps
+        assert rules.finish_x - rules.start_x == pytest.approx(length)
+
+
+def _walk(rules, speed: float) -> tuple[bool, float]:
+    """(finished, return) of a robot gliding straight along +x at `speed` (level, no lateral
+    motion), through the task's real reward and episode rules, until the episode ends."""
+    env = HexapodEnv(rules, load(["budget=paper"]).terrain)
+    task = HexapodTask(rules, layout(env.model), 20.0)
+    qpos, qvel, sd = np.zeros((1, 25)), np.zeros((1, 24)), np.zeros((1, 24))
+    qpos[0, :4] = rules.start_x, 0.0, 0.2, 1.0
+    qvel[0, 0] = speed
+    state = EpisodeState.zeros(1)
+    task.begin(qpos, state, slice(None))
+    total, done = 0.0, False
+    while not done:
+        qpos[0, 0] += speed * rules.timestep
+        reward, terminated, truncated, _ = task.step(qpos, qvel, sd, state)
+        total, done = total + reward[0], bool(terminated[0] or truncated[0])
+    return bool(state.finished[0]), total
+
+
+@pytest.mark.parametrize("budget", ["smoke", "laptop", "workstation"])
+def test_solved_asks_the_papers_speed_at_every_budget(budget: str) -> None:
+    """At the target speed the scaled course is finished with a return over the run's solve
+    score (2000 x its score scale); at half that speed the episode ends before the line."""
+    cfg = load([f"budget={budget}"])
+    rules = load_suite().course.rules(cfg.agent)
+    solve = compose([], config_name="evaluate").solve_score * cfg.budget.score_scale
+    finished, total = _walk(rules, cfg.agent.reward.target_speed)
+    assert finished and total >= solve
+    finished, _ = _walk(rules, cfg.agent.reward.target_speed / 2)
+    assert not finished
 
 
 def test_check_command_reports_a_mismatch_in_one_line(tmp_path):

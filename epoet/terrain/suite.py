@@ -18,7 +18,8 @@ the same for every agent.
 
 Suite folder format (any folder in this format can be evaluated, `suite=<folder>`):
 - `suite.json`: {"format": "epoet-suite/2", "size": metres per side, "grid": samples per side,
-  "course": {"start_x", "finish_x", "half_width", "episode_ratio"}, "terrains": [{"name",
+  "course": {"start_x", "finish_x", "half_width", "episode_steps", "episode_ratio"},
+  "terrains": [{"name",
   "max_height", and
   optionally "level", "roughness", "round", "lineage", "seed", "generation"}, ...]};
   a terrain without "level" gets it from its roughness along "course".
@@ -68,22 +69,34 @@ class SuiteError(ValueError):
 
 @dataclass(frozen=True)
 class Course:
-    """The strip the robot walks: x from start_x to finish_x, |y| <= half_width (metres); an
-    evaluation episode may last episode_ratio x the agent's training episodes."""
+    """The strip the robot walks: x from start_x to finish_x, |y| <= half_width (metres), made
+    for agents trained on `episode_steps`-step episodes; an evaluation episode may last
+    episode_ratio x the agent's training episodes."""
 
     start_x: float
     finish_x: float
     half_width: float
+    episode_steps: int
     episode_ratio: float
 
     @classmethod
     def of(cls, agent: AgentConfig, episode_ratio: float) -> Course:
-        return cls(agent.start_x, agent.finish_x, FOOTPRINT, episode_ratio)
+        return cls(agent.start_x, agent.finish_x, FOOTPRINT, agent.max_episode_steps,
+                   episode_ratio)
+
+    def scale(self, agent: AgentConfig) -> float:
+        """The course's share an agent trained on shorter episodes walks (1 at full length)."""
+        return min(1.0, agent.max_episode_steps / self.episode_steps)
 
     def rules(self, agent: AgentConfig) -> AgentConfig:
-        """`agent`'s episode rules on this course: its start, finish line and time limit."""
+        """`agent`'s episode rules on this course: its start, a finish line as far as the
+        agent's episodes allow at the course's pace (the full course for episodes of
+        `episode_steps` or more), and episodes `episode_ratio` x the agent's. So "solved"
+        asks the same speed and return per step at every budget: a budget with a fifth of
+        the episode walks a fifth of the course in a fifth of the time."""
+        length = (self.finish_x - self.start_x) * self.scale(agent)
         return dataclasses.replace(
-            agent, start_x=self.start_x, finish_x=self.finish_x,
+            agent, start_x=self.start_x, finish_x=self.start_x + length,
             max_episode_steps=max(1, round(self.episode_ratio * agent.max_episode_steps)))
 
     def roughness(self, heightmap: np.ndarray, max_height: float, size: float) -> float:
