@@ -390,12 +390,15 @@ class Config:
     tracking: TrackingConfig
     seed: int
     checkpoint_every: int            # ES iterations, or collector batches (baselines), per checkpoint
+    agent_choice: str                # best | final: which parameters of each pair a run exports
     resume: Optional[str]            # a run folder or checkpoint file to continue; "auto": this
                                      # job's own folder if it has a checkpoint (run.py)
 
     def __post_init__(self) -> None:
         _check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
         _positive(self, "checkpoint_every")
+        _check(self.agent_choice in ("best", "final"),
+               f"agent_choice must be 'best' or 'final', got {self.agent_choice!r}.")
         # One source of truth for the episode length: the budget (it also scales thresholds).
         _check(self.agent.max_episode_steps == self.budget.episode_steps,
                f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "

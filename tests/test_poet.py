@@ -273,3 +273,22 @@ def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budg
         assert cfg.agent.integrator == "rk4" and cfg.budget.score_scale == 1.0
         assert cfg.budget.transfer_interval is None and cfg.budget.reproduce_interval is None
         assert cfg.terrain.max_height_step == 0.01
+
+
+@pytest.mark.parametrize("choice", ["best", "final"])
+def test_a_run_exports_each_pairs_best_or_final_agent(compose, mlflow_uri: str, tmp_path: Path,
+                                                      choice: str) -> None:
+    """Each pair keeps the parameters of its best evaluation (the reference's best.json per
+    niche); `agent_choice` picks which the run exports, and both are in the file."""
+    folder = tmp_path / "run"
+    run(compose(SMOKE + ["budget.iterations=4", f"agent_choice={choice}"]), folder)
+    pair = load_checkpoint(folder / "checkpoint.pkl")["poet"]["active"][0]
+    assert pair["best_score"] == max(pair["scores"])
+    with np.load(folder / "policies" / "env0.npz") as saved:
+        np.testing.assert_array_equal(saved["final_theta"], pair["es"]["theta"])
+        np.testing.assert_array_equal(saved["best_theta"], pair["best_theta"])
+        assert str(saved["choice"]) == choice
+        np.testing.assert_array_equal(saved["theta"], saved[f"{choice}_theta"])
+        assert float(saved["score"]) == float(saved[f"{choice}_score"])
+    if pair["scores"][-1] < pair["best_score"]:  # this seed's last evaluation was not its best
+        assert not np.array_equal(pair["best_theta"], pair["es"]["theta"])

@@ -359,9 +359,9 @@ class EpoetSac(EPOET):
         ePOET-SAC_gen<k> curves."""
         return pair.sac_join
 
-    def log_artifacts(self, run_dir: Path, tracker: Tracker) -> None:
+    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
-        super().log_artifacts(run_dir, tracker)
+        super().log_artifacts(run_dir, tracker, choice)
         sac = self.cfg.sac
         tracker.log_artifact(export_policy(run_dir / "sac_policy.pt", self.learner.actor,
                                            self.sac_env, sac.hidden, sac.activation))

@@ -343,6 +343,8 @@ class EPOET:
 
     def _record(self, pair: Pair, score: float) -> None:
         pair.scores.append(score)
+        if score > pair.best_score:
+            pair.best_score, pair.best_theta = score, pair.theta.copy()
         pair.env.solved |= score >= self.thresholds.repro
 
     # --- transfer ---------------------------------------------------------------------------
@@ -484,8 +486,9 @@ class EPOET:
     def close(self) -> None:
         """Release what the loop holds besides its evaluator (ePOET: nothing)."""
 
-    def log_artifacts(self, run_dir: Path, tracker: Tracker) -> None:
-        """Each environment's terrain (npz + PNG) and each agent's final parameters."""
+    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
+        """Each environment's terrain (npz + PNG) and each agent's parameters: `theta` and
+        `score` are the `choice` (its best evaluated, or its final); both are kept."""
         terrains, policies = run_dir / "terrains", run_dir / "policies"
         terrains.mkdir(exist_ok=True)
         policies.mkdir(exist_ok=True)
@@ -495,8 +498,12 @@ class EPOET:
                 terrain = self.terrain(pair.env, self.iteration - 1)  # the last one trained on
                 terrain.save(terrains / f"{name}.npz")
                 terrain.to_png(terrains / f"{name}.png")
-                np.savez(policies / f"{name}.npz", theta=pair.theta,
-                         layer_sizes=np.array(self.layer_sizes), score=pair.score,
+                best = pair.best_theta if pair.best_theta is not None else pair.theta
+                chosen = (best, pair.best_score) if choice == "best" else (pair.theta, pair.score)
+                np.savez(policies / f"{name}.npz", theta=chosen[0], score=chosen[1],
+                         choice=choice, best_theta=best, best_score=pair.best_score,
+                         final_theta=pair.theta, final_score=pair.score,
+                         layer_sizes=np.array(self.layer_sizes),
                          status=status, generation=pair.env.generation,
                          parent=-1 if pair.env.parent is None else pair.env.parent)
         tracker.log_artifact(terrains, "terrains")
@@ -506,7 +513,8 @@ class EPOET:
     def state_dict(self) -> dict[str, Any]:
         def pair_state(p: Pair) -> dict[str, Any]:
             return {"env": p.env, "es": p.es.state_dict(), "scores": list(p.scores),
-                    "sac_join": p.sac_join}
+                    "sac_join": p.sac_join, "best_score": p.best_score,
+                    "best_theta": p.best_theta}
         return {"iteration": self.iteration, "next_index": self.next_index,
                 "transfers": self.transfers, "env_steps": self.env_steps,
                 "elapsed": self.elapsed,
@@ -517,7 +525,8 @@ class EPOET:
         def restore(s: dict[str, Any]) -> Pair:
             es = self._new_es(s["es"]["theta"], 0)
             es.load_state_dict(s["es"])
-            return Pair(env=s["env"], es=es, scores=list(s["scores"]), sac_join=s["sac_join"])
+            return Pair(env=s["env"], es=es, scores=list(s["scores"]), sac_join=s["sac_join"],
+                        best_score=s["best_score"], best_theta=s["best_theta"])
         self.iteration = state["iteration"]
         self.next_index = state["next_index"]
         self.transfers = state["transfers"]

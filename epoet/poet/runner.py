@@ -68,7 +68,7 @@ def _iterate(poet: EPOET, cfg: Config, tracker: Tracker, run_dir: Path,
             raise_if_stopped(f"after iteration {poet.iteration}")
     report_stop(tracker, cfg.algo.name, budget, poet.iteration < budget.iterations,
                 poet.iteration, "iterations", poet.elapsed)
-    poet.log_artifacts(run_dir, tracker)
+    poet.log_artifacts(run_dir, tracker, cfg.agent_choice)
 
 
 EVENTS = ("admitted", "transfers", "joined", "replaced")  # shown when an iteration has them
