@@ -65,7 +65,8 @@ def suite(tmp_path: Path) -> Path:
     np.savez(folder / "heights.npz", bumps=heights)
     (folder / "suite.json").write_text(json.dumps({
         "format": "epoet-suite/2", "size": 20.0, "grid": 40,
-        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35, "episode_ratio": 2.5},
+        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35, "episode_steps": 2000,
+                   "episode_ratio": 2.5},
         "terrains": [{"name": "bumps", "max_height": 0.2}]}))
     return folder
 
