@@ -27,6 +27,8 @@ def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str
                   sweep_dir: Path) -> list[str]:
     return [sys.executable, "-m", "epoet", "-m", f"algo={','.join(algos)}", f"seed={seeds}",
             f"budget={budget}", f"tracking.experiment={experiment}", "resume=auto",
+            # step 2 evaluates every run on the chosen suite with the chosen episode count
+            "evaluate=false",
             f"hydra.sweep.dir={sweep_dir}", "hydra.sweep.subdir=${algo.name}_s${seed}"]
 
 

@@ -391,6 +391,7 @@ class Config:
     seed: int
     checkpoint_every: int            # ES iterations, or collector batches (baselines), per checkpoint
     agent_choice: str                # best | final: which parameters of each pair a run exports
+    evaluate: bool                   # evaluate the exported agent on the suite at the end
     resume: Optional[str]            # a run folder or checkpoint file to continue; "auto": this
                                      # job's own folder if it has a checkpoint (run.py)
 

@@ -14,7 +14,7 @@ from typing import Any, Callable
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
-from epoet.config import Config, validate
+from epoet.config import Config, compose, validate
 from epoet.files import atomic_write
 from epoet.lifecycle import StopOnSignal
 from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
@@ -97,7 +97,27 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
               f"run_id={tracker.run_id} dir={run_dir}", flush=True)
         with StopOnSignal():
             result = runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
-    with atomic_write(run_dir / DONE) as f:  # after the run is closed as FINISHED
+    if cfg.evaluate:
+        evaluate_agent(cfg, run_dir)
+    with atomic_write(run_dir / DONE) as f:  # after the run and its evaluation are done
         f.write(f"{tracker.run_id}\n".encode())
     return result
+
+
+def evaluate_agent(cfg: Config, run_dir: Path) -> None:
+    """The run's exported agent (as `agent_choice` picked it) on the shipped suite,
+    `budget.eval_episodes` episodes per terrain, logged to its MLflow run: what
+    `python -m epoet.evaluate run=<run_dir>` does. Interrupted, the run is not DONE, and a
+    resume evaluates it again."""
+    from epoet.evaluate import evaluate_run  # pandas and the suite: only when evaluating
+    overrides = [f"run={run_dir}", f"episodes={cfg.budget.eval_episodes}",
+                 f"out={run_dir / 'evaluation'}"]
+    overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
+    overrides += [f"processes={cfg.workers.num}"] if cfg.workers.num else []
+    result, folder = evaluate_run(validate(compose(overrides, config_name="evaluate")),
+                                  progress=False)
+    m = result.metrics
+    print(f"[epoet] {cfg.algo.name} seed={cfg.seed}: success rate "
+          f"{m['suite/success_rate']:.1%} on the suite, mean return "
+          f"{m['suite/return_mean']:.1f} ({folder})", flush=True)
 

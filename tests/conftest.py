@@ -32,8 +32,14 @@ def short_agent() -> AgentConfig:
 
 @pytest.fixture
 def compose():
-    """Compose the real Hydra config (as `python -m epoet` would) from overrides."""
-    return compose_config
+    """Compose the real Hydra config (as `python -m epoet` would) from overrides; without the
+    end-of-run suite evaluation unless a test asks for it (tests/test_evaluation.py checks it),
+    so each training test pays for its training only."""
+    def compose_training(overrides=(), config_name: str = "config"):
+        if config_name == "config" and not any(o.startswith("evaluate=") for o in overrides):
+            overrides = [*overrides, "evaluate=false"]
+        return compose_config(overrides, config_name)
+    return compose_training
 
 
 @pytest.fixture

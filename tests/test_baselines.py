@@ -29,7 +29,7 @@ from epoet.tracking import MemoryTracker
 # 30-step episodes, 60-frame batches, 4 batches, evaluations every 2 batches
 TINY = ["budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
         "budget.frames=240", "budget.eval_every=120", "budget.eval_episodes=1",
-        "algo.frames_per_batch=60", "checkpoint_every=2"]
+        "algo.frames_per_batch=60", "checkpoint_every=2", "evaluate=false"]
 SIZES = {
     "ppo": ["algo.epochs=2", "algo.minibatch=30"],
     "vmpo": ["algo.epochs=2", "algo.minibatch=30"],

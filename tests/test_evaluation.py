@@ -201,3 +201,21 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compo
     client = mlflow.MlflowClient(mlflow_uri)
     runs = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
     assert len(runs) == 1                                     # the resume continued the run
+
+
+def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
+                                                 tmp_path: Path) -> None:
+    """Without a second command the run's MLflow record carries the suite's metrics, at the
+    budget's episode count and the run's course scale; evaluate=false skips it."""
+    from epoet.checkpoint import load_checkpoint
+    from epoet.run import run
+    smoke = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "budget.iterations=1"]
+    run(compose([*smoke, "evaluate=true"]), tmp_path / "run")
+    run_id = load_checkpoint(tmp_path / "run" / "checkpoint.pkl")["run_id"]
+    record = mlflow.MlflowClient(mlflow_uri).get_run(run_id).data
+    assert "suite/success_rate" in record.metrics
+    assert record.tags["eval_episodes"] == "1" and record.tags["eval_course_scale"] == "0.025"
+    assert (tmp_path / "run" / "evaluation" / "episodes.csv").is_file()
+    run(compose([*smoke, "evaluate=false"]), tmp_path / "plain")
+    run_id = load_checkpoint(tmp_path / "plain" / "checkpoint.pkl")["run_id"]
+    assert "suite/success_rate" not in mlflow.MlflowClient(mlflow_uri).get_run(run_id).data.metrics
