@@ -35,8 +35,9 @@ figures: install
 # Every algorithm x seed at one budget, evaluated, tabled and plotted; resumable (README).
 BUDGET ?= laptop
 SEEDS  ?= 1,2,3
+JOBS   ?= 1
 paper: install
-	$(PY) -m analysis.paper --budget $(BUDGET) --seeds $(SEEDS)
+	$(PY) -m analysis.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS)
 
 # Check the shipped evaluation suite against a fresh regeneration (about a minute).
 suite: install

@@ -21,11 +21,22 @@ from analysis.figures import write_figures
 from analysis.store import ALGOS, run_command
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR
+from epoet.es.workers import default_workers
+
+
+def parallel_overrides(jobs: int, cores: int) -> list[str]:
+    """Hydra overrides that run `jobs` training jobs at a time (the joblib launcher), each with
+    its share of the cores as workers, so jobs x workers <= cores; none for one job."""
+    if jobs == 1:
+        return []
+    return ["hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}",
+            f"workers.num={max(1, cores // jobs)}"]
 
 
 def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str,
-                  sweep_dir: Path) -> list[str]:
+                  sweep_dir: Path, jobs: int = 1) -> list[str]:
     return [sys.executable, "-m", "epoet", "-m", f"algo={','.join(algos)}", f"seed={seeds}",
+            *parallel_overrides(jobs, default_workers()),
             f"budget={budget}", f"tracking.experiment={experiment}", "resume=auto",
             # step 2 evaluates every run on the chosen suite with the chosen episode count
             "evaluate=false",
@@ -41,6 +52,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
     parser.add_argument("--episodes", type=int, default=None,
                         help="evaluation episodes per terrain (default: 5)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="training jobs at a time; each gets cores / jobs workers "
+                             "(default 1)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: results/paper-<budget>)")
     return parser.parse_args(argv)
@@ -56,13 +70,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                  for a in algos if a not in ALGOS]
     if not all(s.strip().isdigit() for s in args.seeds.split(",")):
         problems.append(f"seeds must be comma-separated integers, got {args.seeds!r}")
+    if not 1 <= args.jobs <= default_workers():
+        problems.append(f"--jobs must be between 1 and the {default_workers()} available "
+                        f"cores, got {args.jobs}")
     if problems:
         print(f"error: {problems[0]}.", file=sys.stderr)
         return 2
     experiment = f"paper-{args.budget}"
     out = args.out or Path("results") / experiment
     command = train_command(args.budget, args.seeds, algos, experiment,
-                            Path("multirun") / experiment)
+                            Path("multirun") / experiment, args.jobs)
     print(f"[paper] training {len(algos)} algorithms x seeds {args.seeds} at budget "
           f"{args.budget} (finished jobs are skipped):\n  {' '.join(command[1:])}", flush=True)
     if (code := subprocess.run(command).returncode) != 0:

@@ -138,3 +138,15 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
     assert course_scale([runs[0], runs[2]]) == "0.2"
     with pytest.raises(AnalysisError, match=r"different course scales \(0.2, 1\)"):
         course_scale(runs)
+
+
+def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
+    """JOBS=k: k jobs at a time through the joblib launcher, k x workers <= cores."""
+    from analysis.paper import main as paper_main
+    from analysis.paper import parallel_overrides
+    assert parallel_overrides(1, 2) == []
+    assert parallel_overrides(2, 2) == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
+                                        "workers.num=1"]
+    assert parallel_overrides(2, 8)[-1] == "workers.num=4"
+    assert paper_main(["--budget", "smoke", "--jobs", "0"]) == 2
+    assert "--jobs must be between 1" in capsys.readouterr().err
