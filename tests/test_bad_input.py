@@ -51,7 +51,7 @@ ROWS = [
 
 
 def _epoet(args: list[str], cwd: Path, uri: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "epoet", *args, "evaluate=false"], cwd=cwd,
+    return subprocess.Popen([sys.executable, "-m", "epoet", "evaluate=false", *args], cwd=cwd,
                             env={**os.environ, "MLFLOW_TRACKING_URI": uri},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

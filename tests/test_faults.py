@@ -39,7 +39,7 @@ def _tagged_processes(tag: str) -> list[int]:
 def _launch(args: list[str], tmp_path: Path, tag: str) -> subprocess.Popen:
     env = {**os.environ, "EPOET_TEST_TAG": tag,
            "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db"}
-    return subprocess.Popen([sys.executable, "-m", "epoet", *args, "evaluate=false"],
+    return subprocess.Popen([sys.executable, "-m", "epoet", "evaluate=false", *args],
                             cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

@@ -161,7 +161,7 @@ def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
 
 def _cli(args: list[str], uri: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    return subprocess.run([sys.executable, "-m", "epoet", *args, "evaluate=false"], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "epoet", "evaluate=false", *args], cwd=cwd,
                           env=env,
                           capture_output=True, text=True, timeout=300)
 

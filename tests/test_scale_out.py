@@ -28,7 +28,8 @@ RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
 
 def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db", **env}
-    return subprocess.run([sys.executable, "-m", "epoet", *args, "evaluate=false"],
+    # Training here is about workers and launchers: no end-of-run suite evaluation.
+    return subprocess.run([sys.executable, "-m", "epoet", "evaluate=false", *args],
                           cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=400)
 
