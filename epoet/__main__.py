@@ -17,13 +17,13 @@ from epoet.lifecycle import Stopped
 def _app(cfg: DictConfig) -> None:
     # Imported here, after Hydra composed the config: mlflow takes ~3 s to import, which a
     # composition error (a typo in an override) should not wait for.
-    from epoet.run import run
+    from epoet.run import EvaluationError, run
     from epoet.tracking import TrackingError
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         run(cfg, run_dir)
-    except (ConfigError, TrackingError, CheckpointError) as err:
+    except (ConfigError, TrackingError, CheckpointError, EvaluationError) as err:
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
     except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
         fail(err)

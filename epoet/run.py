@@ -104,18 +104,29 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
     return result
 
 
+class EvaluationError(RuntimeError):
+    """The run trained, but its end-of-run evaluation could not run; one sentence."""
+
+
 def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     """The run's exported agent (as `agent_choice` picked it) on the shipped suite,
     `budget.eval_episodes` episodes per terrain, logged to its MLflow run: what
     `python -m epoet.evaluate run=<run_dir>` does. Interrupted, the run is not DONE, and a
     resume evaluates it again."""
-    from epoet.evaluate import evaluate_run  # pandas and the suite: only when evaluating
+    from epoet.agents import AgentError  # pandas, the suite, the env: only when evaluating
+    from epoet.evaluate import evaluate_run
+    from epoet.terrain.suite import SuiteError
     overrides = [f"run={run_dir}", f"episodes={cfg.budget.eval_episodes}",
                  f"out={run_dir / 'evaluation'}"]
     overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
     overrides += [f"processes={cfg.workers.num}"] if cfg.workers.num else []
-    result, folder = evaluate_run(validate(compose(overrides, config_name="evaluate")),
-                                  progress=False)
+    try:
+        result, folder = evaluate_run(validate(compose(overrides, config_name="evaluate")),
+                                      progress=False)
+    except (AgentError, SuiteError) as err:
+        raise EvaluationError(f"{cfg.algo.name} seed={cfg.seed} trained, but its evaluation "
+                              f"failed: {err} (retry: python -m epoet.evaluate run={run_dir})"
+                              ) from err
     m = result.metrics
     print(f"[epoet] {cfg.algo.name} seed={cfg.seed}: success rate "
           f"{m['suite/success_rate']:.1%} on the suite, mean return "
