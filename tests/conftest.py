@@ -30,6 +30,13 @@ def short_agent() -> AgentConfig:
     return replace(load(["budget=paper"]).agent, max_episode_steps=60)
 
 
+def without_evaluation(args: list[str]) -> list[str]:
+    """`python -m epoet` arguments with `evaluate=false` among the overrides (Hydra's overrides
+    must be one run of arguments: before the first one, after any flags)."""
+    at = next((i for i, a in enumerate(args) if "=" in a and not a.startswith("-")), len(args))
+    return [*args[:at], "evaluate=false", *args[at:]]
+
+
 @pytest.fixture
 def compose():
     """Compose the real Hydra config (as `python -m epoet` would) from overrides; without the

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import mlflow
 import pytest
+from conftest import without_evaluation
 
 SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40",
          "budget.iterations=1"]
@@ -51,7 +52,7 @@ ROWS = [
 
 
 def _epoet(args: list[str], cwd: Path, uri: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "epoet", "evaluate=false", *args], cwd=cwd,
+    return subprocess.Popen([sys.executable, "-m", "epoet", *without_evaluation(args)], cwd=cwd,
                             env={**os.environ, "MLFLOW_TRACKING_URI": uri},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
+from conftest import without_evaluation
 import torch
 
 from epoet.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
@@ -39,7 +40,7 @@ def _tagged_processes(tag: str) -> list[int]:
 def _launch(args: list[str], tmp_path: Path, tag: str) -> subprocess.Popen:
     env = {**os.environ, "EPOET_TEST_TAG": tag,
            "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db"}
-    return subprocess.Popen([sys.executable, "-m", "epoet", "evaluate=false", *args],
+    return subprocess.Popen([sys.executable, "-m", "epoet", *without_evaluation(args)],
                             cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 

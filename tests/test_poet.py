@@ -10,6 +10,7 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
+from conftest import without_evaluation
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import TerrainConfig, load
@@ -161,7 +162,7 @@ def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
 
 def _cli(args: list[str], uri: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    return subprocess.run([sys.executable, "-m", "epoet", "evaluate=false", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "epoet", *without_evaluation(args)], cwd=cwd,
                           env=env,
                           capture_output=True, text=True, timeout=300)
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
+from conftest import without_evaluation
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import load
@@ -28,8 +29,7 @@ RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
 
 def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db", **env}
-    # Training here is about workers and launchers: no end-of-run suite evaluation.
-    return subprocess.run([sys.executable, "-m", "epoet", "evaluate=false", *args],
+    return subprocess.run([sys.executable, "-m", "epoet", *without_evaluation(args)],
                           cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=400)
 
