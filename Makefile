@@ -36,8 +36,9 @@ figures: install
 BUDGET ?= laptop
 SEEDS  ?= 1,2,3
 JOBS   ?= 1
+OVERRIDES ?=
 paper: install
-	$(PY) -m analysis.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS)
+	$(PY) -m analysis.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(OVERRIDES)
 
 # Check the shipped evaluation suite against a fresh regeneration (about a minute).
 suite: install

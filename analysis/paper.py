@@ -34,13 +34,15 @@ def parallel_overrides(jobs: int, cores: int) -> list[str]:
 
 
 def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str,
-                  sweep_dir: Path, jobs: int = 1) -> list[str]:
+                  sweep_dir: Path, jobs: int = 1, overrides: Sequence[str] = ()) -> list[str]:
+    """The training multirun; `overrides` come last, so they win over the budget's values."""
     return [sys.executable, "-m", "epoet", "-m", f"algo={','.join(algos)}", f"seed={seeds}",
             *parallel_overrides(jobs, default_workers()),
             f"budget={budget}", f"tracking.experiment={experiment}", "resume=auto",
             # step 2 evaluates every run on the chosen suite with the chosen episode count
             "evaluate=false",
-            f"hydra.sweep.dir={sweep_dir}", "hydra.sweep.subdir=${algo.name}_s${seed}"]
+            f"hydra.sweep.dir={sweep_dir}", "hydra.sweep.subdir=${algo.name}_s${seed}",
+            *overrides]
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -57,6 +59,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              "(default 1)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: results/paper-<budget>)")
+    parser.add_argument("overrides", nargs="*",
+                        help="Hydra overrides for every training job, e.g. budget.hours=0.4")
     return parser.parse_args(argv)
 
 
@@ -79,7 +83,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     experiment = f"paper-{args.budget}"
     out = args.out or Path("results") / experiment
     command = train_command(args.budget, args.seeds, algos, experiment,
-                            Path("multirun") / experiment, args.jobs)
+                            Path("multirun") / experiment, args.jobs, args.overrides)
     print(f"[paper] training {len(algos)} algorithms x seeds {args.seeds} at budget "
           f"{args.budget} (finished jobs are skipped):\n  {' '.join(command[1:])}", flush=True)
     if (code := subprocess.run(command).returncode) != 0:

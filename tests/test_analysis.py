@@ -150,3 +150,12 @@ def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
     assert parallel_overrides(2, 8)[-1] == "workers.num=4"
     assert paper_main(["--budget", "smoke", "--jobs", "0"]) == 2
     assert "--jobs must be between 1" in capsys.readouterr().err
+
+
+def test_make_paper_overrides_reach_every_job_last() -> None:
+    """OVERRIDES=...: appended after the budget, so a value such as budget.hours wins over it."""
+    from analysis.paper import train_command
+    command = train_command("workstation", "1", ["epoet", "sac"], "paper-workstation",
+                            Path("multirun/x"), overrides=["budget.hours=0.4"])
+    assert command[-1] == "budget.hours=0.4"
+    assert command.index("budget=workstation") < command.index("budget.hours=0.4")
