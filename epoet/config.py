@@ -9,7 +9,8 @@ which runs each `__post_init__` range check before any work starts; every failur
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Sequence
+import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Optional
@@ -731,7 +732,35 @@ def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictC
 def validate(cfg: DictConfig) -> Any:
     """The dataclass tree of a composed config, every range check run; raises ConfigError with
     one sentence. The YAML's schema (and, for `algo`, the algorithm's) decides each node's type."""
-    return OmegaConf.to_object(cfg)
+    try:
+        return OmegaConf.to_object(cfg)
+    except ConfigError as err:
+        raise ConfigError(_typed_keys(str(err), cfg)) from None
+
+
+_INTERPOLATION = re.compile(r"^\$\{([\w.]+)\}$")
+
+
+def _interpolated(tree: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
+    """Every key whose value is another key (`agent.max_episode_steps: ${budget.episode_steps}`)
+    mapped to that key, in a config container that is not resolved."""
+    found: dict[str, str] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            found.update(_interpolated(value, f"{name}."))
+        elif isinstance(value, str) and (match := _INTERPOLATION.match(value)):
+            found[name] = match.group(1)
+    return found
+
+
+def _typed_keys(message: str, cfg: DictConfig) -> str:
+    """Name the key the user typed: an error about a key that only follows another
+    ("agent.max_episode_steps must be > 0") names the source first
+    ("budget.episode_steps (agent.max_episode_steps) must be > 0")."""
+    for key, source in _interpolated(OmegaConf.to_container(cfg, resolve=False)).items():
+        message = re.sub(rf"(?<![\w.(]){re.escape(key)}(?![\w])", f"{source} ({key})", message)
+    return message
 
 
 def load(overrides: Sequence[str] = ()) -> Config:

@@ -32,6 +32,9 @@ ROWS = [
     ("wrong type", ["seed=abc"], "seed"),
     ("out of range", ["budget.n_pairs=-1"], "budget.n_pairs must be > 0"),
     ("no workers", ["workers.num=0"], "workers.num must be > 0"),
+    # the key typed, not the one that follows it (agent.max_episode_steps: ${budget...})
+    ("episode length", ["budget.episode_steps=0"],
+     "budget.episode_steps (agent.max_episode_steps) must be > 0"),
     ("terrain for ePOET", ["terrain=bowl"], "needs terrain=cppn"),
     ("ePOET-SAC buffer", ["algo=epoet_sac", "algo.sac.buffer_size=8"],
      "algo.sac.buffer_size (8) must hold at least one batch"),
