@@ -55,7 +55,7 @@ def main() -> None:
             return [m.value for m in sorted(points, key=lambda m: m.step)]
 
         scores, returns = history("pair0/score"), history("pair0/return_mean")
-        wall = sum(history("wall_time"))
+        wall = history("elapsed")[-1]  # training seconds, summed over resumes
         rows.setdefault(integrator, []).append((float(np.mean(returns[-args.window:])),
                                                 float(np.mean(scores[-args.window:])), wall))
     print(f"last {args.window} iterations, mean ± std over seeds:")

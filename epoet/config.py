@@ -242,6 +242,13 @@ class TerrainConfig:
                f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
                f"({self.max_height_limit}).")
 
+    def unused_keys(self) -> tuple[str, ...]:
+        """The settings this terrain never reads: the bowl has no CPPN."""
+        if self.kind == "bowl":
+            return ("terrain.cppn", "terrain.mutation", "terrain.cppn_scale",
+                    "terrain.cppn_origin")
+        return ()
+
 
 @dataclass
 class EsConfig:
@@ -416,6 +423,19 @@ class Config:
             _check(self.terrain.kind == "cppn",
                    f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "
                    f"(got terrain={self.terrain.kind}).")
+
+    def unused_keys(self) -> tuple[str, ...]:
+        """Dotted keys (and key prefixes) of settings this run never reads, so its MLflow params
+        hold only what shaped it: ES budgets are iterations, the baselines' are frames."""
+        unused = list(self.terrain.unused_keys())
+        if isinstance(self.algo, PoetConfig):
+            unused += ["budget.frames", "budget.eval_every"]
+        else:
+            unused += ["budget.iterations", "budget.n_pairs", "budget.transfer_interval",
+                       "budget.reproduce_interval", "workers.batch", "workers.address"]
+        if not isinstance(self.algo, EpoetSacConfig):
+            unused.append("budget.sac_frames_per_iteration")
+        return tuple(unused)
 
 
 @dataclass

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import json
 from pathlib import Path
 from typing import Any, Callable
 
@@ -16,8 +17,10 @@ from omegaconf import DictConfig, OmegaConf
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.config import Config, compose, validate
 from epoet.files import atomic_write
+from epoet.es.workers import default_workers
 from epoet.lifecycle import StopOnSignal
-from epoet.tracking import MlflowTracker, Tracker, flatten, parent_run_id
+from epoet.tracking import (MlflowTracker, StoredRun, Tracker, flatten, parent_run_id,
+                            resolve_tracking_uri)
 
 # algo.name -> "module:function" with the runner shape
 #   train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict | None) -> Any
@@ -46,6 +49,21 @@ def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
                   if old.get(k) != new.get(k)
                   and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE))
     return [f"{k} ({old.get(k)} -> {new.get(k)})" for k in keys]
+
+
+def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict[str, str]:
+    """The run's MLflow params: the values it runs with (the worker count and store the defaults
+    resolve to), without the settings it never reads (`Config.unused_keys`) and without `resume`
+    (where a run continues, not a setting of it)."""
+    params = flatten({k: v for k, v in resolved.items() if k != "resume"})
+    unused = cfg.unused_keys()
+    params = {k: v for k, v in params.items()
+              if not any(k == u or k.startswith(f"{u}.") for u in unused)}
+    params["tracking.uri"] = tracking_uri
+    if cfg.workers.num is None and cfg.workers.address is None:
+        # one worker (ES) or torch thread (baselines) per core; a Ray cluster brings its own
+        params["workers.num"] = str(default_workers())
+    return params
 
 
 def runner_for(name: str) -> Runner:
@@ -86,8 +104,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,
             "seed": str(cfg.seed), "budget": cfg.budget.name}
     with MlflowTracker(cfg.tracking.uri, cfg.tracking.experiment) as tracker:
-        # `resume` is where a run continues, not a setting of the run: it is not a param.
-        params = flatten({k: v for k, v in resolved.items() if k != "resume"})
+        params = run_params(cfg, resolved, tracker.tracking_uri)
         tracker.start(run_name=f"{cfg.algo.name}-s{cfg.seed}", params=params,
                       tags=tags, parent_run_id=parent_run_id(),
                       resume_run_id=resume["run_id"] if resume else None)
@@ -101,7 +118,41 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         evaluate_agent(cfg, run_dir)
     with atomic_write(run_dir / DONE) as f:  # after the run and its evaluation are done
         f.write(f"{tracker.run_id}\n".encode())
+    print("\n".join(ending(cfg, run_dir, StoredRun.open(tracker.run_id, tracker.tracking_uri),
+                           in_sweep=parent_run_id() is not None)), flush=True)
     return result
+
+
+def _medium_terrain() -> str:
+    """A medium terrain of the shipped suite, for the render command a run ends with."""
+    from epoet.terrain.suite import SHIPPED
+    terrains = json.loads((SHIPPED / "suite.json").read_text())["terrains"]
+    return next((t["name"] for t in terrains if t.get("level") == "medium"), terrains[0]["name"])
+
+
+def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> list[str]:
+    """What a finished run says last: its headline numbers and, outside a sweep (whose parent
+    prints a line per job), where its outputs are and the commands that look at them."""
+    m = stored.metrics
+    numbers = f"score {m['score']:.1f} (best {m['best_score']:.1f})" if "score" in m else ""
+    if "suite/success_rate" in m:
+        numbers += (f", solved {m['suite/success_rate']:.1%} of the suite (mean return "
+                    f"{m['suite/return_mean']:.1f})")
+    seconds = m.get("elapsed", 0.0)
+    took = f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+    head = (f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} done after "
+            f"{took} of training: {numbers}")
+    if in_sweep:
+        return [head]
+    store = resolve_tracking_uri(cfg.tracking.uri)
+    return [head,
+            f"  outputs:  {run_dir} (checkpoint, exported agent"
+            f"{', evaluation/' if cfg.evaluate else ''}); MLflow run {stored.run_id}",
+            f"  runs:     mlflow ui --backend-store-uri {store}  then open "
+            f"http://127.0.0.1:5000/#/experiments/{stored.experiment_id}/runs"
+            f"?workflowType=machine_learning",
+            f"  evaluate: python -m epoet.evaluate run={run_dir}",
+            f"  render:   python -m epoet.render run={run_dir} terrain={_medium_terrain()}"]
 
 
 class EvaluationError(RuntimeError):
@@ -121,14 +172,9 @@ def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
     overrides += [f"processes={cfg.workers.num}"] if cfg.workers.num else []
     try:
-        result, folder = evaluate_run(validate(compose(overrides, config_name="evaluate")),
-                                      progress=False)
+        evaluate_run(validate(compose(overrides, config_name="evaluate")), progress=False)
     except (AgentError, SuiteError) as err:
         raise EvaluationError(f"{cfg.algo.name} seed={cfg.seed} trained, but its evaluation "
                               f"failed: {err} (retry: python -m epoet.evaluate run={run_dir})"
                               ) from err
-    m = result.metrics
-    print(f"[epoet] {cfg.algo.name} seed={cfg.seed}: success rate "
-          f"{m['suite/success_rate']:.1%} on the suite, mean return "
-          f"{m['suite/return_mean']:.1f} ({folder})", flush=True)
 

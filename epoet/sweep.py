@@ -10,14 +10,16 @@ import atexit
 import os
 from typing import Any
 
+import numpy as np
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from epoet.tracking import PARENT_RUN_ENV, MlflowTracker
+from epoet.tracking import PARENT_RUN_ENV, MlflowTracker, Run
 
 
 class MlflowSweepCallback(Callback):
-    """Opens the parent run at multirun start and closes it at the end.
+    """Opens the parent run at multirun start (the sweep's overrides as params; algo, budget
+    and seed tags) and at the end prints a line per job and logs a summary per algorithm.
 
     Hydra skips `on_multirun_end` when a job raises, so an exit hook closes the parent as FAILED
     in that case; a sweep that ends normally is FAILED too if any child run failed.
@@ -29,13 +31,21 @@ class MlflowSweepCallback(Callback):
         self._tracker: MlflowTracker | None = None
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        overrides = " ".join(config.hydra.overrides.task)
+        overrides = list(config.hydra.overrides.task)
+        params = sweep_params(overrides)
         tracker = MlflowTracker(self.tracking_uri, self.experiment)
-        name = f"sweep {overrides}" if overrides else f"sweep {config.hydra.job.name}"
+        text = " ".join(overrides)
+        name = f"sweep {text}" if text else f"sweep {config.hydra.job.name}"
         run_id = tracker.start(
             run_name=name[:250],  # MLflow's SQL schema holds 250 characters; the tag has it all
+            params=params,
             tags={"sweep_dir": os.path.abspath(str(config.hydra.sweep.dir)),
-                  "sweep_overrides": overrides},
+                  "sweep_overrides": text,
+                  # what the sweep spans ("algos", not the jobs' "algo": analysis selects
+                  # runs by their algo tag, and the parent is no run of one algorithm)
+                  "algos": params.get("algo", str(OmegaConf.select(config, "algo.name"))),
+                  "budget": params.get("budget", str(OmegaConf.select(config, "budget.name"))),
+                  "seeds": params.get("seed", str(OmegaConf.select(config, "seed")))},
         )
         self._tracker = tracker
         os.environ[PARENT_RUN_ENV] = run_id
@@ -44,7 +54,12 @@ class MlflowSweepCallback(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         if self._tracker is None:
             return
-        failed = "FAILED" in self._tracker.child_runs().values()
+        children = self._tracker.children()
+        for line in job_lines(children):
+            print(line, flush=True)
+        if summary := sweep_summary(children):
+            self._tracker.log_metrics(0, summary)
+        failed = any(run.info.status == "FAILED" for run in children)
         self._close("FAILED" if failed else "FINISHED")
 
     def _close(self, status: str) -> None:
@@ -54,3 +69,51 @@ class MlflowSweepCallback(Callback):
         tracker, self._tracker = self._tracker, None
         if tracker is not None:
             tracker.close(status)
+
+
+def sweep_params(overrides: list[str]) -> dict[str, str]:
+    """The sweep's overrides as params (`algo=epoet,sac` -> algo: "epoet,sac")."""
+    params = {}
+    for override in overrides:
+        key, sep, value = override.partition("=")
+        if sep:
+            params[key.lstrip("+~")] = value
+    return params
+
+
+def _metric(run: Run, key: str) -> float | None:
+    return run.data.metrics.get(key)
+
+
+def job_lines(children: list[Run]) -> list[str]:
+    """One line per job: what it was, how it ended, its headline numbers, its run id."""
+    lines = []
+    for run in children:
+        tags = run.data.tags
+        numbers = "".join(f" {label}={value:.1f}" for label, key in (("score", "score"),
+                                                                      ("best", "best_score"))
+                          if (value := _metric(run, key)) is not None)
+        if (success := _metric(run, "suite/success_rate")) is not None:
+            numbers += f" solved={success:.0%}"
+        lines.append(f"[sweep] {tags.get('algo', '?')} seed={tags.get('seed', '?')} "
+                     f"{run.info.status}{numbers} run_id={run.info.run_id}")
+    return lines
+
+
+def sweep_summary(children: list[Run]) -> dict[str, float]:
+    """Per algorithm over its finished jobs: the mean (and std) final `score` and suite success
+    rate, and how many finished, so the parent row reads as the sweep's result."""
+    groups: dict[str, list[Run]] = {}
+    for run in children:
+        if run.info.status == "FINISHED":
+            groups.setdefault(run.data.tags.get("algo", "unknown"), []).append(run)
+    summary: dict[str, float] = {}
+    for algo, runs in groups.items():
+        summary[f"{algo}/finished"] = float(len(runs))
+        for key, name in (("score", "score"), ("suite/success_rate", "success_rate")):
+            values = [v for run in runs if (v := _metric(run, key)) is not None]
+            if values:
+                summary[f"{algo}/{name}_mean"] = float(np.mean(values))
+                if len(values) > 1:
+                    summary[f"{algo}/{name}_std"] = float(np.std(values, ddof=1))
+    return summary

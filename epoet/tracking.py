@@ -416,20 +416,24 @@ class MlflowTracker:
         for i in range(0, len(run_tags), MAX_PARAMS_TAGS_PER_BATCH):
             self.client.log_batch(self.run_id, tags=run_tags[i:i + MAX_PARAMS_TAGS_PER_BATCH])
 
-    def child_runs(self) -> dict[str, str]:
-        """Run id -> status of this run's children (a sweep's jobs)."""
+    def children(self) -> list[Run]:
+        """This run's children (a sweep's jobs), oldest first."""
         if self.run_id is None:
             raise TrackingError("the MLflow run has not been started.")
-        children: dict[str, str] = {}
+        children: list[Run] = []
         token = None
         while True:
             page = self.client.search_runs(
                 [self.experiment_id], f"tags.`{MLFLOW_PARENT_RUN_ID}` = '{self.run_id}'",
-                max_results=1000, page_token=token)
-            children.update((run.info.run_id, run.info.status) for run in page)
+                max_results=1000, page_token=token, order_by=["attributes.start_time ASC"])
+            children.extend(page)
             token = page.token
             if not token:
                 return children
+
+    def child_runs(self) -> dict[str, str]:
+        """Run id -> status of this run's children (a sweep's jobs)."""
+        return {run.info.run_id: run.info.status for run in self.children()}
 
     def _require_open(self) -> str:
         if self.run_id is None or self._closed:
@@ -518,7 +522,9 @@ class StoredRun:
         self.run_id = run.info.run_id
         self.name = run.info.run_name
         self.status = run.info.status
+        self.experiment_id = run.info.experiment_id
         self.tags = dict(run.data.tags)
+        self.metrics = dict(run.data.metrics)  # each metric's last value
 
     @classmethod
     def open(cls, run_id: str, tracking_uri: str | None = None) -> StoredRun:

@@ -96,6 +96,22 @@ def test_annecs_counts_solved_children(terrain_cfg: TerrainConfig) -> None:
     assert poet.annecs == 1
 
 
+def test_best_score_is_the_best_score_so_far(terrain_cfg: TerrainConfig,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """`score` is this iteration's best active score, `best_score` the best of any iteration so
+    far (it equalled `score` before): evaluations scripted to fall and rise again."""
+    poet = make_poet(terrain_cfg)
+    scripted = iter([5.0, 3.0, 4.0, 6.0])
+    monkeypatch.setattr(poet, "_scores", lambda requests: [np.array([next(scripted)])
+                                                           for _ in requests])
+    logged = [poet.iterate() for _ in range(4)]
+    assert [m["score"] for m in logged] == [5.0, 3.0, 4.0, 6.0]
+    assert [m["best_score"] for m in logged] == [5.0, 5.0, 5.0, 6.0]
+    restored = make_poet(terrain_cfg)
+    restored.load_state_dict(poet.state_dict())
+    assert restored.best_score == 6.0
+
+
 def _runs(uri: str) -> list:
     client = mlflow.MlflowClient(uri)
     exp = client.get_experiment_by_name("epoet")
@@ -108,7 +124,7 @@ def test_smoke_run_is_tracked(compose, mlflow_uri: str, tmp_path: Path) -> None:
     assert r.info.status == "FINISHED"
     for key in ("pair0/return_mean", "pair0/return_max", "pair0/score", "pair0/lr",
                 "pair0/sigma", "best_score", "active_envs", "archived_envs", "annecs",
-                "env_steps", "wall_time"):
+                "env_steps", "time/iteration"):
         assert key in r.data.metrics, key
     history = mlflow.MlflowClient(mlflow_uri).get_metric_history(r.info.run_id, "best_score")
     assert [m.step for m in history] == [0, 1, 2]

@@ -154,6 +154,7 @@ class EPOET:
         self.transfers = 0
         self.env_steps = 0
         self.elapsed = 0.0  # seconds of iterations, summed over resumes
+        self.best_score = -np.inf  # the best `score` (best active pair's) of any iteration so far
         self._terrains: dict[tuple[int, int], Terrain] = {}
         root = Environment(index=0, genome=new_genome(terrain.cppn, self._seed(Key.ROOT_GENOME, 0)),
                            generation=0, parent=None, created_at=0)
@@ -236,19 +237,20 @@ class EPOET:
         self.elapsed += elapsed
         metrics.update(timer.metrics())
         metrics.update(self.generation_scores())
-        best = max(p.score for p in self.active)
+        score = max(p.score for p in self.active)
+        self.best_score = max(self.best_score, score)
         metrics.update({
-            "best_score": best,
+            "best_score": self.best_score,
             "active_envs": float(len(self.active)),
             "archived_envs": float(len(self.archived)),
             "annecs": float(self.annecs),
             "env_steps": float(self.env_steps),
             "steps_per_second": (self.env_steps - steps0) / elapsed,
-            "wall_time": elapsed,
+            "time/iteration": elapsed,
             # The axes and the score every algorithm logs (the baselines: their evaluation
             # return), so MLflow charts can put ePOET and the baselines side by side.
             "elapsed": self.elapsed,
-            "score": best,
+            "score": score,
         })
         self.iteration += 1
         return metrics
@@ -517,7 +519,7 @@ class EPOET:
                     "best_theta": p.best_theta}
         return {"iteration": self.iteration, "next_index": self.next_index,
                 "transfers": self.transfers, "env_steps": self.env_steps,
-                "elapsed": self.elapsed,
+                "elapsed": self.elapsed, "best_score": self.best_score,
                 "active": [pair_state(p) for p in self.active],
                 "archived": [pair_state(p) for p in self.archived]}
 
@@ -532,6 +534,9 @@ class EPOET:
         self.transfers = state["transfers"]
         self.env_steps = state["env_steps"]
         self.elapsed = state["elapsed"]
+        # checkpoints older than the run-level best: the pairs' bests are the closest record
+        self.best_score = state.get("best_score", max(
+            s["best_score"] for s in state["active"] + state["archived"]))
         self.active = [restore(s) for s in state["active"]]
         self.archived = [restore(s) for s in state["archived"]]
         self._terrains.clear()

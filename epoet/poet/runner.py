@@ -83,6 +83,7 @@ def _progress(name: str, poet: EPOET, metrics: dict[str, float], total: int,
         extra += (f" join: {poet.cfg.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
                   f" vs the SAC actor's {metrics['join/sac_score']:.1f}")
     print(f"[{name}] it {poet.iteration}/{total} pairs={len(poet.active)} "
-          f"archived={len(poet.archived)} best={metrics['best_score']:.1f} "
+          f"archived={len(poet.archived)} score={metrics['score']:.1f} "
+          f"best={metrics['best_score']:.1f} "
           f"annecs={poet.annecs} steps/s={metrics['steps_per_second']:,.0f} "
           f"elapsed={elapsed:.0f}s{extra}", flush=True)

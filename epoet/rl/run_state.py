@@ -71,6 +71,7 @@ class LoopState:
     last_eval_frames: int = -1
     last_eval: dict[str, float] = dataclasses.field(default_factory=dict)
     wall_time: float = 0.0          # seconds of training, summed over resumes
+    best_score: float = -math.inf   # the best evaluation return so far
 
 
 @dataclass
@@ -104,8 +105,8 @@ class TrainingRun:
     """Seeds, the training and evaluation envs, counters, tracking, checkpoints and progress of
     one baseline run. Metrics go to the tracker at step = frames: `train/*` (episode return and
     length, the learner's losses and diagnostics), `eval/*` (return_mean, return_std,
-    length_mean, finish_rate), `frames`, `fps`, `wall_time`, and `final/*` (the last
-    evaluation) at the end."""
+    length_mean, finish_rate), `score` (eval/return_mean) and `best_score` (its best so far),
+    `frames`, `fps`, `time/batch`, and `final/*` (the last evaluation) at the end."""
 
     def __init__(self, cfg: Config, tracker: Tracker, run_dir: Path,
                  resume: dict[str, Any] | None) -> None:
@@ -193,7 +194,7 @@ class TrainingRun:
         # env_steps and elapsed are the x-axes every algorithm logs (ePOET too), so MLflow can
         # chart all algorithms against environment steps or training time.
         metrics.update({"frames": state.frames, "fps": batch.numel() / elapsed,
-                        "wall_time": state.wall_time, "train/episodes": state.episodes,
+                        "time/batch": elapsed, "train/episodes": state.episodes,
                         "env_steps": state.frames, "elapsed": state.wall_time})
         self.tracker.log_metrics(state.frames, metrics)
         self.progress.update(batch.numel())
@@ -245,8 +246,9 @@ class TrainingRun:
                                    self.seeds.eval, hexapod(self.env).episodes,
                                    self.cfg.budget.episode_steps)
         state.last_eval_frames = state.frames
+        state.best_score = max(state.best_score, state.last_eval["return_mean"])
         metrics = {**{f"eval/{k}": v for k, v in state.last_eval.items()},
-                   "score": state.last_eval["return_mean"]}
+                   "score": state.last_eval["return_mean"], "best_score": state.best_score}
         if state.batches == 0:  # later evaluations follow a batch that logged the axes already
             metrics.update({"env_steps": state.frames, "elapsed": state.wall_time})
         self.tracker.log_metrics(state.frames, metrics)
