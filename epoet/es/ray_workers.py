@@ -21,6 +21,8 @@ import itertools
 import math
 import os
 import socket
+import subprocess
+import sys
 from collections.abc import Iterator, Sequence
 
 import numpy as np
@@ -40,17 +42,82 @@ except ImportError:  # the optional extra; RayEvaluator says how to install it
 INSTALL_HINT = "pip install -c constraints.txt -e '.[distributed]'"
 
 
+# HTTP/2's client preface and an empty SETTINGS frame; Ray's GCS (a gRPC server) answers with
+# its own SETTINGS frame (type 4, stream 0), which anything that is not HTTP/2 does not send.
+_HTTP2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+HELLO_SECONDS = 2.0
+
+
+def _speaks_http2(host: str, port: int) -> bool:
+    """Whether the server at host:port answers HTTP/2's preface within HELLO_SECONDS: the cheap
+    test first, so a port where something else listens fails in seconds without starting Ray."""
+    try:
+        with socket.create_connection((host, port), timeout=HELLO_SECONDS) as conn:
+            conn.sendall(_HTTP2_HELLO)
+            header = b""
+            while len(header) < 9 and (chunk := conn.recv(9 - len(header))):
+                header += chunk
+    except OSError:  # a timeout included
+        return False
+    return len(header) == 9 and header[3] == 4 and header[5:9] == bytes(4)
+
+
+# Then speaks to the address as `ray.init` does (Ray's own GCS client), in a child process that is
+# killed at the deadline: `ray.init` waits minutes on a port where something else listens, and a
+# client that gives up leaves threads behind, so neither runs in this process.
+_PROBE = """
+import sys
+try:
+    from ray._raylet import GcsClient
+    GcsClient(address=sys.argv[1])
+except Exception as exc:
+    print(exc)
+    sys.exit(1)
+"""
+PROBE_SECONDS = 8.0
+# Ray's own connect timeouts (the client waits up to three), so the probe ends with its reason.
+_PROBE_ENV = {"RAY_gcs_rpc_server_connect_timeout_s": "2", "RAY_py_gcs_connect_timeout_s": "2"}
+
+
 def check_address(address: str) -> None:
-    """Fail in seconds, in one sentence, when a cluster address does not answer (`ray.init`
-    would retry for a minute). `auto` and `ray://` addresses are left to Ray."""
+    """Fail in seconds, in one sentence, when a cluster address is not a Ray cluster's (`ray.init`
+    would retry for minutes): nothing listens there, or what listens is not Ray's GCS. `auto`
+    and `ray://` addresses are left to Ray."""
     host, _, port = address.rpartition(":")
     if address == "auto" or "://" in address or not port.isdigit():
         return
+    if ray is None:
+        raise ConfigError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
+    host = host or "127.0.0.1"
+    fix = (f"start one with `ray start --head --port={port}`, or use workers.address=null for a "
+           f"local Ray.")
     try:
-        socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
+        socket.create_connection((host, int(port)), timeout=5).close()
     except OSError as exc:
         raise ConfigError(f"no Ray cluster answers at workers.address={address} "
-                          f"({exc.strerror or exc}); start one with `ray start --head`.") from None
+                          f"({exc.strerror or exc}); {fix}") from None
+    tls = os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true")  # no plain HTTP/2 then
+    if not tls and not _speaks_http2(host, int(port)):
+        raise ConfigError(f"no Ray cluster answers at workers.address={address} (something "
+                          f"listens there but does not speak Ray's gRPC); {fix}")
+    env = {**_PROBE_ENV, **os.environ}  # a user's own Ray timeouts win; the deadline holds anyway
+    try:
+        probe = subprocess.run([sys.executable, "-c", _PROBE, f"{host}:{port}"], env=env,
+                               stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                               timeout=PROBE_SECONDS)
+    except subprocess.TimeoutExpired:
+        raise ConfigError(f"no Ray cluster answers at workers.address={address} (something "
+                          f"listens there but does not answer as Ray in {PROBE_SECONDS:.0f} s); "
+                          f"{fix}") from None
+    if probe.returncode == 0:
+        return
+    if "authentication" in probe.stderr.lower() or "authentication" in probe.stdout.lower():
+        raise ConfigError(f"the Ray cluster at workers.address={address} wants token "
+                          f"authentication: export RAY_AUTH_MODE=token with the cluster's token in "
+                          f"~/.ray/auth_token (or RAY_AUTH_TOKEN).")
+    reason = (probe.stdout.strip().splitlines() or [f"exit code {probe.returncode}"])[-1]
+    raise ConfigError(f"no Ray cluster answers at workers.address={address} (something listens "
+                      f"there but does not answer as Ray: {reason.rstrip('.')}); {fix}")
 
 
 class _Feed:
