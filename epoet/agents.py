@@ -13,7 +13,8 @@ import atexit
 import re
 import shutil
 import tempfile
-from collections.abc import Callable
+import zipfile
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,8 +23,8 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
-from epoet.config import AgentConfig
-from epoet.es.policy import forward
+from epoet.config import RL_ACTIVATIONS, AgentConfig
+from epoet.es.policy import LAYER_SIZES, forward, num_params
 from epoet.tracking import StoredRun, TrackingError
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -36,6 +37,110 @@ class AgentError(ValueError):
     """A run spec that names no usable agent; one sentence."""
 
 
+VALID = {"es": "an .npz of ES parameters (theta: the flat finite parameter vector, layer_sizes: "
+                "{obs}, ..., {act})",
+         "torch": f"a {TORCH_POLICY} that a PPO, SAC or VMPO run exported"}
+
+
+def task_sizes() -> tuple[int, int]:
+    """The task's observation and action sizes (epoet.envs.task.OBS_DIM, ACT_DIM).
+
+    Read from the ES layer sizes' ends, which are those numbers (tests/test_bad_agents.py checks
+    it), because epoet.envs imports MuJoCo, and rendering must resolve its run before MuJoCo
+    picks its OpenGL backend (epoet.render.open_gl).
+    """
+    return LAYER_SIZES[0], LAYER_SIZES[-1]
+
+
+def bad_agent(path: Path, kind: str, problem: str) -> AgentError:
+    """One sentence: the file, what is wrong with it and what a valid one is."""
+    obs, act = task_sizes()
+    return AgentError(f"{path} {problem}: a valid agent file is "
+                      f"{VALID[kind].format(obs=obs, act=act)}.")
+
+
+def check_network(path: Path, kind: str, sizes: Sequence[int],
+                  params: Iterable[tuple[str, np.ndarray]]) -> None:
+    """The check every policy format shares: it maps the task's observations to its actions
+    and all its parameters are finite (NaN weights would act NaN and crash the episode)."""
+    obs, act = task_sizes()
+    if sizes[0] != obs or sizes[-1] != act:
+        raise bad_agent(path, kind, f"maps {sizes[0]} observations to {sizes[-1]} actions, but "
+                                    f"the task has {obs} observations and {act} actions")
+    for name, values in params:
+        if not np.isfinite(values).all():
+            raise bad_agent(path, kind, f"has non-finite parameters (NaN or inf) in {name}")
+
+
+def read_es_policy(path: Path) -> tuple[np.ndarray, tuple[int, ...]]:
+    """An ES policy file's checked (theta, layer_sizes), or AgentError."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if not isinstance(data, np.lib.npyio.NpzFile):
+                raise TypeError  # a bare .npy array
+            arrays = {key: data[key] for key in ("theta", "layer_sizes") if key in data}
+    except (OSError, ValueError, EOFError, TypeError, zipfile.BadZipFile):
+        raise bad_agent(path, "es", "is not a readable .npz file") from None
+    missing = [key for key in ("theta", "layer_sizes") if key not in arrays]
+    if missing:
+        raise bad_agent(path, "es", f"has no {' and no '.join(missing)}")
+    theta, sizes = arrays["theta"], arrays["layer_sizes"]
+    if sizes.ndim != 1 or len(sizes) < 2 or sizes.dtype.kind not in "iu" or sizes.min() < 1:
+        raise bad_agent(path, "es", f"has layer_sizes {sizes.tolist()}, not a list of at least "
+                                    f"two positive integers")
+    sizes_tuple = tuple(int(n) for n in sizes)
+    check_network(path, "es", sizes_tuple, [])
+    if theta.ndim != 1 or theta.dtype.kind not in "fiu" or len(theta) != num_params(sizes_tuple):
+        raise bad_agent(path, "es", f"has theta of shape {theta.shape} ({theta.dtype}), but "
+                                    f"layer_sizes {list(sizes_tuple)} take "
+                                    f"{num_params(sizes_tuple)} numbers")
+    theta = theta.astype(np.float64)
+    check_network(path, "es", sizes_tuple, [("theta", theta)])
+    return theta, sizes_tuple
+
+
+def read_torch_policy(path: Path) -> dict[str, Any]:
+    """An exported torch policy's checked plain data (epoet.rl.policy_file), or AgentError."""
+    import torch  # only when a torch policy is used
+
+    from epoet.rl.policy_file import POLICY_FORMAT
+    try:
+        spec = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception:  # torch raises many types (UnpicklingError, RuntimeError, ...)
+        raise bad_agent(path, "torch", "is not a readable torch file") from None
+    if not isinstance(spec, dict) or spec.get("format") != POLICY_FORMAT:
+        raise bad_agent(path, "torch", f"is not an epoet policy ({POLICY_FORMAT})")
+    try:
+        hidden = [int(n) for n in spec["hidden"]]
+        sizes = [int(spec["obs_dim"]), *hidden, int(spec["act_dim"])]
+        weights = {k: v for k, v in spec["state_dict"].items() if isinstance(v, torch.Tensor)}
+        norm = [(k, spec[k]) for k in ("obs_loc", "obs_scale") if spec[k] is not None]
+        clip = spec["obs_clip"]
+        activation = spec["activation"]
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise bad_agent(path, "torch", f"lacks a field of {POLICY_FORMAT} ({err})") from None
+    if activation not in RL_ACTIVATIONS:
+        raise bad_agent(path, "torch", f"has an unknown activation {activation!r}")
+    expected = {}
+    for layer, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
+        expected[f"{2 * layer}.weight"] = (n_out, n_in)
+        expected[f"{2 * layer}.bias"] = (n_out,)
+    last = f"{2 * len(hidden)}"  # the output layer may also hold the scales: >= act_dim rows
+    if f"{last}.weight" in weights and weights[f"{last}.weight"].shape[0] >= sizes[-1]:
+        rows = weights[f"{last}.weight"].shape[0]
+        expected[f"{last}.weight"], expected[f"{last}.bias"] = (rows, sizes[-2]), (rows,)
+    shapes = {k: tuple(v.shape) for k, v in weights.items()}
+    if shapes != expected or set(weights) != set(spec["state_dict"]):
+        raise bad_agent(path, "torch", f"has weights that do not fit its layer sizes {sizes}")
+    if len(norm) not in (0, 2) or (norm and not isinstance(clip, (int, float))) or any(
+            not isinstance(v, torch.Tensor) or tuple(v.shape) != (sizes[0],) for _, v in norm):
+        raise bad_agent(path, "torch", f"has an observation normaliser that is not obs_loc and "
+                                       f"obs_scale of shape ({sizes[0]},) with an obs_clip")
+    check_network(path, "torch", sizes,
+                  [(k, v.detach().double().numpy()) for k, v in [*weights.items(), *norm]])
+    return spec
+
+
 @dataclass(frozen=True)
 class AgentSource:
     """A policy file and its format; picklable, so worker processes load it themselves."""
@@ -43,10 +148,18 @@ class AgentSource:
     kind: str    # "es" | "torch"
     path: Path
 
-    def load(self) -> Policy:
+    def check(self) -> None:
+        """AgentError unless the file is a usable policy for the task; cheap, and imports no
+        MuJoCo, so commands check it before any other work."""
         if self.kind == "es":
-            with np.load(self.path) as data:
-                theta, sizes = data["theta"].copy(), tuple(int(n) for n in data["layer_sizes"])
+            read_es_policy(self.path)
+        else:
+            read_torch_policy(self.path)
+
+    def load(self) -> Policy:
+        """The checked policy (AgentError for a bad file)."""
+        if self.kind == "es":
+            theta, sizes = read_es_policy(self.path)
             return lambda obs: forward(theta, obs, sizes)
         from epoet.rl.policy_file import load_policy  # torch only when a torch policy is used
         return load_policy(self.path)
@@ -89,8 +202,11 @@ def _policy_in(folder: Path) -> tuple[AgentSource, str] | None:
     if pool:
         scores = {}
         for path in pool:
-            with np.load(path) as data:
-                scores[path] = float(data["score"]) if "score" in data else -np.inf
+            try:
+                with np.load(path, allow_pickle=False) as data:
+                    scores[path] = float(data["score"]) if "score" in data else -np.inf
+            except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile):
+                raise bad_agent(path, "es", "is not a readable .npz file") from None
         best = max(pool, key=lambda p: (scores[p], -int(p.stem[3:])))
         return AgentSource("es", best), best.stem
     if (folder / TORCH_POLICY).is_file():
@@ -100,10 +216,6 @@ def _policy_in(folder: Path) -> tuple[AgentSource, str] | None:
 
 def _file_source(path: Path) -> AgentSource:
     if path.suffix == ".npz":
-        with np.load(path) as data:
-            if "theta" not in data or "layer_sizes" not in data:
-                raise AgentError(f"{path} is not an ES policy file (it needs theta and "
-                                 f"layer_sizes).")
         return AgentSource("es", path)
     if path.suffix == ".pt":
         return AgentSource("torch", path)
@@ -132,6 +244,7 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
     if stored.has_artifact("config.yaml"):
         config = OmegaConf.to_container(OmegaConf.load(stored.download("config.yaml", folder)))
     source, name = found
+    source.check()
     label = stored.name if source.kind == "torch" else f"{stored.name} {name}"
     return TrainedRun(source, label, stored, stored.tags.get("algo"), stored.tags.get("seed"),
                       config, None)
@@ -150,6 +263,7 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
             raise AgentError(str(err)) from err
     config = state.get("config")
     source, name = found
+    source.check()
     algo = state.get("algo")
     seed = None if config is None else str(config["seed"])
     base = f"{algo}-s{seed}" if algo else folder.name
@@ -160,10 +274,16 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
 
 
 def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
-    """`run=<spec>`: a policy file, a run folder, or an MLflow run id (in that order)."""
+    """`run=<spec>`: a policy file, a run folder, or an MLflow run id (in that order).
+
+    Its policy is checked here (AgentSource.check), so a bad agent file fails before any
+    episode and before the store is opened for a run folder.
+    """
     path = Path(spec)
     if path.is_file():
-        return TrainedRun(_file_source(path), path.stem, None, None, None, None, None)
+        source = _file_source(path)
+        source.check()
+        return TrainedRun(source, path.stem, None, None, None, None, None)
     try:
         if path.is_dir():
             return _from_folder(path, tracking_uri)

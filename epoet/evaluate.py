@@ -83,29 +83,41 @@ def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
     return _cache["env"], _cache["policy"]
 
 
-def run_task(task: Task) -> tuple[int, list[list[Any]], list[np.ndarray]]:
-    """The terrain's episodes: CSV rows and each episode's sampled actions."""
+def run_task(task: Task) -> tuple[int, list[list[Any]], list[np.ndarray], list[str]]:
+    """The terrain's episodes: CSV rows, each episode's sampled actions, and a note for each
+    episode cut short by non-finite (NaN or inf) actions.
+
+    Such an episode ends before that action is applied, as a failed one (not finished, the
+    return accumulated so far): an agent acting NaN on some terrain fails there, it does not end
+    the evaluation (MuJoCo would otherwise step NaN controls).
+    """
     env, policy = _env_and_policy(task)
     env.set_terrain(task.terrain)
-    rows, samples = [], []
+    n_actions = env.action_space.shape[0]
+    rows, samples, broken = [], [], []
     for episode, seed in enumerate(task.seeds):
         obs, info = env.reset(seed=seed)
         x0, total, path, actions = info["x"], 0.0, [info["roughness"]], []
-        done = False
+        done = cut = False
         while not done:
             action = np.asarray(policy(obs), dtype=np.float64)
+            cut = not np.isfinite(action).all()
+            if cut:
+                broken.append(f"{task.terrain.name} episode {episode} step {len(actions)}")
+                break
             actions.append(action)
             obs, reward, terminated, truncated, info = env.step(action)
             total += reward
             path.append(info["roughness"])
             done = terminated or truncated
+        taken = np.asarray(actions).reshape(len(actions), n_actions)
         keep = np.linspace(0, len(actions) - 1, min(task.action_samples, len(actions)))
-        samples.append(np.asarray(actions)[np.unique(np.rint(keep).astype(int))])
+        samples.append(taken[np.unique(np.rint(keep).astype(int))])
+        finished = bool(info["finished"]) and not cut
         rows.append([task.terrain.name, task.terrain.level, task.terrain.roughness, episode,
-                     seed, total, info["finished"],
-                     bool(info["finished"] and total >= task.solve_return),
+                     seed, total, finished, finished and total >= task.solve_return,
                      info["x"] - x0, info["steps"], float(np.mean(path))])
-    return task.index, rows, samples
+    return task.index, rows, samples, broken
 
 
 def episode_seeds(seed: int, terrain: int, episodes: int) -> tuple[int, ...]:
@@ -142,7 +154,7 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
                   episode_seeds(cfg.seed, k, cfg.episodes), cfg.solve_score * run.score_scale,
                   cfg.action_samples)
              for k, terrain in enumerate(suite.terrains)]
-    results: dict[int, tuple[list, list]] = {}
+    results: dict[int, tuple[list, list, list]] = {}
     with ExitStack() as stack:
         if workers == 1:
             done: Iterable = map(run_task, tasks)
@@ -157,9 +169,13 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
             done = (f.result() for f in as_completed([pool.submit(run_task, t) for t in tasks]))
         with tqdm(total=len(tasks) * cfg.episodes, unit="episode", file=sys.stdout,
                   desc=f"evaluate {run.label}", disable=not progress) as bar:
-            for index, rows, samples in done:
-                results[index] = (rows, samples)
+            for index, rows, samples, broken in done:
+                results[index] = (rows, samples, broken)
                 bar.update(len(rows))
+    broken = [note for k in sorted(results) for note in results[k][2]]
+    if broken:  # one line, however many episodes
+        print(f"warning: {run.label} acted non-finite (NaN or inf) in {len(broken)} episodes, "
+              f"each recorded as failed (first: {broken[0]})", file=sys.stderr, flush=True)
     rows = [row for k in sorted(results) for row in results[k][0]]
     samples = [s for k in sorted(results) for s in results[k][1]]
     episodes = pd.DataFrame(rows, columns=COLUMNS)

@@ -216,8 +216,8 @@ def main(argv: list[str] | None = None) -> None:
         if run.stored is not None:
             run.stored.log_results({}, artifacts={video.path: VIDEOS})
             print(f"logged to MLflow run {run.run_id} under {VIDEOS}/")
-    except (SuiteError, TerrainFileError, TerrainMismatchError, TrackingError,
-            OSError) as err:
+    except (SuiteError, TerrainFileError, TerrainMismatchError, TrackingError, AgentError,
+            OSError) as err:  # AgentError: the policy file changed since resolve_run checked it
         fail(err)
     except KeyboardInterrupt:
         print("interrupted (an unfinished video is removed)", file=sys.stderr)

@@ -1,25 +1,32 @@
 """The exported policy of a baseline run: plain data (architecture, normaliser, weights) that
 `load_policy` turns back into `act(obs) -> action` with nothing but torch, for evaluation and
-rendering without TorchRL or the training state."""
+rendering without TorchRL or the training state.
+
+TorchRL and epoet.rl.setup (which imports MuJoCo) are imported where used, so reading
+POLICY_FORMAT to check a file (epoet.agents) imports neither.
+"""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import torch
 from torch import nn
-from torchrl.envs import EnvBase
-from torchrl.modules import MLP, ProbabilisticActor
 
+from epoet.agents import read_torch_policy
 from epoet.files import atomic_write
-from epoet.rl.setup import ACTIVATIONS, OBS, OBS_CLIP, obs_norm_of
+
+if TYPE_CHECKING:
+    from torchrl.envs import EnvBase
+    from torchrl.modules import MLP, ProbabilisticActor
 
 POLICY_FILE = "policy.pt"
 POLICY_FORMAT = "epoet-policy/1"
 
 
 def _actor_mlp(actor: ProbabilisticActor) -> MLP:
+    from torchrl.modules import MLP
     return next(m for m in actor.modules() if isinstance(m, MLP))
 
 
@@ -30,6 +37,7 @@ def export_policy(path: Path, actor: ProbabilisticActor, env: EnvBase, hidden: l
     `load_policy` rebuilds it with nothing but torch: a reader needs neither TorchRL nor the
     training state.
     """
+    from epoet.rl.setup import OBS, OBS_CLIP, obs_norm_of
     norm = obs_norm_of(env)
     net = _actor_mlp(actor)
     spec = {
@@ -52,10 +60,10 @@ def load_policy(path: str | Path) -> Callable[[np.ndarray], np.ndarray]:
     """Rebuild an exported policy as `act(obs) -> action` (numpy in, numpy out, batched or not).
 
     action = tanh(first act_dim outputs of the MLP applied to clip((obs - loc) / scale)).
+    A file that is not such a policy for the task raises epoet.agents.AgentError.
     """
-    spec = torch.load(Path(path), weights_only=True)
-    if not isinstance(spec, dict) or spec.get("format") != POLICY_FORMAT:
-        raise ValueError(f"{path} is not an epoet policy file ({POLICY_FORMAT}).")
+    from epoet.rl.setup import ACTIVATIONS
+    spec = read_torch_policy(Path(path))
     sizes = [spec["obs_dim"], *spec["hidden"]]
     layers: list[nn.Module] = []
     for n_in, n_out in zip(sizes[:-1], sizes[1:]):
