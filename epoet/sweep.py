@@ -109,11 +109,11 @@ def sweep_summary(children: list[Run]) -> dict[str, float]:
             groups.setdefault(run.data.tags.get("algo", "unknown"), []).append(run)
     summary: dict[str, float] = {}
     for algo, runs in groups.items():
-        summary[f"{algo}/finished"] = float(len(runs))
+        summary[f"sweep/{algo}/finished"] = float(len(runs))
         for key, name in (("score", "score"), ("suite/success_rate", "success_rate")):
             values = [v for run in runs if (v := _metric(run, key)) is not None]
             if values:
-                summary[f"{algo}/{name}_mean"] = float(np.mean(values))
+                summary[f"sweep/{algo}/{name}_mean"] = float(np.mean(values))
                 if len(values) > 1:
-                    summary[f"{algo}/{name}_std"] = float(np.std(values, ddof=1))
+                    summary[f"sweep/{algo}/{name}_std"] = float(np.std(values, ddof=1))
     return summary

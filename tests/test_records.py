@@ -85,9 +85,9 @@ def test_the_sweep_parent_reads_as_the_sweep(sweep) -> None:
     assert len(parent.data.tags["mlflow.source.git.commit"]) == 40
     assert parent.data.params["algo"] == "epoet,sac" and parent.data.params["seed"] == "1"
     for algo in ("epoet", "sac"):
-        assert parent.data.metrics[f"{algo}/finished"] == 1
-        assert parent.data.metrics[f"{algo}/score_mean"] == runs[algo].data.metrics["score"]
-        assert (parent.data.metrics[f"{algo}/success_rate_mean"]
+        assert parent.data.metrics[f"sweep/{algo}/finished"] == 1
+        assert parent.data.metrics[f"sweep/{algo}/score_mean"] == runs[algo].data.metrics["score"]
+        assert (parent.data.metrics[f"sweep/{algo}/success_rate_mean"]
                 == runs[algo].data.metrics["suite/success_rate"])
         line = next(li for li in stdout.splitlines() if li.startswith(f"[sweep] {algo} seed=1"))
         assert "FINISHED" in line and runs[algo].info.run_id in line
