@@ -123,3 +123,79 @@ def test_an_odd_frame_size_is_one_line(policy, tmp_path):
     line = one_error_line(render_cli(f"run={policy}", "terrain=r0l0", "width=641",
                                      cwd=tmp_path))
     assert "must be even" in line
+
+
+# Renders the same walker on a flat and on a 0.9 m sine-bump terrain, and the bumps once more
+# without a caption, with `Film` as `python -m epoet.render` does; in a subprocess for the GL
+# backend (module docstring). Prints NO_GL and exits 2 when there is no backend.
+SNAPSHOTS = """
+import sys
+import numpy as np
+from epoet.render import NO_GL, RenderError, open_gl
+try:
+    open_gl()
+except RenderError:
+    print(NO_GL, file=sys.stderr)
+    sys.exit(2)
+from epoet.config import load
+from epoet.envs.hexapod_env import HexapodEnv
+from epoet.render import Film, caption_text
+from epoet.terrain import Terrain
+from epoet.terrain.suite import terrain_config_for
+
+cfg = load(["algo=epoet"]).terrain
+x = np.linspace(0.0, cfg.size, cfg.grid)
+bumps = 0.5 + 0.5 * np.sin(2 * np.pi * x / 3.0)[:, None] * np.sin(2 * np.pi * x / 3.0)[None, :]
+frames = {}
+for name, heightmap in (("flat", np.zeros((cfg.grid, cfg.grid))), ("bumps", bumps)):
+    terrain = Terrain(heightmap, 0.9, cfg.size, "bowl", 0)
+    env = HexapodEnv(terrain=terrain_config_for([terrain]))
+    env.reset(seed=0, options={"terrain": terrain})
+    for key, caption in ((name, caption_text("run", name, 0, 10, 0.0, 0.0)),
+                         ("uncaptioned", ("", ""))):
+        film = Film(env, 320, 240)  # a new one each: the same camera
+        frames[key] = film.frame(caption)
+        film.close()
+    env.close()
+np.savez(sys.argv[1], **frames)
+"""
+
+
+@pytest.fixture(scope="module")
+def snapshots(tmp_path_factory) -> dict[str, np.ndarray]:
+    out = tmp_path_factory.mktemp("snapshots") / "frames.npz"
+    proc = subprocess.run([sys.executable, "-c", SNAPSHOTS, str(out)], capture_output=True,
+                          text=True, timeout=300)
+    skip_without_gl(proc)
+    assert proc.returncode == 0, proc.stderr
+    with np.load(out) as frames:
+        return dict(frames)
+
+
+def luminance(frame: np.ndarray) -> np.ndarray:
+    return frame.astype(float) @ np.array([0.299, 0.587, 0.114])
+
+
+def test_relief_shows_in_the_frame(snapshots):
+    # The ground in front of the camera, below the walker: side light and height colours make
+    # a 0.9 m relief vary far more than the flat terrain's faint checker (measured: luminance
+    # std 23 vs 7, blue-minus-red spread 57 vs 19; with one colour and the overhead light of
+    # before, 8.2 vs 8.3: this fails).
+    ground = slice(150, None)
+    flat, bumps = snapshots["flat"][ground], snapshots["bumps"][ground]
+    assert luminance(bumps).std() > 2 * luminance(flat).std()
+
+    def hue_spread(frame: np.ndarray) -> float:  # blue valleys to sand-coloured tops
+        blue_minus_red = frame[..., 2].astype(float) - frame[..., 0]
+        return float(np.percentile(blue_minus_red, 95) - np.percentile(blue_minus_red, 5))
+
+    assert hue_spread(bumps) > 2 * hue_spread(flat)
+
+
+def test_every_frame_has_a_caption(snapshots):
+    captioned, bare = snapshots["bumps"].astype(int), snapshots["uncaptioned"].astype(int)
+    box = (slice(0, 120), slice(0, 130))  # top left, where mjr_overlay writes five lines
+    assert np.abs(captioned[box] - bare[box]).mean() > 10
+    # The rest of the picture is the same.
+    assert np.array_equal(captioned[125:], bare[125:])
+    assert np.array_equal(captioned[:, 135:], bare[:, 135:])
