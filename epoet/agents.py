@@ -29,6 +29,7 @@ from epoet.tracking import StoredRun, TrackingError
 
 Policy = Callable[[np.ndarray], np.ndarray]
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+MODEL_URI = re.compile(r"^runs:/([0-9a-f]{32})/agent/?$")  # the run's MLflow model (agent_model)
 TORCH_POLICY = "policy.pt"
 ES_POLICIES = "policies"
 
@@ -196,8 +197,9 @@ class TrainedRun:
         return float(self.config["budget"]["score_scale"])
 
 
-def _policy_in(folder: Path) -> tuple[AgentSource, str] | None:
-    """The best pool agent (highest score) or the exported torch policy found in a folder."""
+def policy_in(folder: Path) -> tuple[AgentSource, str] | None:
+    """A run folder's exported agent and its name: the best pool agent (highest score) or the
+    exported torch policy; None if it has neither."""
     pool = sorted((folder / ES_POLICIES).glob("env*.npz"))  # none if the folder is absent
     if pool:
         scores = {}
@@ -214,7 +216,8 @@ def _policy_in(folder: Path) -> tuple[AgentSource, str] | None:
     return None
 
 
-def _file_source(path: Path) -> AgentSource:
+def file_source(path: Path) -> AgentSource:
+    """A policy file's format, by the name runs give it."""
     if path.suffix == ".npz":
         return AgentSource("es", path)
     if path.suffix == ".pt":
@@ -235,7 +238,7 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
         if stored.has_artifact(artifact):
             stored.download(artifact, folder)
             break
-    found = _policy_in(folder)
+    found = policy_in(folder)
     if found is None:
         raise AgentError(f"run {run_id} ({stored.name}, {stored.status}) has no policy artifact "
                          f"({ES_POLICIES}/ or {TORCH_POLICY}): evaluate a run that finished "
@@ -251,7 +254,7 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
 
 
 def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
-    found = _policy_in(folder)
+    found = policy_in(folder)
     if found is None:
         raise AgentError(f"run folder {folder} has no policy ({ES_POLICIES}/env<N>.npz or "
                          f"{TORCH_POLICY}): evaluate a run that finished training.")
@@ -274,14 +277,15 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
 
 
 def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
-    """`run=<spec>`: a policy file, a run folder, or an MLflow run id (in that order).
+    """`run=<spec>`: a policy file, a run folder, an MLflow run id or its model URI
+    `runs:/<run id>/agent` (in that order).
 
     Its policy is checked here (AgentSource.check), so a bad agent file fails before any
     episode and before the store is opened for a run folder.
     """
     path = Path(spec)
     if path.is_file():
-        source = _file_source(path)
+        source = file_source(path)
         source.check()
         return TrainedRun(source, path.stem, None, None, None, None, None)
     try:
@@ -289,6 +293,9 @@ def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
             return _from_folder(path, tracking_uri)
         if RUN_ID.match(spec):
             return _from_store(spec, tracking_uri)
+        if model := MODEL_URI.match(spec):  # the agent the model was logged from
+            return _from_store(model.group(1), tracking_uri)
     except TrackingError as err:
         raise AgentError(str(err)) from err
-    raise AgentError(f"run={spec} is neither a policy file, a run folder nor an MLflow run id.")
+    raise AgentError(f"run={spec} is neither a policy file, a run folder, an MLflow run id nor "
+                     f"a model URI runs:/<run id>/agent.")

@@ -114,6 +114,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
               f"run_id={tracker.run_id} dir={run_dir}", flush=True)
         with StopOnSignal():
             result = runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
+        log_agent_model(tracker, run_dir)
     if cfg.evaluate:
         evaluate_agent(cfg, run_dir)
     with atomic_write(run_dir / DONE) as f:  # after the run and its evaluation are done
@@ -153,6 +154,17 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
             f"?workflowType=machine_learning",
             f"  evaluate: python -m epoet.evaluate run={run_dir}",
             f"  render:   python -m epoet.render run={run_dir} terrain={_medium_terrain()}"]
+
+
+def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:
+    """The exported agent (as `agent_choice` picked it, what evaluation uses) as the run's MLflow
+    model `agent` (epoet.agent_model)."""
+    from epoet.agents import policy_in
+    from epoet.envs.task import ACT_DIM, OBS_DIM
+    found = policy_in(run_dir)
+    if found is None:
+        raise RuntimeError(f"the run exported no agent into {run_dir}.")  # a runner's bug
+    tracker.log_agent(found[0].path, "epoet.agent_model", OBS_DIM, ACT_DIM)
 
 
 class EvaluationError(RuntimeError):

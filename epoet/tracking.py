@@ -20,13 +20,16 @@ import random
 import re
 import sqlite3
 import subprocess
+import tempfile
 import time
+import warnings
 from collections.abc import Iterator, Mapping
 from contextlib import closing, contextmanager
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
 from mlflow import MlflowClient
 from mlflow.entities import Metric, Param, Run, RunTag
 from mlflow.exceptions import MlflowException
@@ -488,6 +491,42 @@ class MlflowTracker:
             self.client.log_dict(run_id, obj, artifact_file)
         except (MlflowException, OSError, TypeError) as exc:
             raise TrackingError(f"cannot upload {artifact_file}: {_reason(exc)}") from exc
+
+    def log_agent(self, policy: Path, loader_module: str, obs_dim: int, act_dim: int) -> None:
+        """Log the trained agent as this run's MLflow model `agent` (a pyfunc whose data is the
+        policy file and whose loader is `loader_module`), with the signature observation
+        (n, obs_dim) -> action (n, act_dim): the UI's Models column links it and
+        `mlflow.pyfunc.load_model("runs:/<run id>/agent")` loads it.
+
+        Through the client (create, upload, finalize, link as the run's output), not
+        `mlflow.pyfunc.log_model`, which writes to the fluent API's global store and experiment.
+        """
+        import mlflow.pyfunc  # the model API is only needed here, once per run
+        from mlflow.entities import LoggedModelOutput, LoggedModelStatus
+        from mlflow.models import ModelSignature
+        from mlflow.types import Schema, TensorSpec
+        run_id = self._require_open()
+        float64 = np.dtype(np.float64)
+        # unnamed tensors: predict gets the observation array itself
+        signature = ModelSignature(inputs=Schema([TensorSpec(float64, (-1, obs_dim))]),
+                                   outputs=Schema([TensorSpec(float64, (-1, act_dim))]))
+        try:
+            model = self.client.create_logged_model(self.experiment_id, name="agent",
+                                                    source_run_id=run_id)
+            with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+                # the signature says what an input example would; MLflow asks for one anyway
+                warnings.filterwarnings("ignore", message=".*An input example was not provided")
+                mlflow.pyfunc.save_model(
+                    f"{tmp}/agent", loader_module=loader_module,
+                    data_path=str(_existing_path(policy)), signature=signature,
+                    # stated, not inferred: inference loads the model in a subprocess
+                    pip_requirements=[f"mlflow=={mlflow.__version__}", f"numpy=={np.__version__}"])
+                self.client.log_model_artifacts(model.model_id, f"{tmp}/agent")
+            self.client.finalize_logged_model(model.model_id, LoggedModelStatus.READY)
+            self.client.log_outputs(run_id, [LoggedModelOutput(model.model_id, step=0)])
+        except (MlflowException, OSError) as exc:
+            raise TrackingError(f"cannot log the agent {policy} as an MLflow model: "
+                                f"{_reason(exc)}") from exc
 
     def set_tags(self, tags: Mapping[str, str]) -> None:
         """Set run tags now (e.g. why the run stopped)."""

@@ -20,6 +20,8 @@ import pytest
 
 from analysis.store import ALGOS
 from analysis.tables import table1, table2
+from epoet.agents import resolve_run
+from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.terrain.suite import LEVELS, SHIPPED, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -219,3 +221,28 @@ def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
     run(compose([*smoke, "evaluate=false"]), tmp_path / "plain")
     run_id = load_checkpoint(tmp_path / "plain" / "checkpoint.pkl")["run_id"]
     assert "suite/success_rate" not in mlflow.MlflowClient(mlflow_uri).get_run(run_id).data.metrics
+
+
+def test_every_agent_loads_as_an_mlflow_model_and_acts_as_the_product(paper, monkeypatch):
+    """`mlflow.pyfunc.load_model("runs:/<id>/agent")` is each run's exported agent: the same
+    actions as the policy `epoet.evaluate run=<id>` resolves, on the same observations; and
+    `run=runs:/<id>/agent` resolves to that agent too."""
+    uri, _, _, _ = paper
+    observations = np.random.default_rng(0).normal(size=(5, OBS_DIM))
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)  # where load_model("runs:/...") looks
+    for algo, run in finished_runs(uri).items():
+        model = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/agent")
+        inputs = model.metadata.get_input_schema().inputs[0]
+        assert inputs.shape == (-1, OBS_DIM), algo
+        assert model.metadata.get_output_schema().inputs[0].shape == (-1, ACT_DIM), algo
+        actions = model.predict(observations)
+        policy = resolve_run(run.info.run_id, uri).agent.load()
+        assert actions.shape == (5, ACT_DIM)
+        np.testing.assert_allclose(actions, [policy(o) for o in observations], err_msg=algo)
+        via_uri = resolve_run(f"runs:/{run.info.run_id}/agent", uri)
+        assert via_uri.run_id == run.info.run_id and via_uri.label == resolve_run(
+            run.info.run_id, uri).label
+    models = mlflow.MlflowClient(uri).search_logged_models(
+        [mlflow.MlflowClient(uri).get_experiment_by_name("paper-smoke").experiment_id])
+    assert sorted(m.source_run_id for m in models) == sorted(
+        r.info.run_id for r in finished_runs(uri).values())  # the UI's Models column
