@@ -38,6 +38,14 @@ OVERRIDES = {
 }
 
 
+# Relative tolerance per algorithm. ePOET's float64 parameters reproduce to the last bits. The
+# baselines' float32 torch updates do not across CPUs: their matrix products take other SIMD
+# paths (the fixture's PPO, SAC and VMPO values came back up to 7.4e-7 apart, one float32 ulp,
+# on a second machine), while any change of behaviour moves them by far more than 1e-5.
+RTOL = {"epoet": 1e-10}
+FLOAT32_RTOL = 1e-5
+
+
 def final_parameters(algo: str, run_dir: Path) -> np.ndarray:
     """Every learned parameter at the end of the run, flattened in a fixed order."""
     state = load_checkpoint(run_dir / "checkpoint.pkl")
@@ -67,5 +75,6 @@ def test_a_smoke_run_ends_with_the_golden_parameters(algo: str, mlflow_uri: str,
         pytest.skip("golden fixture written")
     want = json.loads(GOLDEN.read_text())[algo]
     assert got["count"] == want["count"]
-    np.testing.assert_allclose(got["sample"], want["sample"], rtol=1e-10, atol=0)
-    assert got["sum"] == pytest.approx(want["sum"], rel=1e-10, abs=0)
+    rtol = RTOL.get(algo, FLOAT32_RTOL)
+    np.testing.assert_allclose(got["sample"], want["sample"], rtol=rtol, atol=0)
+    assert got["sum"] == pytest.approx(want["sum"], rel=rtol, abs=0)
