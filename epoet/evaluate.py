@@ -47,8 +47,8 @@ from epoet.envs.hexapod_env import HexapodEnv
 from epoet.es.workers import default_workers
 from epoet.files import atomic_write
 from epoet.lifecycle import end_with
-from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, load_suite,
-                                 terrain_config_for)
+from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, example_terrain,
+                                 load_suite, terrain_config_for)
 from epoet.tracking import TrackingError
 
 COLUMNS = ["terrain", "level", "roughness", "episode", "start_seed", "return", "finished", "solved",
@@ -205,8 +205,10 @@ def results_folder(cfg: EvaluateConfig, run: TrainedRun) -> Path:
     return Path(RESULTS) / "".join(c if c.isalnum() or c in "-_." else "_" for c in run.label)
 
 
-def evaluate_run(cfg: EvaluateConfig, progress: bool = True) -> tuple[Evaluation, Path]:
-    """Resolve, check, evaluate, write and log: the whole command, for `make tables` too."""
+def evaluate_run(cfg: EvaluateConfig, progress: bool = True
+                 ) -> tuple[Evaluation, Path, TrainedRun]:
+    """Resolve, check, evaluate, write and log: the whole command, for `make tables` too;
+    returns the evaluation, its results folder and the agent's run."""
     run = resolve_run(cfg.run, cfg.tracking.uri)
     suite = load_suite(cfg.suite)
     folder = results_folder(cfg, run)
@@ -228,7 +230,7 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True) -> tuple[Evaluation
                                      "eval_course_scale": f"{scale:g}",
                                      "eval_episodes": str(cfg.episodes)},
                                artifacts={path: RESULTS for path in paths.values()})
-    return result, folder
+    return result, folder, run
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -236,7 +238,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cfg: EvaluateConfig = validate(compose(sys.argv[1:] if argv is None else argv,
                                                config_name="evaluate"))
-        result, folder = evaluate_run(cfg)
+        result, folder, run = evaluate_run(cfg)
     except (ConfigError, AgentError, SuiteError, TrackingError, OSError, HydraException,
             OmegaConfBaseException) as err:
         fail(err)
@@ -245,7 +247,12 @@ def main(argv: list[str] | None = None) -> None:
                        if f"suite/success_rate_{level}" in m)
     print(f"success rate {m['suite/success_rate']:.1%} ({levels}); mean return "
           f"{m['suite/return_mean']:.1f}; mean forward distance "
-          f"{m['suite/forward_distance_mean']:.2f} m; results in {folder}/")
+          f"{m['suite/forward_distance_mean']:.2f} m")
+    print(f"  results:  {folder}/ (episodes.csv, actions.npz, summary.json)")
+    if run.stored is not None:
+        print(f"  logged to MLflow run {run.run_id} under {RESULTS}/")
+        print(f"  runs:     {run.stored.ui_hint()}")
+    print(f"  render:   python -m epoet.render run={cfg.run} terrain={example_terrain()}")
 
 
 if __name__ == "__main__":

@@ -388,7 +388,8 @@ def main(argv: list[str] | None = None) -> None:
         print(video.summary(), flush=True)  # before logging: the video exists whatever follows
         if run.stored is not None:
             run.stored.log_results({}, artifacts={video.path: VIDEOS})
-            print(f"logged to MLflow run {run.run_id} under {VIDEOS}/")
+            print(f"  logged to MLflow run {run.run_id} under {VIDEOS}/")
+            print(f"  runs:     {run.stored.ui_hint()}")
     except (SuiteError, TerrainFileError, TerrainMismatchError, TrackingError, AgentError,
             OSError) as err:  # AgentError: the policy file changed since resolve_run checked it
         fail(err)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import json
 from pathlib import Path
 from typing import Any, Callable
 
@@ -19,8 +18,7 @@ from epoet.config import Config, compose, validate
 from epoet.files import atomic_write
 from epoet.es.workers import default_workers
 from epoet.lifecycle import StopOnSignal
-from epoet.tracking import (MlflowTracker, StoredRun, Tracker, flatten, parent_run_id,
-                            resolve_tracking_uri)
+from epoet.tracking import MlflowTracker, StoredRun, Tracker, flatten, parent_run_id
 
 # algo.name -> "module:function" with the runner shape
 #   train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict | None) -> Any
@@ -124,13 +122,6 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
     return result
 
 
-def _medium_terrain() -> str:
-    """A medium terrain of the shipped suite, for the render command a run ends with."""
-    from epoet.terrain.suite import SHIPPED
-    terrains = json.loads((SHIPPED / "suite.json").read_text())["terrains"]
-    return next((t["name"] for t in terrains if t.get("level") == "medium"), terrains[0]["name"])
-
-
 def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> list[str]:
     """What a finished run says last: its headline numbers and, outside a sweep (whose parent
     prints a line per job), where its outputs are and the commands that look at them."""
@@ -145,15 +136,13 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
             f"{took} of training: {numbers}")
     if in_sweep:
         return [head]
-    store = resolve_tracking_uri(cfg.tracking.uri)
+    from epoet.terrain.suite import example_terrain
     return [head,
             f"  outputs:  {run_dir} (checkpoint, exported agent"
             f"{', evaluation/' if cfg.evaluate else ''}); MLflow run {stored.run_id}",
-            f"  runs:     mlflow ui --backend-store-uri {store}  then open "
-            f"http://127.0.0.1:5000/#/experiments/{stored.experiment_id}/runs"
-            f"?workflowType=machine_learning",
+            f"  runs:     {stored.ui_hint()}",
             f"  evaluate: python -m epoet.evaluate run={run_dir}",
-            f"  render:   python -m epoet.render run={run_dir} terrain={_medium_terrain()}"]
+            f"  render:   python -m epoet.render run={run_dir} terrain={example_terrain()}"]
 
 
 def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:

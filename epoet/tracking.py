@@ -551,13 +551,21 @@ class MlflowTracker:
                                     f"{_reason(exc)}") from exc
 
 
+def ui_hint(tracking_uri: str, experiment_id: str) -> str:
+    """The command that serves the store and the URL of the experiment's runs table (MLflow
+    3's UI opens on a GenAI overview without `workflowType`)."""
+    return (f"mlflow ui --backend-store-uri {tracking_uri}  then open http://127.0.0.1:5000/"
+            f"#/experiments/{experiment_id}/runs?workflowType=machine_learning")
+
+
 class StoredRun:
     """A run already in the store, for the commands that read it or add results to it after
     training (evaluation, videos, analysis): its tags, its artifacts, and logging without
     reopening it (its status stays what training left)."""
 
-    def __init__(self, client: MlflowClient, run: Run) -> None:
+    def __init__(self, client: MlflowClient, run: Run, tracking_uri: str | None = None) -> None:
         self.client = client
+        self.tracking_uri = resolve_tracking_uri(tracking_uri)
         self.run_id = run.info.run_id
         self.name = run.info.run_name
         self.status = run.info.status
@@ -571,7 +579,7 @@ class StoredRun:
         uri = resolve_tracking_uri(tracking_uri)
         client = open_store(uri)
         try:
-            return cls(client, client.get_run(run_id))
+            return cls(client, client.get_run(run_id), uri)
         except MlflowException as exc:
             raise TrackingError(f"run {run_id} is not in the MLflow store {uri}.") from exc
 
@@ -591,6 +599,10 @@ class StoredRun:
         except (MlflowException, OSError) as exc:
             raise TrackingError(f"cannot download {artifact_path} of run {self.run_id}: "
                                 f"{_reason(exc)}") from exc
+
+    def ui_hint(self) -> str:
+        """Where to look at this run (`ui_hint`)."""
+        return ui_hint(self.tracking_uri, self.experiment_id)
 
     def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
                     artifacts: Mapping[str, str | Path] = {}) -> None:

@@ -293,6 +293,12 @@ def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> l
 
 # --- loading --------------------------------------------------------------------------------
 
+def example_terrain(level: str = "medium") -> str:
+    """A shipped suite terrain of `level`, for the render command other commands end with."""
+    entries = json.loads((SHIPPED / "suite.json").read_text())["terrains"]
+    return next((e["name"] for e in entries if e.get("level") == level), entries[0]["name"])
+
+
 def load_suite(folder: str | Path | None = None) -> Suite:
     """Read and check a suite folder (None: the shipped one); SuiteError names any problem."""
     folder = SHIPPED if folder is None else Path(folder)
