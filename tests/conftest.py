@@ -1,7 +1,9 @@
 """Shared fixtures: small configs and terrains that exercise the real code paths quickly."""
 from __future__ import annotations
 
+import json
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -55,3 +57,16 @@ def mlflow_uri(tmp_path, monkeypatch) -> str:
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     return uri
+
+
+def one_terrain_suite(folder: Path, episode_steps: int, episode_ratio: float) -> Path:
+    """A suite folder in the documented format (epoet/terrain/suite.py) with one bumpy 20 m
+    terrain and a 12 m course made for `episode_steps`-step training episodes."""
+    folder.mkdir()
+    np.savez(folder / "heights.npz", bumps=np.random.default_rng(0).uniform(0.0, 1.0, (40, 40)))
+    (folder / "suite.json").write_text(json.dumps({
+        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
+        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35,
+                   "episode_steps": episode_steps, "episode_ratio": episode_ratio},
+        "terrains": [{"name": "bumps", "max_height": 0.2}]}))
+    return folder

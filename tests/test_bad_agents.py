@@ -4,7 +4,6 @@ MLflow store; an agent acting non-finite is a failed episode and one warning lin
 """
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from conftest import one_terrain_suite
 from test_render import one_error_line, render_cli
 
 from epoet.agents import task_sizes
@@ -118,16 +118,8 @@ def test_a_bad_agent_file_is_one_line_exit_2_and_writes_nothing(files, case, com
 
 @pytest.fixture
 def short_suite(tmp_path: Path) -> Path:
-    """A one-terrain suite with 40-step episodes (epoet/terrain/suite.py's format)."""
-    folder = tmp_path / "suite"
-    folder.mkdir()
-    np.savez(folder / "heights.npz", bumps=np.random.default_rng(0).uniform(0, 1, (40, 40)))
-    (folder / "suite.json").write_text(json.dumps({
-        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
-        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35, "episode_steps": 40,
-                   "episode_ratio": 1.0},
-        "terrains": [{"name": "bumps", "max_height": 0.2}]}))
-    return folder
+    """A one-terrain suite with 40-step episodes."""
+    return one_terrain_suite(tmp_path / "suite", episode_steps=40, episode_ratio=1.0)
 
 
 def overflowing_policy(path: Path) -> Path:

@@ -5,7 +5,6 @@ imported, and this test process may already have imported it without one.
 """
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -14,6 +13,7 @@ from pathlib import Path
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from conftest import one_terrain_suite
 from mlflow import MlflowClient
 
 from epoet.config import load
@@ -58,17 +58,8 @@ def policy(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def suite(tmp_path: Path) -> Path:
-    """A one-terrain suite folder in the documented format (epoet/terrain/suite.py)."""
-    folder = tmp_path / "suite"
-    folder.mkdir()
-    heights = np.random.default_rng(0).uniform(0.0, 1.0, (40, 40))
-    np.savez(folder / "heights.npz", bumps=heights)
-    (folder / "suite.json").write_text(json.dumps({
-        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
-        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35, "episode_steps": 2000,
-                   "episode_ratio": 2.5},
-        "terrains": [{"name": "bumps", "max_height": 0.2}]}))
-    return folder
+    """A one-terrain suite folder for the paper's 2000-step episodes."""
+    return one_terrain_suite(tmp_path / "suite", episode_steps=2000, episode_ratio=2.5)
 
 
 def test_an_es_policy_on_a_terrain_file_becomes_an_mp4_of_the_episode(policy, tmp_path):
