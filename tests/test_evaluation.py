@@ -22,6 +22,7 @@ from analysis.store import ALGOS
 from analysis.tables import table1, table2
 from epoet.agents import resolve_run
 from epoet.envs.task import ACT_DIM, OBS_DIM
+from epoet.es.workers import default_workers
 from epoet.terrain.suite import LEVELS, SHIPPED, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -246,3 +247,64 @@ def test_every_agent_loads_as_an_mlflow_model_and_acts_as_the_product(paper, mon
         [mlflow.MlflowClient(uri).get_experiment_by_name("paper-smoke").experiment_id])
     assert sorted(m.source_run_id for m in models) == sorted(
         r.info.run_id for r in finished_runs(uri).values())  # the UI's Models column
+
+
+# --- what the smoke sweep left in MLflow, read back from the store: one meaning per metric, the
+# params the jobs ran with and only those that apply to them, a parent run that reads as the
+# sweep's result.
+
+def _history(uri: str, run: mlflow.entities.Run, key: str) -> list[float]:
+    points = mlflow.MlflowClient(uri).get_metric_history(run.info.run_id, key)
+    return [p.value for p in sorted(points, key=lambda p: p.step)]
+
+
+def test_best_score_is_the_running_best_of_score(paper) -> None:
+    uri = paper[0]
+    for algo, run in finished_runs(uri).items():
+        score, best = _history(uri, run, "score"), _history(uri, run, "best_score")
+        assert len(best) == len(score) >= 2, algo
+        assert best == list(np.maximum.accumulate(score)), algo
+
+
+def test_time_metrics_have_one_meaning(paper) -> None:
+    """`elapsed` is cumulative training seconds everywhere; per-step times have their own names."""
+    uri = paper[0]
+    for algo, run in finished_runs(uri).items():
+        step_time = "time/iteration" if algo.startswith("epoet") else "time/batch"
+        assert "wall_time" not in run.data.metrics and step_time in run.data.metrics, algo
+        elapsed = _history(uri, run, "elapsed")
+        assert elapsed == sorted(elapsed) and elapsed[-1] > 0, algo
+
+
+def test_params_are_the_values_the_run_used_and_only_those_it_reads(paper) -> None:
+    uri = paper[0]
+    runs = {algo: run.data.params for algo, run in finished_runs(uri).items()}
+    for algo, params in runs.items():
+        assert params["workers.num"] == str(default_workers()), algo  # not "None"
+        assert params["tracking.uri"] == uri and "resume" not in params, algo
+    sac, epoet = runs["sac"], runs["epoet"]
+    assert sac["terrain.kind"] == "bowl"
+    assert not [k for k in sac if k.startswith(("terrain.cppn", "terrain.mutation"))]
+    assert "budget.iterations" not in sac and "budget.frames" in sac
+    assert "terrain.cppn.activation_options" in epoet and "terrain.mutation.max_tries" in epoet
+    assert "budget.iterations" in epoet and "budget.frames" not in epoet
+    assert "budget.sac_frames_per_iteration" not in epoet
+    assert "budget.sac_frames_per_iteration" in runs["epoet_sac"]
+
+
+def test_the_sweep_parent_reads_as_the_sweep(paper) -> None:
+    uri, _, stdout, _ = paper
+    client = mlflow.MlflowClient(uri)
+    exp = client.get_experiment_by_name("paper-smoke")
+    (parent,) = [r for r in client.search_runs([exp.experiment_id])
+                 if "mlflow.parentRunId" not in r.data.tags]
+    runs = finished_runs(uri)
+    assert parent.data.tags["algos"] == ",".join(ALGOS) and parent.data.tags["seeds"] == "1"
+    assert parent.data.tags["budget"] == "smoke"
+    assert len(parent.data.tags["mlflow.source.git.commit"]) == 40
+    assert parent.data.params["algo"] == ",".join(ALGOS) and parent.data.params["seed"] == "1"
+    for algo, run in runs.items():
+        assert parent.data.metrics[f"sweep/{algo}/finished"] == 1
+        assert parent.data.metrics[f"sweep/{algo}/score_mean"] == run.data.metrics["score"]
+        line = next(li for li in stdout.splitlines() if li.startswith(f"[sweep] {algo} seed=1"))
+        assert "FINISHED" in line and run.info.run_id in line
