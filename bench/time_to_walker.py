@@ -24,9 +24,10 @@ from epoet.es.workers import evaluator_for
 from epoet.poet.runner import layer_sizes, make_loop
 
 
-def time_to_walker(cfg: Config, threshold: float) -> tuple[float, int, bool]:
-    """(minutes, iterations, reached) of the root pair until its score first reaches
-    `threshold` or the budget's iterations run out."""
+def time_to_walker(cfg: Config, threshold: float) -> tuple[float, int, bool, float, float]:
+    """(minutes, iterations, reached, last score, best score) of the root pair until its score
+    first reaches `threshold` or the budget's iterations run out; the scores are the proxy
+    a shorter budget (`budget.iterations=100`) screens candidates on."""
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
         poet = make_loop(cfg, evaluator)
         start = time.perf_counter()
@@ -38,10 +39,11 @@ def time_to_walker(cfg: Config, threshold: float) -> tuple[float, int, bool]:
                     print(f"  seed {cfg.seed} it {poet.iteration} score {root.score:.1f} "
                           f"({(time.perf_counter() - start) / 60:.1f} min)", flush=True)
                 if root.score >= threshold:
-                    return (time.perf_counter() - start) / 60, poet.iteration, True
+                    break
         finally:
             poet.close()
-    return (time.perf_counter() - start) / 60, poet.iteration, False
+    return ((time.perf_counter() - start) / 60, poet.iteration, root.score >= threshold,
+            root.score, root.best_score)
 
 
 def main() -> None:
@@ -56,11 +58,12 @@ def main() -> None:
         cfg = load(["budget=workstation", "budget.reproduce_interval=1000000", f"seed={seed}",
                     *args.overrides])
         threshold = cfg.algo.repro_threshold * cfg.budget.score_scale
-        took, iterations, reached = time_to_walker(cfg, threshold)
+        took, iterations, reached, score, best = time_to_walker(cfg, threshold)
         minutes.append(took)
         result = (f"reached {threshold:.0f} after {iterations} iterations" if reached
                   else f"not reached in {iterations} iterations")
-        print(f"seed {seed}: {result}, {took:.1f} min", flush=True)
+        print(f"seed {seed}: {result}, {took:.1f} min (score {score:.1f}, best {best:.1f})",
+              flush=True)
     print(f"median minutes to walker = {np.median(minutes):.1f}")
 
 
