@@ -18,8 +18,9 @@ from epoet.tracking import PARENT_RUN_ENV, MlflowTracker, Run
 
 
 class MlflowSweepCallback(Callback):
-    """Opens the parent run at multirun start (the sweep's overrides as params; algo, budget
-    and seed tags) and at the end prints a line per job and logs a summary per algorithm.
+    """Opens the parent run at multirun start (the sweep's overrides as params; `algos`,
+    `budget` and `seeds` tags) and at the end prints a line per job and logs a summary per
+    algorithm.
 
     Hydra skips `on_multirun_end` when a job raises, so an exit hook closes the parent as FAILED
     in that case; a sweep that ends normally is FAILED too if any child run failed.
@@ -81,10 +82,6 @@ def sweep_params(overrides: list[str]) -> dict[str, str]:
     return params
 
 
-def _metric(run: Run, key: str) -> float | None:
-    return run.data.metrics.get(key)
-
-
 def job_lines(children: list[Run]) -> list[str]:
     """One line per job: what it was, how it ended, its headline numbers, its run id."""
     lines = []
@@ -92,8 +89,8 @@ def job_lines(children: list[Run]) -> list[str]:
         tags = run.data.tags
         numbers = "".join(f" {label}={value:.1f}" for label, key in (("score", "score"),
                                                                       ("best", "best_score"))
-                          if (value := _metric(run, key)) is not None)
-        if (success := _metric(run, "suite/success_rate")) is not None:
+                          if (value := run.data.metrics.get(key)) is not None)
+        if (success := run.data.metrics.get("suite/success_rate")) is not None:
             numbers += f" solved={success:.0%}"
         lines.append(f"[sweep] {tags.get('algo', '?')} seed={tags.get('seed', '?')} "
                      f"{run.info.status}{numbers} run_id={run.info.run_id}")
@@ -111,7 +108,7 @@ def sweep_summary(children: list[Run]) -> dict[str, float]:
     for algo, runs in groups.items():
         summary[f"sweep/{algo}/finished"] = float(len(runs))
         for key, name in (("score", "score"), ("suite/success_rate", "success_rate")):
-            values = [v for run in runs if (v := _metric(run, key)) is not None]
+            values = [v for run in runs if (v := run.data.metrics.get(key)) is not None]
             if values:
                 summary[f"sweep/{algo}/{name}_mean"] = float(np.mean(values))
                 if len(values) > 1:
