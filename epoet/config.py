@@ -50,7 +50,7 @@ def _non_negative(obj: Any, *names: str) -> None:
 
 @dataclass
 class RewardConfig:
-    """Weights of the paper's Eq. 1 as implemented by the reference (REFERENCE.md section 2)."""
+    """Weights of the paper's Eq. 1 as implemented by the reference (docs/reference.md)."""
 
     KEY: ClassVar[str] = "agent.reward"
 
@@ -79,7 +79,7 @@ INTEGRATORS = ("rk4", "implicitfast")
 
 @dataclass
 class AgentConfig:
-    """The hexapod and its episode rules (REFERENCE.md sections 1-3)."""
+    """The hexapod and its episode rules (docs/reference.md "Robot, reward, episode end")."""
 
     KEY: ClassVar[str] = "agent"
 
@@ -178,7 +178,7 @@ class CppnConfig:
 
 @dataclass
 class MutationConfig:
-    """Validity rules for mutated CPPN children (REFERENCE.md section 4, the reference's rules)."""
+    """Validity rules for mutated CPPN children (docs/reference.md, the reference's rules)."""
 
     KEY: ClassVar[str] = "terrain.mutation"
 
@@ -252,7 +252,7 @@ class TerrainConfig:
 
 @dataclass
 class EsConfig:
-    """OpenAI-ES of every pair (paper Table 4, REFERENCE.md section 5)."""
+    """OpenAI-ES of every pair (paper Table 4, docs/reference.md "ES and the ePOET loop")."""
 
     KEY: ClassVar[str] = "algo.es"
 
@@ -440,7 +440,7 @@ class Config:
 
 @dataclass
 class SuiteConfig:
-    """`python -m epoet.terrain.suite`: the fixed evaluation suite (REFERENCE.md section 9).
+    """`python -m epoet.terrain.suite`: the fixed evaluation suite (docs/reference.md "Evaluation").
 
     Rounds of mutated CPPN children with a rising S; round r aims its children at level r
     (terrain/suite.py)."""
@@ -534,7 +534,7 @@ class GalleryConfig:
         _positive(self, "n")
 
 
-# --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, REFERENCE.md section 8) -----------------
+# --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, docs/reference.md) -----------------
 # Sizes are per collector batch of `frames_per_batch` frames; budget.frames is the total. A budget
 # smaller than one batch shrinks the batch and keeps the ratios (epochs per batch, SAC updates and
 # random frames per collected frame): see `BatchPlan` in epoet/rl/.
@@ -607,7 +607,7 @@ class PpoConfig(OnPolicyConfig):
 
 @dataclass
 class VmpoConfig(OnPolicyConfig):
-    """V-MPO (Song et al. 2019; REFERENCE.md section 8); see epoet/rl/vmpo.py."""
+    """V-MPO (Song et al. 2019; docs/reference.md); see epoet/rl/vmpo.py."""
 
     top_fraction: float
     eta_init: float
@@ -667,7 +667,7 @@ class SacConfig(SacLearnerConfig):
         _positive(self, "frames_per_batch", "updates_per_batch")
 
 
-# --- ePOET-SAC (paper Section 3, Algorithms 1-3; REFERENCE.md section 7) ---------------------------
+# --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
 
 SAC_TERRAINS = ("pool", "bowl")
 JOIN_MAPPINGS = ("distill", "random")

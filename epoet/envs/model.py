@@ -22,7 +22,7 @@ LEGS = ("fl", "fr", "ml", "mr", "rl", "rr")
 SEGMENTS = ("coxa", "femur", "tibia")
 JOINTS = tuple(f"{leg}_{seg}" for leg in LEGS for seg in SEGMENTS)
 
-# Position targets per segment (REFERENCE.md section 1): q* = (a/2 + 1/2)(high - low) + low.
+# Position targets per segment (docs/reference.md): q* = (a/2 + 1/2)(high - low) + low.
 TARGET_LOW = np.tile([-0.6, -1.4, -0.8], len(LEGS))
 TARGET_HIGH = np.tile([0.6, 0.4, 0.8], len(LEGS))
 

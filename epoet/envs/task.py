@@ -186,7 +186,7 @@ def _observe_row(qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
 
 
 class HexapodTask:
-    """Observation, reward and termination of the paper's task (REFERENCE.md sections 1-3).
+    """Observation, reward and termination of the paper's task (docs/reference.md).
 
     Both run compiled (numba) over the rows, one call per step: with a few dozen numpy calls on
     (B,) arrays per step, the engine spent about a third of its time here rather than in MuJoCo.

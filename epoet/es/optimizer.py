@@ -1,4 +1,4 @@
-"""OpenAI-ES with mirrored sampling, centered ranks, L2 and Adam (REFERENCE.md section 5).
+"""OpenAI-ES with mirrored sampling, centered ranks, L2 and Adam (docs/reference.md).
 
 Perturbations are not read from a shared noise table (the reference's 1 GB per worker): each
 eps_i is regenerated from an integer seed, eps_i = default_rng(seed_i).standard_normal(P). Workers

@@ -7,7 +7,7 @@ seed and a checkpoint round-trips exactly (the matmuls are small; float32 would 
 Flat layout, for layer sizes (n_0, n_1, ..., n_L): for each layer l = 1..L in order, first the
 weight matrix W_l of shape (n_{l-1}, n_l) in C order, then the bias b_l of shape (n_l,).
 A layer computes h_l = tanh(h_{l-1} @ W_l + b_l); tanh is applied on every layer including the
-output, so actions lie in [-1, 1] as the hexapod's actuators expect (REFERENCE.md section 5).
+output, so actions lie in [-1, 1] as the hexapod's actuators expect (docs/reference.md).
 One compiled function (`forward_rows`) computes it for the engine's batches and for `forward`.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The ePOET loop (paper Algorithm 1 without the SAC steps; REFERENCE.md section 6).
+"""The ePOET loop (paper Algorithm 1 without the SAC steps; docs/reference.md).
 
 Each iteration, as in Enhanced POET's `poet_algo.py`:
 1. every `reproduce_interval` iterations, `reproduce`: eligible parents propose mutated children,

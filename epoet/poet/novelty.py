@@ -1,4 +1,4 @@
-"""PATA-EC environment characterisation and novelty (REFERENCE.md section 6, Enhanced POET).
+"""PATA-EC environment characterisation and novelty (docs/reference.md, Enhanced POET).
 
 An environment is characterised by how the current agents rank on it: evaluate every active and
 archived agent, clip the scores to the minimal-criterion band [mc_lower, mc_upper], and turn them

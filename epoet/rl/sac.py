@@ -9,7 +9,7 @@ updates; the first batch comes from uniform random actions (Table 3: one pre-tra
 Settings: conf/learner/sac.yaml (networks, losses, replay; shared with ePOET-SAC) and
 conf/algo/sac.yaml (collection and updates). `SacLearner.gradient_steps` is what bench/sac_updates.py times.
 
-Speed (DESIGN.md: the update rate should match a plain-PyTorch SAC; bench/sac_updates.py):
+Speed (the project's target: the update rate of a plain-PyTorch SAC; bench/sac_updates.py):
 the loss is ours (sac_loss.py: the twin critics as one batched ensemble, no functional
 parameter swaps or distribution objects), one fused Adam steps the actor, both critics and the
 temperature together (the three losses touch disjoint parameters), and replay samples are drawn

@@ -1,4 +1,4 @@
-"""V-MPO on the hexapod (Song et al. 2019; REFERENCE.md section 8): PPO's loop and on-policy
+"""V-MPO on the hexapod (Song et al. 2019; docs/reference.md): PPO's loop and on-policy
 update (ppo.py: GAE, then epochs of shuffled minibatches) with the V-MPO loss of vmpo_loss.py.
 
 The E-step keeps the top fraction of each minibatch's advantages with a learned temperature eta,

@@ -1,4 +1,4 @@
-"""The random bowl: dm_control's quadruped-escape terrain with a variable level (REFERENCE.md s4).
+"""The random bowl: dm_control's quadruped-escape terrain with a variable level (docs/reference.md).
 
 Regenerated from a new seed every iteration, it keeps the agent on changing ground even while
 the CPPN part of its environment stays the same (paper, Appendix "Generated Environments").

@@ -11,10 +11,10 @@ whatever its roughness says.
 
 Difficulty is the terrain's **course roughness**: the variance of the 5 x 5 height patch (metres)
 under each cell, averaged over the straight course the robot walks (x from the agent's start_x
-to finish_x, |y| <= the spawn footprint). The buckets are the reference's (REFERENCE.md section
-9): easy < 0.001 <= medium < 0.01 <= hard < 0.1 <= extreme. The reference read the variance
-under the robot along its own path; a fixed course makes the level a property of the terrain,
-the same for every agent.
+to finish_x, |y| <= the spawn footprint). The buckets are the reference's (docs/reference.md
+"Evaluation"): easy < 0.001 <= medium < 0.01 <= hard < 0.1 <= extreme. The reference read the
+variance under the robot along its own path; a fixed course makes the level a property of the
+terrain, the same for every agent.
 
 Suite folder format (any folder in this format can be evaluated, `suite=<folder>`):
 - `suite.json`: {"format": "epoet-suite/2", "size": metres per side, "grid": samples per side,
