@@ -130,7 +130,7 @@ except RenderError:
     sys.exit(2)
 from epoet.config import load
 from epoet.envs.hexapod_env import HexapodEnv
-from epoet.render import Film, caption_text
+from epoet.film import Film, caption_text
 from epoet.terrain import Terrain
 from epoet.terrain.suite import terrain_config_for
 
