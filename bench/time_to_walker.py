@@ -3,19 +3,23 @@ evaluation score of 2000 (the reproduction threshold on 2000-step episodes), per
 
 The root pair trains alone (no reproduction, hence no transfers), exactly as in a
 `budget=workstation` run until its first reproduction, on every core. Per seed it prints the
-wall-clock minutes and iterations until the score first reaches the threshold, or "not reached"
-after the budget's iterations; the last line is the median minutes over the seeds (a seed that
-never reached counts as its full time, so the median is a lower bound then):
+wall-clock minutes, iterations and environment steps until the score first reaches the
+threshold, or "not reached" after the budget's iterations; the last line is the median minutes
+over the seeds (a seed that never reached counts as its full time, so the median is a lower
+bound then):
 
     python bench/time_to_walker.py --seeds 1,2,3 [override ...]
 
 Overrides are `python -m epoet` config overrides (e.g. `algo.es.lr=0.02`), so a candidate
-change is measured the same way as the default. Time it on a quiet machine.
+change is measured the same way as the default (bench/screen_walkers.py screens a list of them).
+Minutes need a quiet machine; iterations, steps and scores are a function of the config and
+seed, whatever the load.
 """
 from __future__ import annotations
 
 import argparse
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -24,10 +28,26 @@ from epoet.es.workers import evaluator_for
 from epoet.poet.runner import layer_sizes, make_loop
 
 
-def time_to_walker(cfg: Config, threshold: float) -> tuple[float, int, bool, float, float]:
-    """(minutes, iterations, reached, last score, best score) of the root pair until its score
-    first reaches `threshold` or the budget's iterations run out; the scores are the proxy
-    a shorter budget (`budget.iterations=100`) screens candidates on."""
+class Walk(NamedTuple):
+    """One seed's root pair: how far it got, at what cost."""
+    minutes: float
+    iterations: int
+    env_steps: int
+    reached: bool
+    score: float        # the last evaluation score (the proxy a short budget screens on)
+    best_score: float
+
+
+def root_pair_config(seed: int, overrides: list[str]) -> Config:
+    """The workstation budget without reproduction: the root pair alone, as a workstation run
+    before its first round."""
+    return load(["budget=workstation", "budget.reproduce_interval=1000000", f"seed={seed}",
+                 *overrides])
+
+
+def time_to_walker(cfg: Config, threshold: float) -> Walk:
+    """Train the root pair until its score first reaches `threshold` or the budget's iterations
+    run out."""
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
         poet = make_loop(cfg, evaluator)
         start = time.perf_counter()
@@ -42,8 +62,15 @@ def time_to_walker(cfg: Config, threshold: float) -> tuple[float, int, bool, flo
                     break
         finally:
             poet.close()
-    return ((time.perf_counter() - start) / 60, poet.iteration, root.score >= threshold,
-            root.score, root.best_score)
+    return Walk((time.perf_counter() - start) / 60, poet.iteration, poet.env_steps,
+                root.score >= threshold, root.score, root.best_score)
+
+
+def describe(seed: int, threshold: float, walk: Walk) -> str:
+    result = (f"reached {threshold:.0f} after {walk.iterations} iterations" if walk.reached
+              else f"not reached in {walk.iterations} iterations")
+    return (f"seed {seed}: {result}, {walk.minutes:.1f} min, {walk.env_steps / 1e6:.2f}M steps "
+            f"(score {walk.score:.1f}, best {walk.best_score:.1f})")
 
 
 def main() -> None:
@@ -54,16 +81,11 @@ def main() -> None:
     args = parser.parse_args()
     minutes = []
     for seed in (int(s) for s in args.seeds.split(",")):
-        # No reproduction: the root pair alone, as a workstation run before its first round.
-        cfg = load(["budget=workstation", "budget.reproduce_interval=1000000", f"seed={seed}",
-                    *args.overrides])
+        cfg = root_pair_config(seed, args.overrides)
         threshold = cfg.algo.repro_threshold * cfg.budget.score_scale
-        took, iterations, reached, score, best = time_to_walker(cfg, threshold)
-        minutes.append(took)
-        result = (f"reached {threshold:.0f} after {iterations} iterations" if reached
-                  else f"not reached in {iterations} iterations")
-        print(f"seed {seed}: {result}, {took:.1f} min (score {score:.1f}, best {best:.1f})",
-              flush=True)
+        walk = time_to_walker(cfg, threshold)
+        minutes.append(walk.minutes)
+        print(describe(seed, threshold, walk), flush=True)
     print(f"median minutes to walker = {np.median(minutes):.1f}")
 
 
