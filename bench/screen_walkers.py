@@ -34,6 +34,7 @@ CANDIDATES: dict[str, list[str]] = {
     "lr=0.02": ["algo.es.lr=0.02"],
     "sigma=0.04": ["algo.es.sigma=0.04"],
     "no_progress_steps=200": ["agent.no_progress_steps=200"],
+    "obs_norm": ["algo.es.obs_norm_episodes=1"],
 }
 OUT = Path(__file__).parent / "results" / "walker_screen.jsonl"
 

@@ -264,12 +264,13 @@ class EsConfig:
     sigma_decay: float
     sigma_floor: float
     l2_coeff: float
+    obs_norm_episodes: int           # 0: raw observations; k: standardised, stats from k per pair
 
     def __post_init__(self) -> None:
         _check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
                f"algo.es.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
         _positive(self, "lr", "lr_floor", "sigma", "sigma_floor")
-        _non_negative(self, "l2_coeff")
+        _non_negative(self, "l2_coeff", "obs_norm_episodes")
         for name in ("lr_decay", "sigma_decay"):
             value = getattr(self, name)
             _check(0.0 < value <= 1.0, f"algo.es.{name} must be in (0, 1], got {value}.")
@@ -710,6 +711,10 @@ class EpoetSacConfig(PoetConfig):
                f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
         _check(self.mapping in JOIN_MAPPINGS,
                f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
+        # The SAC actor and the join exchange raw-observation policies with the ES pool.
+        _check(self.es.obs_norm_episodes == 0,
+               "algo.es.obs_norm_episodes must be 0 for algo=epoet_sac: observation "
+               "normalisation is implemented for ePOET's ES only.")
 
 
 # --- composition and validation -------------------------------------------------------------------

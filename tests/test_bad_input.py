@@ -38,6 +38,8 @@ ROWS = [
     ("terrain for ePOET", ["terrain=bowl"], "needs terrain=cppn"),
     ("ePOET-SAC buffer", ["algo=epoet_sac", "algo.sac.buffer_size=8"],
      "algo.sac.buffer_size (8) must hold at least one batch"),
+    ("ePOET-SAC obs norm", ["algo=epoet_sac", "algo.es.obs_norm_episodes=1"],
+     "algo.es.obs_norm_episodes must be 0 for algo=epoet_sac"),
     ("ray for a baseline", ["algo=ppo", "workers=ray"], "use workers=local"),
     ("address without ray", ["workers.address=127.0.0.1:6379"], "needs workers=ray"),
     ("unreachable ray", ["workers=ray", "workers.address=127.0.0.1:9"],

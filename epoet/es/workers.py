@@ -40,6 +40,7 @@ from typing import NamedTuple, Protocol, TypeVar
 import numpy as np
 
 from epoet.config import AgentConfig, TerrainConfig, WorkersConfig
+from epoet.es.obs_norm import Standardizer
 from epoet.es.optimizer import mirrored_population
 from epoet.es.policy import LAYER_SIZES, num_params
 from epoet.es.rollout import (DEFAULT_BATCH, Episodes, Job, RolloutEngine, TerrainLike,
@@ -86,10 +87,11 @@ class Mirrored:
     sigma: float
     noise_seeds: np.ndarray
     spawn_seeds: np.ndarray
+    standardizer: Standardizer | None = None  # theta acts on standardised observations
 
     @classmethod
     def of(cls, theta: np.ndarray, noise_seeds: np.ndarray, sigma: float,
-           spawn_seeds: np.ndarray) -> "Mirrored":
+           spawn_seeds: np.ndarray, standardizer: Standardizer | None = None) -> "Mirrored":
         """The checked population of one ES step around `theta`."""
         theta = np.asarray(theta, dtype=np.float64)
         noise = check_seeds(noise_seeds, "noise_seeds")
@@ -103,7 +105,7 @@ class Mirrored:
                              f"{spawn.shape}.")
         if not sigma > 0:
             raise ValueError(f"sigma must be > 0, got {sigma}.")
-        return cls(theta, float(sigma), noise, spawn)
+        return cls(theta, float(sigma), noise, spawn, standardizer)
 
     @property
     def num_params(self) -> int:
@@ -120,7 +122,10 @@ class Mirrored:
         n = len(self.noise_seeds)
         # The pair through `mirrored_population` itself: bit-identical to its rows e and n + e.
         pair = mirrored_population(self.theta, self.noise_seeds[e % n:e % n + 1], self.sigma)
-        return pair[e // n], int(self.spawn_seeds[e % n])
+        params = pair[e // n]
+        if self.standardizer is not None:
+            params = self.standardizer.fold(params)
+        return params, int(self.spawn_seeds[e % n])
 
 
 @dataclass(frozen=True)

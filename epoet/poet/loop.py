@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from epoet.config import PoetConfig, TerrainConfig
+from epoet.es.obs_norm import ObsNormalizer, Standardizer
 from epoet.es.optimizer import OpenAIES
 from epoet.es.policy import init_params
 from epoet.es.rollout import Episodes
@@ -155,6 +156,10 @@ class EPOET:
         self.env_steps = 0
         self.elapsed = 0.0  # seconds of iterations, summed over resumes
         self.best_score = -np.inf  # the best `score` (best active pair's) of any iteration so far
+        # With observation normalisation, every theta of the pool (ES's search space) acts on
+        # standardised observations, one set of statistics for the run as in Salimans et al.;
+        # the workers, evaluations and agent files get `policy(theta)`, which acts on raw ones.
+        self.obs_norm = (ObsNormalizer(layer_sizes[0]) if algo.es.obs_norm_episodes else None)
         self._terrains: dict[tuple[int, int], Terrain] = {}
         root = Environment(index=0, genome=new_genome(terrain.cppn, self._seed(Key.ROOT_GENOME, 0)),
                            generation=0, parent=None, created_at=0)
@@ -199,6 +204,13 @@ class EPOET:
         return pair
 
     # --- episodes -------------------------------------------------------------------------------
+    def _standardizer(self) -> Standardizer | None:
+        return None if self.obs_norm is None else self.obs_norm.standardizer(self.layer_sizes)
+
+    def policy(self, theta: np.ndarray) -> np.ndarray:
+        """The raw-observation policy parameters of ES parameters `theta` (P,) or (K, P)."""
+        return theta if self.obs_norm is None else self._standardizer().fold(theta)
+
     def _run(self, requests: list[Request]) -> list[Episodes]:
         """One call to the workers for every request; counts the environment steps."""
         episodes = self.evaluator.run(requests)
@@ -208,7 +220,8 @@ class EPOET:
     def _eval_request(self, terrain: Terrain, thetas: np.ndarray, key: Key, *ids: int
                       ) -> Request:
         """`eval_episodes` seeded episodes of each agent in `thetas` (K, P) on `terrain`."""
-        return Request(terrain, Agents.of(thetas, self._seeds(self.eval_episodes, key, *ids)))
+        return Request(terrain, Agents.of(self.policy(thetas),
+                                          self._seeds(self.eval_episodes, key, *ids)))
 
     def _scores(self, requests: list[Request]) -> list[np.ndarray]:
         """Mean return of each agent of each evaluation request."""
@@ -220,7 +233,8 @@ class EPOET:
         noise = [self._seeds(self.n_pairs, noise_key, *job.ids) for job in jobs]
         requests = [Request(job.terrain,
                             Mirrored.of(job.theta, seeds, job.es.sigma,
-                                        self._seeds(self.n_pairs, spawn_key, *job.ids)))
+                                        self._seeds(self.n_pairs, spawn_key, *job.ids),
+                                        self._standardizer()))
                     for job, seeds in zip(jobs, noise)]
         return [job.es.propose(seeds, e.returns[:len(seeds)], e.returns[len(seeds):],
                                theta=job.theta, step=self.cfg.proposal_step)
@@ -296,9 +310,13 @@ class EPOET:
         episodes come back with its episodes."""
         t = self.iteration
         noise = [pair.es.sample_seeds() for pair in self.active]
+        standardizer = self._standardizer()
+        if self.obs_norm is not None:
+            record = max(record, self.cfg.es.obs_norm_episodes)
         requests = [Request(self.terrain(pair.env),
                             Mirrored.of(pair.theta, seeds, pair.es.sigma,
-                                        self._seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t)),
+                                        self._seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t),
+                                        standardizer),
                             record=record)
                     for pair, seeds in zip(self.active, noise)]
         metrics: dict[str, float] = {}
@@ -310,6 +328,10 @@ class EPOET:
             metrics.update({f"{prefix}/return_mean": float(episodes.returns.mean()),
                             f"{prefix}/return_max": float(episodes.returns.max()),
                             f"{prefix}/lr": stats["lr"], f"{prefix}/sigma": stats["sigma"]})
+        if self.obs_norm is not None:  # the new statistics take effect from the evaluation on
+            for episodes in results:
+                self.obs_norm.update(episodes.transitions["obs"])
+            metrics["obs_norm/count"] = float(self.obs_norm.count)
         return metrics, results
 
     def evaluate_pairs(self) -> dict[str, float]:
@@ -346,7 +368,7 @@ class EPOET:
     def _record(self, pair: Pair, score: float) -> None:
         pair.scores.append(score)
         if score > pair.best_score:
-            pair.best_score, pair.best_theta = score, pair.theta.copy()
+            pair.best_score, pair.best_theta = score, np.array(self.policy(pair.theta))
         pair.env.solved |= score >= self.thresholds.repro
 
     # --- transfer ---------------------------------------------------------------------------
@@ -500,11 +522,12 @@ class EPOET:
                 terrain = self.terrain(pair.env, self.iteration - 1)  # the last one trained on
                 terrain.save(terrains / f"{name}.npz")
                 terrain.to_png(terrains / f"{name}.png")
-                best = pair.best_theta if pair.best_theta is not None else pair.theta
-                chosen = (best, pair.best_score) if choice == "best" else (pair.theta, pair.score)
+                final = self.policy(pair.theta)
+                best = pair.best_theta if pair.best_theta is not None else final
+                chosen = (best, pair.best_score) if choice == "best" else (final, pair.score)
                 np.savez(policies / f"{name}.npz", theta=chosen[0], score=chosen[1],
                          choice=choice, best_theta=best, best_score=pair.best_score,
-                         final_theta=pair.theta, final_score=pair.score,
+                         final_theta=final, final_score=pair.score,
                          layer_sizes=np.array(self.layer_sizes),
                          status=status, generation=pair.env.generation,
                          parent=-1 if pair.env.parent is None else pair.env.parent)
@@ -520,6 +543,7 @@ class EPOET:
         return {"iteration": self.iteration, "next_index": self.next_index,
                 "transfers": self.transfers, "env_steps": self.env_steps,
                 "elapsed": self.elapsed, "best_score": self.best_score,
+                "obs_norm": None if self.obs_norm is None else self.obs_norm.state_dict(),
                 "active": [pair_state(p) for p in self.active],
                 "archived": [pair_state(p) for p in self.archived]}
 
@@ -537,6 +561,8 @@ class EPOET:
         # checkpoints older than the run-level best: the pairs' bests are the closest record
         self.best_score = state.get("best_score", max(
             s["best_score"] for s in state["active"] + state["archived"]))
+        if self.obs_norm is not None:
+            self.obs_norm.load_state_dict(state["obs_norm"])
         self.active = [restore(s) for s in state["active"]]
         self.archived = [restore(s) for s in state["archived"]]
         self._terrains.clear()

@@ -1,0 +1,104 @@
+"""Observation normalisation for ES (Salimans et al. 2017): the folded policy acts on raw
+observations as the ES parameters act on standardised ones, the statistics are those of the
+recorded ES episodes, and a run with it exports agents that score what the loop measured."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from epoet.checkpoint import load_checkpoint
+from epoet.config import ConfigError, TerrainConfig, load
+from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer, fold
+from epoet.es.policy import forward, init_params
+from epoet.es.workers import Agents, Request, SerialEvaluator
+from epoet.poet.loop import EPOET, Key
+from epoet.run import run
+
+SIZES = (53, 8, 18)
+SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
+
+
+def test_the_folded_policy_on_raw_observations_is_theta_on_standardised_ones() -> None:
+    rng = np.random.default_rng(0)
+    theta = init_params(1, SIZES, std=0.5)
+    mean, std = rng.normal(size=53), rng.uniform(0.1, 5.0, size=53)
+    obs = rng.normal(size=(7, 53)) * std + mean
+    np.testing.assert_allclose(forward(fold(theta, mean, std, SIZES), obs, SIZES),
+                               forward(theta, (obs - mean) / std, SIZES), atol=1e-12)
+    both = fold(np.stack([theta, -theta]), mean, std, SIZES)
+    np.testing.assert_array_equal(both[0], fold(theta, mean, std, SIZES))
+    assert not np.array_equal(both[0], theta)
+
+
+def test_statistics_start_at_the_identity_and_follow_the_data() -> None:
+    norm = ObsNormalizer(3)
+    theta = init_params(2, (3, 4, 2))
+    np.testing.assert_array_equal(norm.standardizer((3, 4, 2)).fold(theta), theta)
+    rng = np.random.default_rng(1)
+    parts = [rng.normal([1.0, -2.0, 5.0], [3.0, 0.5, 0.01], size=(n, 3)) for n in (10, 200)]
+    for part in parts:
+        norm.update(part)
+    data = np.concatenate(parts)
+    assert norm.count == len(data)
+    np.testing.assert_allclose(norm.mean, data.mean(axis=0))
+    # the third input barely varies: its variance is floored, not divided by ~0
+    np.testing.assert_allclose(norm.std, np.sqrt(np.maximum(data.var(axis=0), VAR_FLOOR)))
+    assert norm.std[2] == pytest.approx(np.sqrt(VAR_FLOOR))
+
+
+def _poet(terrain_cfg: TerrainConfig, episodes: int) -> EPOET:
+    paper = load(["budget=paper"])
+    agent = replace(paper.agent, max_episode_steps=30, settle_steps=2)
+    es = replace(paper.algo.es, obs_norm_episodes=episodes)
+    return EPOET(replace(paper.algo, es=es), terrain_cfg,
+                 SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES), seed=4,
+                 n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES)
+
+
+def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainConfig) -> None:
+    poet = _poet(terrain_cfg, episodes=2)
+    metrics = poet.iterate()
+    assert 0 < poet.obs_norm.count <= 2 * 30 and metrics["obs_norm/count"] == poet.obs_norm.count
+    assert not np.allclose(poet.obs_norm.std, 1.0)
+    pair = poet.active[0]
+    # the evaluation ran the folded policy: replaying it from the same starts gives the score
+    seeds = poet._seeds(poet.eval_episodes, Key.EVAL, pair.env.index, 0)
+    again = poet.evaluator.run([Request(poet.terrain(pair.env, 0),
+                                        Agents.of(poet.policy(pair.theta)[None], seeds))])
+    assert again[0].returns.mean() == pytest.approx(pair.score, abs=1e-9)
+    np.testing.assert_array_equal(pair.best_theta, poet.policy(pair.theta))
+    # without normalisation the same seed runs other policies
+    plain = _poet(terrain_cfg, episodes=0)
+    plain.iterate()
+    assert plain.obs_norm is None and plain.active[0].score != pair.score
+
+
+def test_an_epoet_run_with_normalisation_exports_raw_policies_and_resumes(
+        compose, mlflow_uri: str, tmp_path: Path) -> None:
+    norm = ["algo.es.obs_norm_episodes=1", "checkpoint_every=1"]
+    run(compose(SMOKE + norm + ["budget.iterations=3"]), tmp_path / "straight")
+    run(compose(SMOKE + norm + ["budget.iterations=2"]), tmp_path / "killed")
+    run(compose(SMOKE + norm + ["budget.iterations=3", f"resume={tmp_path / 'killed'}"]),
+        tmp_path / "resumed")
+    straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")["poet"]
+    resumed = load_checkpoint(tmp_path / "resumed" / "checkpoint.pkl")["poet"]
+    assert straight["obs_norm"]["count"] > 0
+    for key in ("count", "sum", "sumsq"):
+        np.testing.assert_array_equal(straight["obs_norm"][key], resumed["obs_norm"][key])
+    np.testing.assert_array_equal(straight["active"][0]["es"]["theta"],
+                                  resumed["active"][0]["es"]["theta"])
+    stats = straight["obs_norm"]
+    mean = stats["sum"] / stats["count"]
+    std = np.sqrt(np.maximum(stats["sumsq"] / stats["count"] - mean**2, VAR_FLOOR))
+    with np.load(tmp_path / "straight" / "policies" / "env0.npz") as saved:
+        sizes = tuple(saved["layer_sizes"])
+        np.testing.assert_allclose(saved["final_theta"],
+                                   fold(straight["active"][0]["es"]["theta"], mean, std, sizes))
+
+
+def test_epoet_sac_refuses_normalisation() -> None:
+    with pytest.raises(ConfigError, match="obs_norm_episodes must be 0 for algo=epoet_sac"):
+        load(["algo=epoet_sac", "algo.es.obs_norm_episodes=1"])
