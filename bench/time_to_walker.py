@@ -36,6 +36,7 @@ class Walk(NamedTuple):
     reached: bool
     score: float        # the last evaluation score (the proxy a short budget screens on)
     best_score: float
+    curve: list[float]  # the score every 10 iterations (the proxy of a longer run)
 
 
 def root_pair_config(seed: int, overrides: list[str]) -> Config:
@@ -50,12 +51,13 @@ def time_to_walker(cfg: Config, threshold: float) -> Walk:
     run out."""
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
         poet = make_loop(cfg, evaluator)
-        start = time.perf_counter()
+        start, curve = time.perf_counter(), []
         try:
             while poet.iteration < cfg.budget.iterations:
                 poet.iterate()
                 root = poet.active[0]
                 if poet.iteration % 10 == 0:
+                    curve.append(round(root.score, 1))
                     print(f"  seed {cfg.seed} it {poet.iteration} score {root.score:.1f} "
                           f"({(time.perf_counter() - start) / 60:.1f} min)", flush=True)
                 if root.score >= threshold:
@@ -63,7 +65,7 @@ def time_to_walker(cfg: Config, threshold: float) -> Walk:
         finally:
             poet.close()
     return Walk((time.perf_counter() - start) / 60, poet.iteration, poet.env_steps,
-                root.score >= threshold, root.score, root.best_score)
+                root.score >= threshold, root.score, root.best_score, curve)
 
 
 def describe(seed: int, threshold: float, walk: Walk) -> str:
