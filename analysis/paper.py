@@ -21,7 +21,7 @@ from analysis.figures import write_figures
 from analysis.store import ALGOS, run_command
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR
-from epoet.es.workers import default_workers
+from epoet.core.compute import default_workers
 
 
 def parallel_overrides(jobs: int, cores: int) -> list[str]:

@@ -19,9 +19,12 @@ import time
 import numpy as np
 
 from epoet.config import Config, compose, validate
-from epoet.es.optimizer import mirrored_population
-from epoet.es.rollout import RolloutEngine
-from epoet.es.workers import Evaluator, Request, default_workers, make_evaluator
+from epoet.rollout.populations import mirrored_population
+from epoet.rollout.engine import RolloutEngine
+from epoet.core.compute import default_workers
+from epoet.rollout.backends.base import Evaluator
+from epoet.rollout.evaluators import make_evaluator
+from epoet.rollout.populations import Request
 from epoet.poet.loop import EPOET
 from epoet.poet.runner import layer_sizes
 from rollout_throughput import raw_seconds

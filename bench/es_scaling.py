@@ -18,10 +18,12 @@ from dataclasses import replace
 import numpy as np
 
 from epoet.config import load
-from epoet.es.policy import init_params
-from epoet.es.ray_workers import RayEvaluator
-from epoet.es.rollout import DEFAULT_BATCH
-from epoet.es.workers import Evaluator, Mirrored, Request, make_evaluator
+from epoet.rollout.policy import init_params
+from epoet.rollout.backends.ray_cluster import RayEvaluator
+from epoet.rollout.engine import DEFAULT_BATCH
+from epoet.rollout.backends.base import Evaluator
+from epoet.rollout.evaluators import make_evaluator
+from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import make_terrain
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from epoet.config import Config, compose, validate
 from epoet.envs import HexapodEnv
 from epoet.envs.model import action_to_targets
-from epoet.es.policy import forward, init_params
+from epoet.rollout.policy import forward, init_params
 from epoet.terrain import Terrain, cppn_inputs, make_terrain, mutate_genome
 
 INTEGRATORS = ("rk4", "implicitfast")

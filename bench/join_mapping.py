@@ -18,7 +18,7 @@ import numpy as np
 
 from epoet.checkpoint import find_checkpoint, load_checkpoint
 from epoet.config import load
-from epoet.es.workers import make_evaluator
+from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.runner import layer_sizes, make_loop
 
 SEEDS = 3

@@ -21,9 +21,9 @@ import numpy as np
 from epoet.config import AgentConfig, TerrainConfig, load
 from epoet.envs.model import Ground, action_to_targets, build_model
 from epoet.envs.spawn import spawn
-from epoet.es.optimizer import mirrored_population
-from epoet.es.policy import init_params
-from epoet.es.rollout import DEFAULT_BATCH, RolloutEngine, TerrainLike
+from epoet.rollout.populations import mirrored_population
+from epoet.rollout.policy import init_params
+from epoet.rollout.engine import DEFAULT_BATCH, RolloutEngine, TerrainLike
 from epoet.terrain import make_terrain
 
 

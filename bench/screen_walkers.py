@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from time_to_walker import describe, root_pair_config, time_to_walker  # noqa: E402
 
-from epoet.es.workers import default_workers  # noqa: E402
+from epoet.core.compute import default_workers  # noqa: E402
 
 # Why each: README "Walker experiments" keeps the reasoning and the outcome.
 CANDIDATES: dict[str, list[str]] = {

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from epoet.config import Config, load
-from epoet.es.workers import evaluator_for
+from epoet.rollout.evaluators import evaluator_for
 from epoet.poet.runner import layer_sizes, make_loop
 
 

@@ -24,7 +24,7 @@ from omegaconf import OmegaConf
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from epoet.config import RL_ACTIVATIONS, AgentConfig
-from epoet.es.policy import LAYER_SIZES, forward, num_params
+from epoet.rollout.policy import LAYER_SIZES, forward, num_params
 from epoet.tracking import StoredRun, TrackingError
 
 Policy = Callable[[np.ndarray], np.ndarray]

@@ -44,7 +44,7 @@ from epoet.cli import fail
 from epoet.config import (AgentConfig, ConfigError, EvaluateConfig, TerrainConfig, compose,
                           validate)
 from epoet.envs.hexapod_env import HexapodEnv
-from epoet.es.workers import default_workers
+from epoet.core.compute import default_workers
 from epoet.files import atomic_write
 from epoet.lifecycle import end_with
 from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, example_terrain,

@@ -16,7 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.config import Config, compose, validate
 from epoet.files import atomic_write
-from epoet.es.workers import default_workers
+from epoet.core.compute import default_workers
 from epoet.lifecycle import StopOnSignal
 from epoet.tracking import MlflowTracker, StoredRun, Tracker, flatten, parent_run_id
 
@@ -95,7 +95,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
                 f"checkpoint {path} was made with a different config ({', '.join(changed)}); "
                 f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change).")
     if cfg.workers.address is not None:
-        from epoet.es.ray_workers import check_address  # the optional extra, on demand
+        from epoet.rollout.backends.ray_cluster import check_address  # the optional extra, on demand
         check_address(cfg.workers.address)
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)

@@ -18,7 +18,7 @@ from test_render import one_error_line, render_cli
 
 from epoet.agents import task_sizes
 from epoet.envs.task import ACT_DIM, OBS_DIM
-from epoet.es.policy import LAYER_SIZES, init_params, num_params
+from epoet.rollout.policy import LAYER_SIZES, init_params, num_params
 from epoet.rl.policy_file import POLICY_FORMAT
 
 

@@ -12,7 +12,7 @@ from tensordict import TensorDictBase
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import ConfigError, load
-from epoet.es.workers import make_evaluator
+from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.epoet_sac import EpoetSac, ReplayMix
 from epoet.poet.runner import layer_sizes, make_loop
 from epoet.poet.sac_bridge import distill_into_actor

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from epoet.config import load
-from epoet.es.optimizer import (OpenAIES, adam_step, centered_ranks, es_gradient,
-                                mirrored_population, noise)
-from epoet.es.policy import (LAYER_SIZES, forward, forward_rows, init_params, num_params,
-                             sizes_array, unflatten)
+from epoet.es.optimizer import OpenAIES, adam_step, centered_ranks, es_gradient
+from epoet.rollout.populations import mirrored_population, noise
+from epoet.rollout.policy import (LAYER_SIZES, forward, forward_rows, init_params, num_params,
+                                  sizes_array, unflatten)
 
 SMALL = (5, 4, 3)  # a 2-layer net keeps policy tests tiny
 ES = load(["budget=paper"]).algo.es  # the paper's ES settings

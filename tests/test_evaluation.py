@@ -22,7 +22,7 @@ from analysis.store import ALGOS
 from analysis.tables import table1, table2
 from epoet.agents import resolve_run
 from epoet.envs.task import ACT_DIM, OBS_DIM
-from epoet.es.workers import default_workers
+from epoet.core.compute import default_workers
 from epoet.terrain.suite import LEVELS, SHIPPED, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]

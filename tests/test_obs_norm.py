@@ -11,9 +11,10 @@ import pytest
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import ConfigError, TerrainConfig, load
-from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer, fold
-from epoet.es.policy import forward, init_params
-from epoet.es.workers import Agents, Request, SerialEvaluator
+from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer
+from epoet.rollout.policy import fold, forward, init_params
+from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.rollout.populations import Agents, Request
 from epoet.poet.loop import EPOET, Key
 from epoet.run import run
 

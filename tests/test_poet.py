@@ -14,7 +14,8 @@ from conftest import without_evaluation
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import TerrainConfig, load
-from epoet.es.workers import SerialEvaluator, make_evaluator
+from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.loop import EPOET, Key
 from epoet.run import run
 

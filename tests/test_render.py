@@ -17,7 +17,7 @@ from conftest import one_terrain_suite
 from mlflow import MlflowClient
 
 from epoet.config import load
-from epoet.es.policy import LAYER_SIZES, init_params
+from epoet.rollout.policy import LAYER_SIZES, init_params
 from epoet.render import NO_GL
 from epoet.terrain import make_terrain
 from epoet.tracking import MlflowTracker

@@ -11,10 +11,11 @@ import pytest
 from epoet.config import load
 from epoet.envs import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
-from epoet.es.optimizer import mirrored_population
-from epoet.es.policy import forward, init_params
-from epoet.es.rollout import DEFAULT_BATCH, RolloutEngine
-from epoet.es.workers import Agents, Mirrored, Request, make_evaluator
+from epoet.rollout.populations import mirrored_population
+from epoet.rollout.policy import forward, init_params
+from epoet.rollout.engine import DEFAULT_BATCH, RolloutEngine
+from epoet.rollout.evaluators import make_evaluator
+from epoet.rollout.populations import Agents, Mirrored, Request
 from epoet.terrain import Terrain, make_terrain
 
 PAPER = load(["budget=paper"])  # the paper's agent (RK4) and CPPN terrain

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from epoet.config import load
-from epoet.es.policy import LAYER_SIZES, forward, init_params, unflatten
+from epoet.rollout.policy import LAYER_SIZES, forward, init_params, unflatten
 from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.setup import make_actor, make_env
 

@@ -22,8 +22,9 @@ from conftest import without_evaluation
 
 from epoet.checkpoint import load_checkpoint
 from epoet.config import load
-from epoet.es.policy import init_params
-from epoet.es.workers import Mirrored, Request, make_evaluator
+from epoet.rollout.policy import init_params
+from epoet.rollout.evaluators import make_evaluator
+from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import Terrain
 
 SMOKE = ["budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40", "budget.iterations=2"]
@@ -57,7 +58,7 @@ def local_run(tmp_path_factory) -> Path:
 
 
 def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> None:
-    from epoet.es.ray_workers import RayEvaluator
+    from epoet.rollout.backends.ray_cluster import RayEvaluator
 
     cfg = load(SMOKE)
     agent, terrain_cfg = replace(cfg.agent, max_episode_steps=200), cfg.terrain
@@ -212,7 +213,7 @@ def test_an_address_where_something_else_listens_is_one_line_in_seconds(not_ray:
 def test_an_http2_server_that_is_not_ray_fails_through_rays_own_client(not_ray: str) -> None:
     # It passes the HTTP/2 hello, so Ray's GCS client (in a child process) has to turn it down.
     from epoet.config import ConfigError
-    from epoet.es.ray_workers import PROBE_SECONDS, check_address
+    from epoet.rollout.backends.ray_cluster import PROBE_SECONDS, check_address
 
     threads = threading.active_count()
     start = time.monotonic()

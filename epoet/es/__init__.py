@@ -1,1 +1,1 @@
-"""Evolution strategies: the flat numpy policy (`policy`) and the OpenAI-ES optimiser."""
+"""Evolution strategies: the OpenAI-ES optimiser and observation normalisation."""

@@ -13,38 +13,13 @@ statistics grow from a small share of the ES episodes (their 1 %).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from epoet.es.policy import unflatten
+from epoet.rollout.policy import Standardizer
 
 VAR_FLOOR = 1e-2
-
-
-def fold(theta: np.ndarray, mean: np.ndarray, std: np.ndarray, layer_sizes: Sequence[int]
-         ) -> np.ndarray:
-    """The raw-observation parameters of `theta` (P,) or (K, P), a policy on standardised
-    observations: fold(theta)(obs) = theta((obs - mean) / std)."""
-    thetas = np.array(theta, dtype=np.float64, ndmin=2)
-    for row in thetas:
-        (w, b), *_ = unflatten(row, layer_sizes)
-        b -= (mean / std) @ w   # before w changes: uses the standardised-space weights
-        w /= std[:, None]
-    return thetas.reshape(np.shape(theta))
-
-
-@dataclass(frozen=True)
-class Standardizer:
-    """The statistics of one iteration, as the workers apply them to ES parameters."""
-
-    mean: np.ndarray
-    std: np.ndarray
-    layer_sizes: tuple[int, ...]
-
-    def fold(self, theta: np.ndarray) -> np.ndarray:
-        return fold(theta, self.mean, self.std, self.layer_sizes)
 
 
 class ObsNormalizer:

@@ -21,30 +21,13 @@ from typing import Any
 import numpy as np
 
 from epoet.config import EsConfig
+from epoet.rollout.populations import check_theta, noise
 
 # Seeds are drawn as rng.integers(0, SEED_HIGH, dtype=int64): a 63-bit range makes a repeated
 # seed within a run (hence a duplicated perturbation) practically impossible.
 SEED_HIGH = 2**63 - 1
 # Adam's usual constants (the reference's; not among the paper's settings)
 ADAM_BETA1, ADAM_BETA2, ADAM_EPS = 0.9, 0.999, 1e-8
-
-
-def noise(seed: int, num_params: int) -> np.ndarray:
-    """The perturbation direction eps (num_params,) belonging to one integer seed."""
-    return np.random.default_rng(int(seed)).standard_normal(num_params)
-
-
-def mirrored_population(theta: np.ndarray, seeds: Sequence[int], sigma: float) -> np.ndarray:
-    """(2n, P) points to evaluate: row i is theta + sigma*eps_i, row n + i theta - sigma*eps_i."""
-    theta = _check_theta(theta)
-    n = len(seeds)
-    population = np.empty((2 * n, theta.size))
-    for i, seed in enumerate(seeds):
-        eps = noise(seed, theta.size)
-        np.multiply(eps, sigma, out=eps)
-        np.add(theta, eps, out=population[i])
-        np.subtract(theta, eps, out=population[n + i])
-    return population
 
 
 def centered_ranks(x: np.ndarray) -> np.ndarray:
@@ -63,13 +46,6 @@ def centered_ranks(x: np.ndarray) -> np.ndarray:
     # A stable sort makes tie-breaking (by position) independent of numpy's sort implementation.
     ranks[np.argsort(x.ravel(), kind="stable")] = np.arange(x.size)
     return (ranks / (x.size - 1) - 0.5).reshape(x.shape)
-
-
-def _check_theta(theta: np.ndarray) -> np.ndarray:
-    theta = np.asarray(theta, dtype=np.float64)
-    if theta.ndim != 1 or theta.size == 0:
-        raise ValueError(f"theta must be a non-empty 1-D vector, got shape {theta.shape}.")
-    return theta
 
 
 def _check_returns(seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray
@@ -137,7 +113,7 @@ class OpenAIES:
 
     def reset(self, theta: np.ndarray) -> None:
         """Take `theta` as the agent: Adam state, lr and sigma restart; the seed stream goes on."""
-        self.theta = _check_theta(theta).copy()
+        self.theta = check_theta(theta).copy()
         self.m = np.zeros_like(self.theta)
         self.v = np.zeros_like(self.theta)
         self.t = 0
@@ -152,7 +128,7 @@ class OpenAIES:
               returns_neg: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
         """(new theta, m, v, t, g) of one step from `theta`; no attribute is modified."""
-        theta = _check_theta(theta)
+        theta = check_theta(theta)
         if theta.size != self.num_params:
             raise ValueError(f"theta has {theta.size} parameters, the optimiser "
                              f"{self.num_params}.")
@@ -195,7 +171,7 @@ class OpenAIES:
             return new_theta
         if step != "sgd":
             raise ValueError(f"proposal step must be 'adam' or 'sgd', got {step!r}.")
-        theta = _check_theta(theta)
+        theta = check_theta(theta)
         g = es_gradient(seeds, returns_pos, returns_neg, self.sigma, theta.size)
         return theta - self.cfg.lr * (-g + self.cfg.l2_coeff * theta)
 
@@ -216,7 +192,7 @@ class OpenAIES:
         missing = {"theta", "m", "v", "t", "lr", "sigma", "rng"} - set(state)
         if missing:
             raise ValueError(f"ES state is missing {sorted(missing)}.")
-        theta = _check_theta(state["theta"])
+        theta = check_theta(state["theta"])
         for name in ("m", "v"):
             if np.shape(state[name]) != theta.shape:
                 raise ValueError(f"ES state {name!r} has shape {np.shape(state[name])}, "

@@ -47,9 +47,9 @@ from torchrl.envs import EnvBase, ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config, EpoetSacConfig, TerrainConfig
-from epoet.es.policy import init_params
-from epoet.es.rollout import Episodes
-from epoet.es.workers import Evaluator
+from epoet.rollout.policy import init_params
+from epoet.rollout.engine import Episodes
+from epoet.rollout.backends.base import Evaluator
 from epoet.poet.loop import EPOET, Key, PhaseTimer
 from epoet.poet.pairs import Environment, Pair
 from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping

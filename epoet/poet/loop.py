@@ -26,9 +26,10 @@ import numpy as np
 from epoet.config import PoetConfig, TerrainConfig
 from epoet.es.obs_norm import ObsNormalizer, Standardizer
 from epoet.es.optimizer import OpenAIES
-from epoet.es.policy import init_params
-from epoet.es.rollout import Episodes
-from epoet.es.workers import Agents, Evaluator, Mirrored, Request
+from epoet.rollout.policy import init_params
+from epoet.rollout.engine import Episodes
+from epoet.rollout.backends.base import Evaluator
+from epoet.rollout.populations import Agents, Mirrored, Request
 from epoet.poet.novelty import pata_ec, rank_by_novelty
 from epoet.poet.pairs import Environment, Pair
 from epoet.terrain import (CppnMutationError, Terrain, cppn_inputs, make_terrain, mutate_genome,

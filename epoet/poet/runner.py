@@ -8,8 +8,9 @@ from typing import Any
 
 from epoet.checkpoint import save_run_state
 from epoet.config import Config, EpoetSacConfig
-from epoet.es.policy import LAYER_SIZES
-from epoet.es.workers import Evaluator, evaluator_for
+from epoet.rollout.policy import LAYER_SIZES
+from epoet.rollout.backends.base import Evaluator
+from epoet.rollout.evaluators import evaluator_for
 from epoet.lifecycle import raise_if_stopped, report_stop, stop_requested
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker

@@ -1,6 +1,6 @@
 """Moving agents between the ES pool and the SAC learner of ePOET-SAC (paper Section 3).
 
-ES agents are small tanh networks stored as one flat float64 vector (epoet/es/policy.py); the
+ES agents are small tanh networks stored as one flat float64 vector (epoet/rollout/policy.py); the
 SAC actor is a larger ReLU tanh-Gaussian network (`algo.sac.hidden`). Neither can be copied
 into the other, so every crossing is a mapping:
 
@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from epoet.es.policy import forward, num_params, unflatten
+from epoet.rollout.policy import forward, num_params, unflatten
 
 
 def crossover(theta: np.ndarray, donor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -56,7 +56,7 @@ def random_mapping(policy_net: nn.Module, layer_sizes: Sequence[int],
 
 
 def _es_module(layer_sizes: Sequence[int]) -> nn.Sequential:
-    """The ES network as torch layers (tanh after every layer, as epoet/es/policy.py)."""
+    """The ES network as torch layers (tanh after every layer, as epoet/rollout/policy.py)."""
     layers: list[nn.Module] = []
     for n_in, n_out in zip(layer_sizes[:-1], layer_sizes[1:]):
         layers += [nn.Linear(n_in, n_out, dtype=torch.float64), nn.Tanh()]

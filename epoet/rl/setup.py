@@ -55,7 +55,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 from epoet.config import Config
 from epoet.envs import HexapodEnv
-from epoet.es.workers import default_workers
+from epoet.core.compute import default_workers
 
 OBS = "observation"
 OBS_NORM = "observation_norm"

@@ -1,6 +1,7 @@
 """workers=ray: the rollout backend on a Ray cluster, for runs that outgrow one machine.
 
-The design is the local pool's (`epoet.es.workers`), with Ray's processes and object store:
+The design is the local pool's (`epoet.rollout.backends.pool`), with Ray's processes and object
+store:
 - each Ray actor holds one `RolloutEngine`, built once;
 - a call ships every request's terrain and population *description* once (`ray.put`, fetched once
   per node), and the (request, episode) items go into a feed actor that the rollout actors pull
@@ -28,10 +29,12 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from epoet.config import AgentConfig, ConfigError, TerrainConfig
-from epoet.es.policy import LAYER_SIZES
-from epoet.es.rollout import DEFAULT_BATCH, Episodes, RolloutEngine
-from epoet.es.workers import (Population, Request, WorkerLost, _Backend, _jobs, _Relief, _split,
-                              fair_slots, reliefs_of)
+from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
+                                         split_results)
+from epoet.rollout.backends.pool import fair_slots
+from epoet.rollout.engine import DEFAULT_BATCH, Episodes, RolloutEngine
+from epoet.rollout.policy import LAYER_SIZES
+from epoet.rollout.populations import Population, Request
 
 try:
     import ray
@@ -153,11 +156,12 @@ class _RolloutActor:
         """This actor's process id, once its engine is built."""
         return os.getpid()
 
-    def work(self, feed: object, call: int, reliefs: Sequence[_Relief],
+    def work(self, feed: object, call: int, reliefs: Sequence[Relief],
              populations: Sequence[Population], records: Sequence[int], slots: int
              ) -> tuple[np.ndarray, Episodes]:
         self.engine.set_terrains(reliefs)
-        return self.engine.run_jobs(_jobs(_pull(feed, call), populations, records), slots=slots)
+        jobs = engine_jobs(_pull(feed, call), populations, records)
+        return self.engine.run_jobs(jobs, slots=slots)
 
 
 def _pull(feed: object, call: int) -> Iterator[tuple[int, int]]:
@@ -165,7 +169,7 @@ def _pull(feed: object, call: int) -> Iterator[tuple[int, int]]:
         yield from chunk
 
 
-class RayEvaluator(_Backend):
+class RayEvaluator(Backend):
     """Rollout actors on a Ray cluster; `workers` actors (default: one per CPU of the cluster)."""
 
     def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | None = None,
@@ -223,7 +227,7 @@ class RayEvaluator(_Backend):
             ray.get(self._feed.load.remote(-1, [], 1))  # stop the survivors' pulls
             ray.wait(futures, num_returns=len(futures))
             raise WorkerLost(f"a Ray rollout actor died ({type(exc).__name__})") from exc
-        return _split(parts, sizes)
+        return split_results(parts, sizes)
 
     def close(self) -> None:
         """Stop the actors, and the local Ray this evaluator started (idempotent)."""

@@ -13,6 +13,7 @@ One compiled function (`forward_rows`) computes it for the engine's batches and 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -133,3 +134,28 @@ def forward_rows(params: np.ndarray, layer_sizes: np.ndarray, obs: np.ndarray,
                 h[j] = _tanh(z[j] + p[bias + j])
             start, n_in = bias + n_out, n_out
         out[b, :] = h[:n_in]
+
+
+# --- a policy on standardised observations, folded into its first layer (epoet.es.obs_norm) ---
+def fold(theta: np.ndarray, mean: np.ndarray, std: np.ndarray, layer_sizes: Sequence[int]
+         ) -> np.ndarray:
+    """The raw-observation parameters of `theta` (P,) or (K, P), a policy on standardised
+    observations: fold(theta)(obs) = theta((obs - mean) / std)."""
+    thetas = np.array(theta, dtype=np.float64, ndmin=2)
+    for row in thetas:
+        (w, b), *_ = unflatten(row, layer_sizes)
+        b -= (mean / std) @ w   # before w changes: uses the standardised-space weights
+        w /= std[:, None]
+    return thetas.reshape(np.shape(theta))
+
+
+@dataclass(frozen=True)
+class Standardizer:
+    """The statistics of one iteration, as the workers apply them to ES parameters."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    layer_sizes: tuple[int, ...]
+
+    def fold(self, theta: np.ndarray) -> np.ndarray:
+        return fold(theta, self.mean, self.std, self.layer_sizes)

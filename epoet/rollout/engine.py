@@ -39,7 +39,7 @@ from epoet.config import AgentConfig, TerrainConfig
 from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
-from epoet.es.policy import LAYER_SIZES, forward_rows, num_params, sizes_array
+from epoet.rollout.policy import LAYER_SIZES, forward_rows, num_params, sizes_array
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
 
