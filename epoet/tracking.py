@@ -1,8 +1,8 @@
 """Experiment tracking: the only module that imports mlflow.
 
-Algorithms report through the small `Tracker` protocol; `MlflowTracker` sends it to an MLflow
-store and `MemoryTracker` keeps it in memory for tests. Metrics are buffered and sent with
-`log_batch` because per-point `log_metric` on sqlite (~195 points/s) would dominate a run.
+Algorithms report through the small `Tracker` protocol, which `MlflowTracker` sends to an MLflow
+store. Metrics are buffered and sent with `log_batch` because per-point `log_metric` on sqlite
+(~195 points/s) would dominate a run.
 
 Store: the explicit `tracking_uri`, else env MLFLOW_TRACKING_URI, else
 `sqlite:///<project root>/mlflow.db` as an absolute path, so Hydra's per-job working directories
@@ -11,7 +11,6 @@ never scatter stores. A sweep's parent run id reaches each job through EPOET_PAR
 """
 from __future__ import annotations
 
-import copy
 import functools
 import logging
 import numbers
@@ -60,7 +59,7 @@ class TrackingError(ValueError):
 
 @runtime_checkable
 class Tracker(Protocol):
-    """What algorithms report to; implemented by `MlflowTracker` and `MemoryTracker`."""
+    """What algorithms report to (implemented by `MlflowTracker`), so they need no mlflow."""
 
     run_id: str | None
 
@@ -77,7 +76,7 @@ class Tracker(Protocol):
     def close(self, status: str = "FINISHED") -> None: ...
 
 
-# --- helpers shared by both trackers -------------------------------------------------------------
+# --- input checks --------------------------------------------------------------------------------
 
 _BAD_KEY_CHARS = re.compile(r"[^A-Za-z0-9_.\- /]")
 
@@ -99,7 +98,7 @@ def metric_key(name: str) -> str:
 
 def _metric_points(step: int,
                    metrics: Mapping[str, Any]) -> tuple[int, list[tuple[str, float]]]:
-    """Validate one `log_metrics` call; both trackers accept exactly the same input.
+    """Validate one `log_metrics` call.
 
     numpy integers count as steps: iteration counters often are.
     """
@@ -267,39 +266,6 @@ def open_store(tracking_uri: str | None = None) -> MlflowClient:
     except Exception as exc:  # any failure here means the store is unusable
         raise TrackingError(f"cannot open MLflow store {uri}: {_reason(exc)}") from exc
     return client  # type: ignore[return-value]  # an MlflowClient in all but retries
-
-
-class MemoryTracker:
-    """In-memory tracker for algorithm tests: same validation as MLflow, nothing persisted."""
-
-    def __init__(self, run_id: str = "memory") -> None:
-        self.run_id: str | None = run_id
-        self.metrics: dict[str, list[tuple[int, float]]] = {}
-        self.artifacts: list[tuple[Path, str | None]] = []
-        self.dicts: dict[str, Any] = {}
-        self.tags: dict[str, str] = {}
-        self.flushes = 0
-        self.status: str | None = None  # None while the run is open
-
-    def log_metrics(self, step: int, metrics: Mapping[str, float]) -> None:
-        step, points = _metric_points(step, metrics)
-        for key, value in points:
-            self.metrics.setdefault(key, []).append((step, value))
-
-    def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
-        self.artifacts.append((_existing_path(path), artifact_path))
-
-    def log_dict(self, obj: Any, artifact_file: str) -> None:
-        self.dicts[artifact_file] = copy.deepcopy(obj)  # a snapshot, as an uploaded file would be
-
-    def set_tags(self, tags: Mapping[str, str]) -> None:
-        self.tags.update(tags)
-
-    def flush(self) -> None:
-        self.flushes += 1
-
-    def close(self, status: str = "FINISHED") -> None:
-        self.status = status
 
 
 class MlflowTracker:

@@ -17,7 +17,6 @@ from epoet.tracking import (
     DEFAULT_TRACKING_URI,
     PARENT_RUN_ENV,
     PROJECT_ROOT,
-    MemoryTracker,
     MlflowTracker,
     Tracker,
     TrackingError,
@@ -248,26 +247,21 @@ def test_parent_run_id_reads_the_environment(monkeypatch):
     assert parent_run_id() == "abc"
 
 
-def test_memory_tracker_records_like_mlflow(tmp_path):
-    tracker = MemoryTracker()
+def test_numpy_steps_and_values_are_accepted(store, tracker):
+    """Iteration counters and results often are numpy scalars."""
     assert isinstance(tracker, Tracker)
+    run_id = tracker.start("numpy")
     tracker.log_metrics(0, {"pair/0/return": 1.5, "bad name!": 2})
     tracker.log_metrics(np.int64(1), {"pair/0/return": np.float32(2.5)})
-    cfg = {"seed": 1}
-    tracker.log_dict(cfg, "config.yaml")
-    cfg["seed"] = 2
-    (tmp_path / "a.csv").write_text("x\n")
-    tracker.log_artifact(tmp_path / "a.csv", "eval")
-    tracker.close("KILLED")
-
-    assert tracker.metrics == {"pair/0/return": [(0, 1.5), (1, 2.5)], "bad name_": [(0, 2.0)]}
-    assert tracker.dicts == {"config.yaml": {"seed": 1}}
-    assert tracker.artifacts == [(tmp_path / "a.csv", "eval")]
-    assert tracker.status == "KILLED"
     with pytest.raises(TrackingError, match="must be a number"):
         tracker.log_metrics(2, {"x": None})
     with pytest.raises(TrackingError, match="step must be a non-negative int"):
         tracker.log_metrics(1.5, {"x": 1.0})
+    tracker.close("KILLED")
+
+    assert _history(store[0], run_id, "pair/0/return") == [(0, 1.5), (1, 2.5)]
+    assert _history(store[0], run_id, "bad name_") == [(0, 2.0)]
+    assert MlflowClient(store[0]).get_run(run_id).info.status == "KILLED"
 
 
 # --- the Hydra sweep callback, run as a real multirun in a subprocess ---------------------------
