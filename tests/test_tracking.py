@@ -71,6 +71,21 @@ def test_large_flush_is_split_into_mlflow_sized_batches(store, request):
     assert len(_history(uri, run_id, "a")) == len(_history(uri, run_id, "b")) == 1250
 
 
+def test_a_failed_flush_keeps_the_points_for_the_next(store, request):
+    uri, _ = store
+    tracker = MlflowTracker(uri, experiment=request.node.name, flush_every=10**6,
+                            flush_seconds=3600)
+    run_id = tracker.start("refused")
+    for step in range(1500):
+        tracker.log_metrics(step, {"a": 1.0})
+    MlflowClient(uri).delete_run(run_id)  # MLflow refuses metrics for a deleted run
+    with pytest.raises(TrackingError, match="cannot send metrics"):
+        tracker.flush()
+    MlflowClient(uri).restore_run(run_id)
+    tracker.flush()
+    assert len(_history(uri, run_id, "a")) == 1500
+
+
 def test_time_based_flush_and_close_flushes(store, request):
     uri, _ = store
     tracker = MlflowTracker(uri, experiment=request.node.name, flush_seconds=0)
