@@ -249,7 +249,7 @@ def test_unusable_store_fails_fast_with_one_line(tmp_path, monkeypatch, uri, pro
 def test_default_store_is_absolute_sqlite_in_project_root(monkeypatch):
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     assert resolve_tracking_uri() == DEFAULT_TRACKING_URI == f"sqlite:///{PROJECT_ROOT}/mlflow.db"
-    assert PROJECT_ROOT.is_absolute() and (PROJECT_ROOT / "epoet" / "tracking.py").is_file()
+    assert PROJECT_ROOT.is_absolute() and (PROJECT_ROOT / "epoet" / "tracking").is_dir()
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "sqlite:////x/y.db")
     assert resolve_tracking_uri() == "sqlite:////x/y.db"
     assert resolve_tracking_uri("http://h:5000") == "http://h:5000"
