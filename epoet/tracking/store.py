@@ -1,0 +1,132 @@
+"""Where the MLflow store is and whether it works: a bad store fails before any training.
+
+The store is the explicit `tracking_uri`, else env MLFLOW_TRACKING_URI, else
+`sqlite:///<project root>/mlflow.db` as an absolute path, so Hydra's per-job working directories
+never scatter stores.
+"""
+from __future__ import annotations
+
+import functools
+import os
+import random
+import sqlite3
+import time
+from collections.abc import Iterator
+from contextlib import closing, contextmanager
+from pathlib import Path
+from typing import Any
+
+from mlflow import MlflowClient
+
+from epoet.tracking.errors import TrackingError, reason
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_TRACKING_URI = f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
+# The start-up probe must fail in seconds: MLflow's defaults retry for minutes.
+_PROBE_ENV = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": "5"}
+
+
+def resolve_tracking_uri(tracking_uri: str | None = None) -> str:
+    """Explicit URI, else env MLFLOW_TRACKING_URI, else the project's absolute sqlite store."""
+    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+
+
+def sqlite_path(uri: str) -> Path | None:
+    """The database file of a `sqlite:///` URI (relative paths are relative to the cwd)."""
+    if not uri.startswith("sqlite:///"):
+        return None
+    path = uri[len("sqlite:///"):].split("?", 1)[0]
+    return None if path in ("", ":memory:") else Path(path).absolute()
+
+
+@contextmanager
+def _quick_http() -> Iterator[None]:
+    """Temporarily make MLflow's HTTP client give up fast, unless the user tuned it."""
+    added = {k: v for k, v in _PROBE_ENV.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for key in added:
+            os.environ.pop(key, None)
+
+
+def _check_sqlite(uri: str, db: Path) -> None:
+    """Fail fast on a local database MLflow cannot use.
+
+    MLflow would silently create missing directories (a typo in the URI must not start a new
+    store somewhere unexpected) and retries a bad database file for ~100 s before giving up.
+    """
+    problem = None
+    if not db.parent.exists():
+        problem = f"directory {db.parent} does not exist"
+    elif not db.parent.is_dir():
+        problem = f"{db.parent} is not a directory"
+    elif not os.access(db.parent, os.W_OK):
+        problem = f"directory {db.parent} is not writable"
+    elif db.is_dir():
+        problem = f"{db} is a directory, not a database file"
+    elif db.exists():
+        try:
+            with closing(sqlite3.connect(f"{db.as_uri()}?mode=rw", uri=True, timeout=5)) as con:
+                con.execute("PRAGMA schema_version")
+        except sqlite3.Error as exc:
+            problem = f"{db} is not a usable sqlite database ({exc})"
+    if problem:
+        raise TrackingError(f"cannot open MLflow store {uri}: {problem}.")
+
+
+class RetryingClient:
+    """An MlflowClient whose calls retry, with jittered exponential backoff, while sqlite says
+    "database is locked": the parallel jobs of a sweep (hydra/launcher=joblib) write one store,
+    and sqlite lets one writer in at a time. A locked call rolled back, so trying it again is
+    safe; any other error is raised at once."""
+
+    ATTEMPTS = 10
+    FIRST_DELAY = 0.05  # seconds; doubles per attempt (about 50 s in all, beyond sqlite's own 5 s)
+
+    def __init__(self, client: MlflowClient) -> None:
+        self._client = client
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name == "_client":  # e.g. while a launcher unpickles it
+            raise AttributeError(name)
+        attr = getattr(self._client, name)
+        if not callable(attr):
+            return attr
+
+        @functools.wraps(attr)
+        def call(*args: Any, **kwargs: Any) -> Any:
+            delay = self.FIRST_DELAY
+            for attempt in range(1, self.ATTEMPTS + 1):
+                try:
+                    return attr(*args, **kwargs)
+                except Exception as exc:
+                    if "database is locked" not in str(exc) or attempt == self.ATTEMPTS:
+                        raise
+                    time.sleep(delay * (1.0 + random.random()))
+                    delay *= 2
+
+        return call
+
+
+def open_store(tracking_uri: str | None = None) -> MlflowClient:
+    """Connect to the store and prove it answers, so a bad store fails before any training."""
+    uri = resolve_tracking_uri(tracking_uri)
+    db = sqlite_path(uri)
+    if db is not None:
+        _check_sqlite(uri, db)
+    try:
+        with _quick_http():
+            client = RetryingClient(MlflowClient(uri))
+            client.search_experiments(max_results=1)
+    except Exception as exc:  # any failure here means the store is unusable
+        raise TrackingError(f"cannot open MLflow store {uri}: {reason(exc)}") from exc
+    return client  # type: ignore[return-value]  # an MlflowClient in all but retries
+
+
+def ui_hint(tracking_uri: str, experiment_id: str) -> str:
+    """The command that serves the store and the URL of the experiment's runs table (MLflow
+    3's UI opens on a GenAI overview without `workflowType`)."""
+    return (f"mlflow ui --backend-store-uri {tracking_uri}  then open http://127.0.0.1:5000/"
+            f"#/experiments/{experiment_id}/runs?workflowType=machine_learning")

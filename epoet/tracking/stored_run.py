@@ -1,0 +1,78 @@
+"""A run already in the store, read and added to after training by evaluation, videos and
+analysis."""
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+from mlflow import MlflowClient
+from mlflow.entities import Metric, Run, RunTag
+from mlflow.exceptions import MlflowException
+
+from epoet.tracking.errors import TrackingError, reason
+from epoet.tracking.inputs import existing_path, metric_key
+from epoet.tracking.store import open_store, resolve_tracking_uri, ui_hint
+
+
+class StoredRun:
+    """A run already in the store, for the commands that read it or add results to it after
+    training (evaluation, videos, analysis): its tags, its artifacts, and logging without
+    reopening it (its status stays what training left)."""
+
+    def __init__(self, client: MlflowClient, run: Run, tracking_uri: str | None = None) -> None:
+        self.client = client
+        self.tracking_uri = resolve_tracking_uri(tracking_uri)
+        self.run_id = run.info.run_id
+        self.name = run.info.run_name
+        self.status = run.info.status
+        self.experiment_id = run.info.experiment_id
+        self.tags = dict(run.data.tags)
+        self.metrics = dict(run.data.metrics)  # each metric's last value
+
+    @classmethod
+    def open(cls, run_id: str, tracking_uri: str | None = None) -> StoredRun:
+        """Connect to the store (proving it answers) and find the run, or TrackingError."""
+        uri = resolve_tracking_uri(tracking_uri)
+        client = open_store(uri)
+        try:
+            return cls(client, client.get_run(run_id), uri)
+        except MlflowException as exc:
+            raise TrackingError(f"run {run_id} is not in the MLflow store {uri}.") from exc
+
+    def has_artifact(self, artifact_path: str) -> bool:
+        folder, _, name = artifact_path.rpartition("/")
+        try:
+            listed = self.client.list_artifacts(self.run_id, folder or None)
+        except (MlflowException, OSError):
+            return False
+        return any(f.path == artifact_path or f.path.endswith(f"/{name}") for f in listed)
+
+    def download(self, artifact_path: str, dst: Path) -> Path:
+        """The artifact (file or folder) copied under `dst`; its local path."""
+        os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")  # one per file
+        try:
+            return Path(self.client.download_artifacts(self.run_id, artifact_path, str(dst)))
+        except (MlflowException, OSError) as exc:
+            raise TrackingError(f"cannot download {artifact_path} of run {self.run_id}: "
+                                f"{reason(exc)}") from exc
+
+    def ui_hint(self) -> str:
+        """Where to look at this run (`ui_hint`)."""
+        return ui_hint(self.tracking_uri, self.experiment_id)
+
+    def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
+                    artifacts: Mapping[str, str | Path] = {}) -> None:
+        """Metrics (one batch), tags and artifacts {local path: artifact folder}."""
+        try:
+            now = int(time.time() * 1000)
+            self.client.log_batch(
+                self.run_id,
+                metrics=[Metric(metric_key(k), float(v), now, 0) for k, v in metrics.items()],
+                tags=[RunTag(k, str(v)) for k, v in tags.items()])
+            for path, folder in artifacts.items():
+                self.client.log_artifact(self.run_id, str(existing_path(path)), str(folder))
+        except (MlflowException, OSError) as exc:
+            raise TrackingError(f"cannot log results to run {self.run_id}: "
+                                f"{reason(exc)}") from exc
