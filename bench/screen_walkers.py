@@ -35,6 +35,10 @@ CANDIDATES: dict[str, list[str]] = {
     "sigma=0.04": ["algo.es.sigma=0.04"],
     "no_progress_steps=200": ["agent.no_progress_steps=200"],
     "obs_norm": ["algo.es.obs_norm_episodes=1"],
+    # on top of the survivor
+    "obs_norm+lr=0.02": ["algo.es.obs_norm_episodes=1", "algo.es.lr=0.02"],
+    "obs_norm+no_progress_steps=200": ["algo.es.obs_norm_episodes=1",
+                                       "agent.no_progress_steps=200"],
 }
 OUT = Path(__file__).parent / "results" / "walker_screen.jsonl"
 
