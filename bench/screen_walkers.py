@@ -40,7 +40,7 @@ CANDIDATES: dict[str, list[str]] = {
     "obs_norm+no_progress_steps=200": ["algo.es.obs_norm_episodes=1",
                                        "agent.no_progress_steps=200"],
 }
-OUT = Path(__file__).parent / "results" / "walker_screen.jsonl"
+OUT = Path(__file__).parent / "walker_screen.jsonl"
 
 
 def _commit() -> str:
