@@ -11,7 +11,7 @@ import time
 import mujoco
 import numpy as np
 
-from epoet.envs import HexapodEnv
+from epoet.envs.hexapod_env import HexapodEnv
 
 
 def steps_per_second(step, n: int) -> float:

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from epoet.config import Config, compose, validate
-from epoet.envs import HexapodEnv
+from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import action_to_targets
 from epoet.rollout.policy import forward, init_params
 from epoet.terrain import Terrain, cppn_inputs, make_terrain, mutate_genome

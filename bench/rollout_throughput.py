@@ -18,7 +18,9 @@ from dataclasses import replace
 import mujoco
 import numpy as np
 
-from epoet.config import AgentConfig, TerrainConfig, load
+from epoet.config import load
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, action_to_targets, build_model
 from epoet.envs.spawn import spawn
 from epoet.rollout.populations import mirrored_population

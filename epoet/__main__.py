@@ -10,7 +10,8 @@ from omegaconf import DictConfig
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.cli import fail, run_hydra_app
-from epoet.config import CONF_DIR, ConfigError
+from epoet.config import CONF_DIR
+from epoet.core.schema import ConfigError
 from epoet.lifecycle import Stopped
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")

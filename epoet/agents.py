@@ -23,7 +23,8 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
-from epoet.config import RL_ACTIVATIONS, AgentConfig
+from epoet.envs.config import AgentConfig
+from epoet.rl.config import RL_ACTIVATIONS
 from epoet.rollout.policy import LAYER_SIZES, forward, num_params
 from epoet.tracking import StoredRun, TrackingError
 

@@ -41,8 +41,10 @@ from tqdm import tqdm
 
 from epoet.agents import AgentError, AgentSource, TrainedRun, resolve_run
 from epoet.cli import fail
-from epoet.config import (AgentConfig, ConfigError, EvaluateConfig, TerrainConfig, compose,
-                          validate)
+from epoet.config import EvaluateConfig, compose, validate
+from epoet.core.schema import ConfigError
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.core.compute import default_workers
 from epoet.files import atomic_write

@@ -45,7 +45,8 @@ from tqdm import tqdm
 
 from epoet.agents import AgentError, TrainedRun, resolve_run
 from epoet.cli import fail
-from epoet.config import ConfigError, RenderConfig, compose, validate
+from epoet.config import RenderConfig, compose, validate
+from epoet.core.schema import ConfigError
 from epoet.film import Film, caption_text
 from epoet.terrain import Terrain, TerrainFileError
 from epoet.tracking import TrackingError

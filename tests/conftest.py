@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from epoet.config import AgentConfig, TerrainConfig, load
+from epoet.config import load
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.config import compose as compose_config
 from epoet.terrain import Terrain
 

@@ -18,7 +18,8 @@ from torchrl.envs.utils import set_exploration_type
 
 import epoet.rl.setup as setup
 from epoet.checkpoint import CheckpointError, load_checkpoint
-from epoet.config import ConfigError, validate
+from epoet.config import validate
+from epoet.core.schema import ConfigError
 from epoet.config import compose as compose_config
 from epoet.rl import sac
 from epoet.rl.policy_file import load_policy

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from epoet.config import ConfigError, TerrainConfig
-from epoet.envs import ENV_ID, HexapodEnv
+from epoet.core.schema import ConfigError
+from epoet.terrain.config import TerrainConfig
+from epoet.envs import ENV_ID
+from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import TerrainMismatchError, action_to_targets, layout
 from epoet.envs.task import (REWARD_TERMS, EpisodeState, HexapodTask, heading_deviation,
                              roll_pitch)

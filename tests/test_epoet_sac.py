@@ -11,7 +11,8 @@ import torch
 from tensordict import TensorDictBase
 
 from epoet.checkpoint import load_checkpoint
-from epoet.config import ConfigError, load
+from epoet.config import load
+from epoet.core.schema import ConfigError
 from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.epoet_sac import EpoetSac, ReplayMix
 from epoet.poet.runner import layer_sizes, make_loop

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from epoet.checkpoint import load_checkpoint
-from epoet.config import ConfigError, TerrainConfig, load
+from epoet.config import load
+from epoet.core.schema import ConfigError
+from epoet.terrain.config import TerrainConfig
 from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer
 from epoet.rollout.policy import fold, forward, init_params
 from epoet.rollout.backends.serial import SerialEvaluator

@@ -13,7 +13,8 @@ import pytest
 from conftest import without_evaluation
 
 from epoet.checkpoint import load_checkpoint
-from epoet.config import TerrainConfig, load
+from epoet.config import load
+from epoet.terrain.config import TerrainConfig
 from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.loop import EPOET, Key

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from epoet.config import load
-from epoet.envs import HexapodEnv
+from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
 from epoet.rollout.populations import mirrored_population
 from epoet.rollout.policy import forward, init_params

@@ -212,7 +212,7 @@ def test_an_address_where_something_else_listens_is_one_line_in_seconds(not_ray:
 @pytest.mark.parametrize("not_ray", ["http2"], indirect=True)
 def test_an_http2_server_that_is_not_ray_fails_through_rays_own_client(not_ray: str) -> None:
     # It passes the HTTP/2 hello, so Ray's GCS client (in a child process) has to turn it down.
-    from epoet.config import ConfigError
+    from epoet.core.schema import ConfigError
     from epoet.rollout.backends.ray_cluster import PROBE_SECONDS, check_address
 
     threads = threading.active_count()

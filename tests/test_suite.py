@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from epoet.config import compose, load, validate
-from epoet.envs import HexapodEnv
+from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
 from epoet.terrain.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,

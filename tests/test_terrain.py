@@ -13,7 +13,9 @@ import neat
 import numpy as np
 import pytest
 
-from epoet.config import ConfigError, TerrainConfig, compose, load, validate
+from epoet.config import compose, load, validate
+from epoet.core.schema import ConfigError
+from epoet.terrain.config import TerrainConfig
 from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, check_inputs,
                            cppn_inputs, evaluate, genome_config, make_terrain, max_height_at, mix,
                            mutate_genome, mutate_terrain, new_genome, normalize, random_bowl)

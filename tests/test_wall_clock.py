@@ -11,7 +11,8 @@ import mlflow
 import pytest
 
 from epoet.checkpoint import load_checkpoint
-from epoet.config import ConfigError, load
+from epoet.config import load
+from epoet.core.schema import ConfigError
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -9,7 +9,9 @@ import mujoco
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.config import CONF_DIR, AgentConfig, TerrainConfig, compose
+from epoet.config import CONF_DIR, compose
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, REWARD_TERMS, EpisodeState, HexapodTask

@@ -15,7 +15,9 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import uniform_filter
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.envs.config import INTEGRATORS, AgentConfig
+from epoet.terrain.config import TerrainConfig
+
 
 LEGS = ("fl", "fr", "ml", "mr", "rl", "rr")
 """The one leg order used by joints, actuators, observation, action and contact flags."""
@@ -28,8 +30,9 @@ TARGET_HIGH = np.tile([0.6, 0.4, 0.8], len(LEGS))
 
 MJCF = resources.files("epoet.envs") / "assets" / "hexapod.xml"
 
-_INTEGRATORS = {"rk4": mujoco.mjtIntegrator.mjINT_RK4,
-                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
+# The schema's choices (epoet.envs.config.INTEGRATORS), as MuJoCo's enum.
+_MJ_INTEGRATORS = {name: getattr(mujoco.mjtIntegrator, f"mjINT_{name.upper()}")
+                   for name in INTEGRATORS}
 
 
 class TerrainMismatchError(ValueError):
@@ -54,7 +57,7 @@ def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
     """
     spec = mujoco.MjSpec.from_file(str(MJCF))
     spec.option.timestep = agent.timestep
-    spec.option.integrator = _INTEGRATORS[agent.integrator]
+    spec.option.integrator = _MJ_INTEGRATORS[agent.integrator]
     # On a blow-up MuJoCo would silently reset the robot to its initial pose and go on; the
     # task sees the NaN or huge state instead and ends the episode (HexapodTask.step).
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET

@@ -4,7 +4,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from epoet.config import AgentConfig
+from epoet.envs.config import AgentConfig
 from epoet.envs.model import Ground, action_to_targets, begin, stepper
 
 FOOTPRINT = 0.35

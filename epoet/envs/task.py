@@ -12,7 +12,7 @@ from dataclasses import astuple, dataclass, fields
 import numpy as np
 from numba import njit
 
-from epoet.config import AgentConfig, RewardConfig
+from epoet.envs.config import AgentConfig, RewardConfig
 from epoet.envs.model import Layout
 
 OBS_DIM = 53

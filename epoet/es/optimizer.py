@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from epoet.config import EsConfig
+from epoet.es.config import EsConfig
 from epoet.rollout.populations import check_theta, noise
 
 # Seeds are drawn as rng.integers(0, SEED_HIGH, dtype=int64): a 63-bit range makes a repeated

@@ -46,7 +46,9 @@ from tensordict import TensorDict
 from torchrl.envs import EnvBase, ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
-from epoet.config import Config, EpoetSacConfig, TerrainConfig
+from epoet.config import Config
+from epoet.epoet_sac.config import EpoetSacConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.rollout.policy import init_params
 from epoet.rollout.engine import Episodes
 from epoet.rollout.backends.base import Evaluator

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from epoet.config import PoetConfig, TerrainConfig
+from epoet.poet.config import PoetConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.es.obs_norm import ObsNormalizer, Standardizer
 from epoet.es.optimizer import OpenAIES
 from epoet.rollout.policy import init_params

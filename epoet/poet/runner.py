@@ -7,7 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from epoet.checkpoint import save_run_state
-from epoet.config import Config, EpoetSacConfig
+from epoet.config import Config
+from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.rollout.policy import LAYER_SIZES
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import evaluator_for

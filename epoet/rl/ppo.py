@@ -19,7 +19,8 @@ from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss, LossModule
 from torchrl.objectives.value import GAE
 
-from epoet.config import Config, OnPolicyConfig, PpoConfig
+from epoet.config import Config
+from epoet.rl.config import OnPolicyConfig, PpoConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
 from epoet.rl.setup import BatchPlan, make_actor, make_value, step_if_finite
 

@@ -25,7 +25,8 @@ from tensordict import TensorDictBase
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
 
-from epoet.config import Config, SacConfig, SacLearnerConfig
+from epoet.config import Config
+from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
 from epoet.rl.sac_loss import SacLoss, TwinQ
 from epoet.rl.setup import ACTIVATIONS, OBS, make_actor, policy_key, step_if_finite

@@ -54,7 +54,7 @@ from torchrl.envs.utils import set_exploration_type
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 from epoet.config import Config
-from epoet.envs import HexapodEnv
+from epoet.envs.hexapod_env import HexapodEnv
 from epoet.core.compute import default_workers
 
 OBS = "observation"

@@ -14,7 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 from torchrl.modules import ProbabilisticActor, ValueOperator
 
-from epoet.config import Config, VmpoConfig
+from epoet.config import Config
+from epoet.rl.config import VmpoConfig
 from epoet.rl import ppo
 from epoet.rl.run_state import TrainResult
 from epoet.rl.vmpo_loss import VMPOLoss

@@ -35,7 +35,8 @@ import mujoco.batch
 import numpy as np
 from numba import njit
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask

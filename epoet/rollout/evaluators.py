@@ -3,7 +3,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from epoet.config import AgentConfig, TerrainConfig, WorkersConfig
+from epoet.config import WorkersConfig
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.core.compute import default_workers
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.backends.pool import PoolEvaluator

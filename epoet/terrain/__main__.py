@@ -16,7 +16,8 @@ from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
 from epoet.cli import fail, run_hydra_app
-from epoet.config import CONF_DIR, ConfigError, GalleryConfig, validate
+from epoet.config import CONF_DIR, GalleryConfig, validate
+from epoet.core.schema import ConfigError
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain, plot_terrain

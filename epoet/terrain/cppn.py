@@ -28,7 +28,7 @@ import neat
 import numpy as np
 from neat.graphs import feed_forward_layers
 
-from epoet.config import CppnConfig, MutationConfig
+from epoet.terrain.config import CppnConfig, MutationConfig
 
 INPUT_KEYS = (-1, -2)   # x, y
 OUTPUT_KEY = 0

@@ -9,7 +9,7 @@ from __future__ import annotations
 import neat
 import numpy as np
 
-from epoet.config import TerrainConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.terrain.bowl import random_bowl
 from epoet.terrain.cppn import evaluate, field_inputs, mutate_genome, new_genome
 from epoet.terrain.terrain import KINDS, Terrain, normalize

@@ -46,8 +46,10 @@ import hydra
 from omegaconf import DictConfig
 
 from epoet.cli import fail, run_hydra_app
-from epoet.config import (CONF_DIR, AgentConfig, ConfigError, SuiteConfig, TerrainConfig, load,
-                          validate)
+from epoet.config import CONF_DIR, SuiteConfig, load, validate
+from epoet.core.schema import ConfigError
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
 from epoet.files import atomic_write

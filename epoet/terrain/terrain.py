@@ -21,9 +21,6 @@ from typing import Any
 
 import neat
 import numpy as np
-from matplotlib import colormaps
-from matplotlib.colors import LightSource
-from matplotlib.figure import Figure
 
 from epoet.errors import first_line
 from epoet.files import atomic_write
@@ -153,6 +150,7 @@ class Terrain:
 
     def to_png(self, path: str | os.PathLike) -> Path:
         """Render a shaded 3D view of the terrain to a PNG (matplotlib, no display needed)."""
+        from matplotlib.figure import Figure  # on demand: a second of imports runs seldom need
         fig = Figure(figsize=(6, 5), dpi=110)
         plot_terrain(fig.add_subplot(projection="3d"), self)
         fig.savefig(path)
@@ -171,6 +169,8 @@ def plot_terrain(ax: Any, terrain: Terrain, zmax: float | None = None,
     axis = np.linspace(-terrain.size / 2, terrain.size / 2, n)
     x, y = np.meshgrid(axis, axis, indexing="xy")   # rows follow y, columns x: as the heightmap
     z = terrain.heightmap * terrain.max_height
+    from matplotlib import colormaps
+    from matplotlib.colors import LightSource
     light = LightSource(azdeg=315, altdeg=40)
     # Shade on the normalised map so even low terrains show their shape; exaggerate for relief.
     rgb = light.shade(terrain.heightmap, cmap=colormaps["gist_earth"], vert_exag=n / 8,

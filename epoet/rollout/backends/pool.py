@@ -23,7 +23,8 @@ from typing import TypeVar
 
 import numpy as np
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.lifecycle import end_with, ignore_stop_signals
 from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
                                          split_results)

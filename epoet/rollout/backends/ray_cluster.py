@@ -28,7 +28,9 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 
-from epoet.config import AgentConfig, ConfigError, TerrainConfig
+from epoet.core.schema import ConfigError
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
                                          split_results)
 from epoet.rollout.backends.pool import fair_slots

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from epoet.config import AgentConfig, TerrainConfig
+from epoet.envs.config import AgentConfig
+from epoet.terrain.config import TerrainConfig
 from epoet.rollout.backends.base import Backend, engine_jobs, split_results
 from epoet.rollout.engine import DEFAULT_BATCH, Episodes, RolloutEngine
 from epoet.rollout.policy import LAYER_SIZES

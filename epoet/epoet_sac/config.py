@@ -1,0 +1,58 @@
+"""ePOET-SAC's settings (conf/algo/epoet_sac.yaml): ePOET's plus the SAC learner's and the join's."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from epoet.core.schema import check, non_negative, positive
+from epoet.poet.config import PoetConfig
+from epoet.rl.config import SacLearnerConfig
+
+
+# --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
+
+SAC_TERRAINS = ("pool", "bowl")
+JOIN_MAPPINGS = ("distill", "random")
+
+
+@dataclass
+class DistillConfig:
+    """Behaviour cloning between the SAC actor and ES agents (epoet/poet/sac_bridge.py)."""
+
+    KEY: ClassVar[str] = "algo.distill"
+
+    states: int                      # replay states per distillation
+    epochs: int
+    batch: int
+    lr: float
+
+    def __post_init__(self) -> None:
+        positive(self, "states", "epochs", "batch", "lr")
+
+
+@dataclass
+class EpoetSacConfig(PoetConfig):
+    """ePOET plus a SAC learner trained every iteration (Algorithm 1's red steps)."""
+
+    sac: SacLearnerConfig
+    distill: DistillConfig
+    frames_per_iteration: int        # SAC's own environment steps per ePOET iteration (Train_SAC)
+    updates_per_frame: float         # gradient updates per SAC frame (paper: 1)
+    es_episodes_per_pair: int        # ES-step episodes per active pair recorded into the replay
+    sac_terrain: str                 # pool: a sampled active environment; bowl: the reference's
+    mapping: str                     # the join's SAC actor -> ES mapping: distill | random
+    join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
+    pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive(self, "frames_per_iteration", "join_every_transfers")
+        non_negative(self, "updates_per_frame", "es_episodes_per_pair", "pretrain_iterations")
+        check(self.sac_terrain in SAC_TERRAINS,
+               f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
+        check(self.mapping in JOIN_MAPPINGS,
+               f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
+        # The SAC actor and the join exchange raw-observation policies with the ES pool.
+        check(self.es.obs_norm_episodes == 0,
+               "algo.es.obs_norm_episodes must be 0 for algo=epoet_sac: observation "
+               "normalisation is implemented for ePOET's ES only.")
