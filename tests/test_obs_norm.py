@@ -105,3 +105,12 @@ def test_an_epoet_run_with_normalisation_exports_raw_policies_and_resumes(
 def test_epoet_sac_refuses_normalisation() -> None:
     with pytest.raises(ConfigError, match="obs_norm_episodes must be 0 for algo=epoet_sac"):
         load(["algo=epoet_sac", "algo.es.obs_norm_episodes=1"])
+
+
+def test_the_workstation_budget_normalises_epoet_observations_only() -> None:
+    """The screen's survivor is the workstation budget's default for ePOET; the paper's and the
+    laptop budget keep raw observations, and ePOET-SAC (which refuses it) composes unchanged."""
+    assert load(["budget=workstation"]).algo.es.obs_norm_episodes == 1
+    assert load(["budget=workstation", "algo=epoet_sac"]).algo.es.obs_norm_episodes == 0
+    for budget in ("paper", "laptop", "smoke"):
+        assert load([f"budget={budget}"]).algo.es.obs_norm_episodes == 0
