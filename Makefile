@@ -42,10 +42,10 @@ paper: install
 
 # Check the shipped evaluation suite against a fresh regeneration (about a minute).
 suite: install
-	$(PY) -m epoet.terrain.suite check=true
+	$(PY) -m epoet.eval.suite check=true
 
 gallery: install
-	$(PY) -m epoet.terrain terrain=cppn n=8 out=gallery
+	$(PY) -m epoet.eval.gallery terrain=cppn n=8 out=gallery
 
 bench: install
 	$(PY) bench/env_throughput.py

@@ -38,9 +38,9 @@ from sklearn.manifold import TSNE  # noqa: E402
 
 from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, history,  # noqa: E402
                             in_order, require_runs, run_command, seed_of, select_runs)
-from epoet.evaluate import RESULTS  # noqa: E402
+from epoet.eval.evaluate import RESULTS  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
-from epoet.terrain.suite import LEVELS, Suite, load_suite  # noqa: E402
+from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
 from epoet.tracking import StoredRun  # noqa: E402
 
 GEN_KEY = re.compile(r"^gen(\d+)/score$")

@@ -12,9 +12,9 @@ from mlflow import MlflowClient
 from mlflow.entities import Run
 from mlflow.exceptions import MlflowException
 
-from epoet.agents import AgentError
-from epoet.errors import first_line
-from epoet.terrain.suite import SuiteError
+from epoet.eval.agents import AgentError
+from epoet.core.errors import first_line
+from epoet.eval.suite import SuiteError
 from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path
 
 ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")   # table and legend order

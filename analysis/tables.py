@@ -27,8 +27,8 @@ from mlflow.entities import Run
 from analysis.store import (AnalysisError, connect, in_order, require_runs, run_command, seed_of,
                             select_runs)
 from epoet.config import compose, validate
-from epoet.evaluate import RESULTS, evaluate_run
-from epoet.terrain.suite import LEVELS, load_suite
+from epoet.eval.evaluate import RESULTS, evaluate_run
+from epoet.eval.suite import LEVELS, load_suite
 from epoet.tracking import StoredRun
 
 EASY_MEDIUM = ("easy", "medium")

@@ -30,8 +30,8 @@ from pathlib import Path
 import mlflow
 import numpy as np
 
-from epoet.checkpoint import load_checkpoint
-from epoet.lifecycle import processes_with_env
+from epoet.core.checkpoint import load_checkpoint
+from epoet.core.lifecycle import processes_with_env
 
 OVERRIDES = ["budget=smoke", "workers.num=2", "algo.es.hidden=[8]", "terrain.grid=40",
              "checkpoint_every=1", "algo.iterations_before_transfer=1", "algo.adjust_interval=2",

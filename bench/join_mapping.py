@@ -16,7 +16,7 @@ import sys
 
 import numpy as np
 
-from epoet.checkpoint import find_checkpoint, load_checkpoint
+from epoet.core.checkpoint import find_checkpoint, load_checkpoint
 from epoet.config import load
 from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.runner import layer_sizes, make_loop

@@ -8,11 +8,11 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError
-from epoet.cli import fail, run_hydra_app
+from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
+from epoet.core.cli import fail, run_hydra_app
 from epoet.config import CONF_DIR
 from epoet.core.schema import ConfigError
-from epoet.lifecycle import Stopped
+from epoet.core.lifecycle import Stopped
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def _app(cfg: DictConfig) -> None:

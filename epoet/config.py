@@ -162,7 +162,7 @@ class Config:
 
 @dataclass
 class SuiteConfig:
-    """`python -m epoet.terrain.suite`: the fixed evaluation suite (docs/reference.md "Evaluation").
+    """`python -m epoet.eval.suite`: the fixed evaluation suite (docs/reference.md "Evaluation").
 
     Rounds of mutated CPPN children with a rising S; round r aims its children at level r
     (terrain/suite.py)."""
@@ -207,7 +207,7 @@ class AgentCommandConfig:
 
 @dataclass
 class EvaluateConfig(AgentCommandConfig):
-    """`python -m epoet.evaluate`: a trained agent on the evaluation suite."""
+    """`python -m epoet.eval.evaluate`: a trained agent on the evaluation suite."""
 
     episodes: int                    # per terrain
     solve_score: float               # "solved": finish line and this return (x the run's scale)
@@ -225,7 +225,7 @@ class EvaluateConfig(AgentCommandConfig):
 
 @dataclass
 class RenderConfig(AgentCommandConfig):
-    """`python -m epoet.render`: an mp4 of a trained agent on one terrain."""
+    """`python -m epoet.eval.render`: an mp4 of a trained agent on one terrain."""
 
     terrain: Optional[str]           # a suite terrain's name or a terrain .npz file
     steps: Optional[int]             # None: the run's episode length
@@ -242,7 +242,7 @@ class RenderConfig(AgentCommandConfig):
 
 @dataclass
 class GalleryConfig:
-    """`python -m epoet.terrain`: a root terrain and its mutated descendants as one PNG grid."""
+    """`python -m epoet.eval.gallery`: a root terrain and its mutated descendants as one PNG grid."""
 
     KEY: ClassVar[str] = ""
 

@@ -13,11 +13,11 @@ from typing import Any, Callable
 
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
+from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.config import Config, compose, validate
-from epoet.files import atomic_write
+from epoet.core.files import atomic_write
 from epoet.core.compute import default_workers
-from epoet.lifecycle import StopOnSignal
+from epoet.core.lifecycle import StopOnSignal
 from epoet.tracking import MlflowTracker, StoredRun, Tracker, flatten, parent_run_id
 
 # algo.name -> "module:function" with the runner shape
@@ -136,24 +136,24 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
             f"{took} of training: {numbers}")
     if in_sweep:
         return [head]
-    from epoet.terrain.suite import example_terrain
+    from epoet.eval.suite import example_terrain
     return [head,
             f"  outputs:  {run_dir} (checkpoint, exported agent"
             f"{', evaluation/' if cfg.evaluate else ''}); MLflow run {stored.run_id}",
             f"  runs:     {stored.ui_hint()}",
-            f"  evaluate: python -m epoet.evaluate run={run_dir}",
-            f"  render:   python -m epoet.render run={run_dir} terrain={example_terrain()}"]
+            f"  evaluate: python -m epoet.eval.evaluate run={run_dir}",
+            f"  render:   python -m epoet.eval.render run={run_dir} terrain={example_terrain()}"]
 
 
 def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:
     """The exported agent (as `agent_choice` picked it, what evaluation uses) as the run's MLflow
-    model `agent` (epoet.agent_model)."""
-    from epoet.agents import policy_in
+    model `agent` (epoet.eval.agent_model)."""
+    from epoet.eval.agents import policy_in
     from epoet.envs.task import ACT_DIM, OBS_DIM
     found = policy_in(run_dir)
     if found is None:
         raise RuntimeError(f"the run exported no agent into {run_dir}.")  # a runner's bug
-    tracker.log_agent(found[0].path, "epoet.agent_model", OBS_DIM, ACT_DIM)
+    tracker.log_agent(found[0].path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)
 
 
 class EvaluationError(RuntimeError):
@@ -163,11 +163,11 @@ class EvaluationError(RuntimeError):
 def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     """The run's exported agent (as `agent_choice` picked it) on the shipped suite,
     `budget.eval_episodes` episodes per terrain, logged to its MLflow run: what
-    `python -m epoet.evaluate run=<run_dir>` does. Interrupted, the run is not DONE, and a
+    `python -m epoet.eval.evaluate run=<run_dir>` does. Interrupted, the run is not DONE, and a
     resume evaluates it again."""
-    from epoet.agents import AgentError  # pandas, the suite, the env: only when evaluating
-    from epoet.evaluate import evaluate_run
-    from epoet.terrain.suite import SuiteError
+    from epoet.eval.agents import AgentError  # pandas, the suite, the env: only when evaluating
+    from epoet.eval.evaluate import evaluate_run
+    from epoet.eval.suite import SuiteError
     overrides = [f"run={run_dir}", f"episodes={cfg.budget.eval_episodes}",
                  f"out={run_dir / 'evaluation'}"]
     overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
@@ -176,6 +176,6 @@ def evaluate_agent(cfg: Config, run_dir: Path) -> None:
         evaluate_run(validate(compose(overrides, config_name="evaluate")), progress=False)
     except (AgentError, SuiteError) as err:
         raise EvaluationError(f"{cfg.algo.name} seed={cfg.seed} trained, but its evaluation "
-                              f"failed: {err} (retry: python -m epoet.evaluate run={run_dir})"
+                              f"failed: {err} (retry: python -m epoet.eval.evaluate run={run_dir})"
                               ) from err
 

@@ -62,7 +62,7 @@ def mlflow_uri(tmp_path, monkeypatch) -> str:
 
 
 def one_terrain_suite(folder: Path, episode_steps: int, episode_ratio: float) -> Path:
-    """A suite folder in the documented format (epoet/terrain/suite.py) with one bumpy 20 m
+    """A suite folder in the documented format (epoet/eval/suite.py) with one bumpy 20 m
     terrain and a 12 m course made for `episode_steps`-step training episodes."""
     folder.mkdir()
     np.savez(folder / "heights.npz", bumps=np.random.default_rng(0).uniform(0.0, 1.0, (40, 40)))

@@ -1,4 +1,4 @@
-"""Bad agent files through the real commands (`python -m epoet.evaluate` and `epoet.render`):
+"""Bad agent files through the real commands (`python -m epoet.eval.evaluate` and `epoet.eval.render`):
 each is one `error:` line on stderr and exit 2, before any episode, with nothing written to the
 MLflow store; an agent acting non-finite is a failed episode and one warning line, not a crash.
 """
@@ -16,14 +16,14 @@ import torch
 from conftest import one_terrain_suite
 from test_render import one_error_line, render_cli
 
-from epoet.agents import task_sizes
+from epoet.eval.agents import task_sizes
 from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.rollout.policy import LAYER_SIZES, init_params, num_params
 from epoet.rl.policy_file import POLICY_FORMAT
 
 
 def evaluate_cli(*args: str, cwd: Path, uri: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "epoet.evaluate", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "epoet.eval.evaluate", *args], cwd=cwd,
                           env={**os.environ, "MLFLOW_TRACKING_URI": uri},
                           capture_output=True, text=True, timeout=300)
 

@@ -17,7 +17,7 @@ from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
 import epoet.rl.setup as setup
-from epoet.checkpoint import CheckpointError, load_checkpoint
+from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.config import validate
 from epoet.core.schema import ConfigError
 from epoet.config import compose as compose_config

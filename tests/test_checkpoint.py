@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from epoet.checkpoint import (
+from epoet.core.checkpoint import (
     CHECKPOINT_NAME,
     CheckpointError,
     find_checkpoint,

@@ -10,7 +10,7 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 
-from epoet.checkpoint import load_checkpoint
+from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.rollout.evaluators import make_evaluator

@@ -20,10 +20,10 @@ import pytest
 
 from analysis.store import ALGOS
 from analysis.tables import table1, table2
-from epoet.agents import resolve_run
+from epoet.eval.agents import resolve_run
 from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.core.compute import default_workers
-from epoet.terrain.suite import LEVELS, SHIPPED, load_suite
+from epoet.eval.suite import LEVELS, SHIPPED, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -210,7 +210,7 @@ def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
                                                  tmp_path: Path) -> None:
     """Without a second command the run's MLflow record carries the suite's metrics, at the
     budget's episode count and the run's course scale; evaluate=false skips it."""
-    from epoet.checkpoint import load_checkpoint
+    from epoet.core.checkpoint import load_checkpoint
     from epoet.run import run
     smoke = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "budget.iterations=1"]
     run(compose([*smoke, "evaluate=true"]), tmp_path / "run")
@@ -226,7 +226,7 @@ def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
 
 def test_every_agent_loads_as_an_mlflow_model_and_acts_as_the_product(paper, monkeypatch):
     """`mlflow.pyfunc.load_model("runs:/<id>/agent")` is each run's exported agent: the same
-    actions as the policy `epoet.evaluate run=<id>` resolves, on the same observations; and
+    actions as the policy `epoet.eval.evaluate run=<id>` resolves, on the same observations; and
     `run=runs:/<id>/agent` resolves to that agent too."""
     uri, _, _, _ = paper
     observations = np.random.default_rng(0).normal(size=(5, OBS_DIM))

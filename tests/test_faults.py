@@ -19,13 +19,13 @@ import pytest
 from conftest import without_evaluation
 import torch
 
-from epoet.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from epoet.config import load
 from epoet.rollout.policy import init_params
 from epoet.rollout.engine import RolloutEngine
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Mirrored, Request
-from epoet.lifecycle import (StopOnSignal, Stopped, processes_with_env, raise_if_stopped,
+from epoet.core.lifecycle import (StopOnSignal, Stopped, processes_with_env, raise_if_stopped,
                              stop_requested)
 from epoet.terrain import Terrain
 from epoet.tracking import MlflowTracker

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from epoet.checkpoint import load_checkpoint
+from epoet.core.checkpoint import load_checkpoint
 from epoet.config import compose
 from epoet.run import run
 

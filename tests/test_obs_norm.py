@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from epoet.checkpoint import load_checkpoint
+from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.terrain.config import TerrainConfig
@@ -17,7 +17,8 @@ from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer
 from epoet.rollout.policy import fold, forward, init_params
 from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.populations import Agents, Request
-from epoet.poet.loop import EPOET, Key
+from epoet.poet.keys import Key
+from epoet.poet.loop import EPOET
 from epoet.run import run
 
 SIZES = (53, 8, 18)

@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 from conftest import without_evaluation
 
-from epoet.checkpoint import load_checkpoint
+from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.terrain.config import TerrainConfig
 from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.evaluators import make_evaluator
-from epoet.poet.loop import EPOET, Key
+from epoet.poet.keys import Key
+from epoet.poet.loop import EPOET
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,4 +1,4 @@
-"""`python -m epoet.render`: a real (short, small) video, its MLflow artifact, one-line errors.
+"""`python -m epoet.eval.render`: a real (short, small) video, its MLflow artifact, one-line errors.
 
 The command runs as a subprocess: MuJoCo picks its OpenGL backend once per process, when first
 imported, and this test process may already have imported it without one.
@@ -18,14 +18,14 @@ from mlflow import MlflowClient
 
 from epoet.config import load
 from epoet.rollout.policy import LAYER_SIZES, init_params
-from epoet.render import NO_GL
+from epoet.eval.render import NO_GL
 from epoet.terrain import make_terrain
 from epoet.tracking import MlflowTracker
 
 
 def render_cli(*args: str, cwd: Path, uri: str | None = None) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri} if uri else None
-    return subprocess.run([sys.executable, "-m", "epoet.render", *args], cwd=cwd, env=env,
+    return subprocess.run([sys.executable, "-m", "epoet.eval.render", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=300)
 
 
@@ -117,12 +117,12 @@ def test_an_odd_frame_size_is_one_line(policy, tmp_path):
 
 
 # Renders the same walker on a flat and on a 0.9 m sine-bump terrain, and the bumps once more
-# without a caption, with `Film` as `python -m epoet.render` does; in a subprocess for the GL
+# without a caption, with `Film` as `python -m epoet.eval.render` does; in a subprocess for the GL
 # backend (module docstring). Prints NO_GL and exits 2 when there is no backend.
 SNAPSHOTS = """
 import sys
 import numpy as np
-from epoet.render import NO_GL, RenderError, open_gl
+from epoet.eval.render import NO_GL, RenderError, open_gl
 try:
     open_gl()
 except RenderError:
@@ -130,9 +130,9 @@ except RenderError:
     sys.exit(2)
 from epoet.config import load
 from epoet.envs.hexapod_env import HexapodEnv
-from epoet.film import Film, caption_text
+from epoet.eval.film import Film, caption_text
 from epoet.terrain import Terrain
-from epoet.terrain.suite import terrain_config_for
+from epoet.eval.suite import terrain_config_for
 
 cfg = load(["algo=epoet"]).terrain
 x = np.linspace(0.0, cfg.size, cfg.grid)

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import without_evaluation
 
-from epoet.checkpoint import load_checkpoint
+from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.rollout.policy import init_params
 from epoet.rollout.evaluators import make_evaluator

@@ -14,7 +14,7 @@ from epoet.config import compose, load, validate
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
-from epoet.terrain.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,
+from epoet.eval.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,
                                  level_of, load_suite, quantize, write_suite)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,7 +25,7 @@ def suite_cfg(*overrides: str):
 
 
 def test_regenerating_the_first_two_rounds_matches_the_shipped_suite_bit_for_bit():
-    # The whole suite takes about a minute (`python -m epoet.terrain.suite check=true`); each
+    # The whole suite takes about a minute (`python -m epoet.eval.suite check=true`); each
     # (round, lineage) has its own seed key, so two rounds are an exact prefix of four.
     cfg = suite_cfg("max_heights=[0.4,0.9]")
     terrains, entries = generate(cfg)
@@ -172,7 +172,7 @@ def test_check_command_reports_a_mismatch_in_one_line(tmp_path):
     index = json.loads((folder / "suite.json").read_text())
     index["terrains"][0]["seed"] += 1
     (folder / "suite.json").write_text(json.dumps(index))
-    proc = subprocess.run([sys.executable, "-m", "epoet.terrain.suite", f"out={folder}",
+    proc = subprocess.run([sys.executable, "-m", "epoet.eval.suite", f"out={folder}",
                            "check=true", "max_heights=[0.4]", "children=1"],
                           capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 2

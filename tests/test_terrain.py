@@ -324,7 +324,7 @@ def test_a_genome_on_a_bowl_terrain_and_negative_seeds_are_rejected(cfg):
 # ---------------------------------------------------------------- gallery command
 
 def run_gallery(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "epoet.terrain", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "epoet.eval.gallery", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=120)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import mlflow
 import pytest
 
-from epoet.checkpoint import load_checkpoint
+from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.run import run

@@ -52,7 +52,9 @@ from epoet.terrain.config import TerrainConfig
 from epoet.rollout.policy import init_params
 from epoet.rollout.engine import Episodes
 from epoet.rollout.backends.base import Evaluator
-from epoet.poet.loop import EPOET, Key, PhaseTimer
+from epoet.core.timing import PhaseTimer
+from epoet.poet.keys import Key
+from epoet.poet.loop import EPOET
 from epoet.poet.pairs import Environment, Pair
 from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.policy_file import export_policy

@@ -2,7 +2,8 @@
 
 Each iteration, as in Enhanced POET's `poet_algo.py`:
 1. every `reproduce_interval` iterations, `reproduce`: eligible parents propose mutated children,
-   the minimal criterion filters them, and the most novel are admitted with the best agent;
+   the minimal criterion filters them, and the most novel are admitted with the best agent
+   (its parts: reproduction.py);
 2. `optimize`: every active pair takes one ES step on its environment and is evaluated;
 3. every `transfer_interval` iterations, `transfer`: agents move between environments.
 
@@ -14,119 +15,30 @@ goes to the workers as one call, so no worker waits at a per-pair barrier.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
-from enum import IntEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from epoet.poet.config import PoetConfig
-from epoet.terrain.config import TerrainConfig
-from epoet.es.obs_norm import ObsNormalizer, Standardizer
+from epoet.core.timing import PhaseTimer
+from epoet.es.obs_norm import ObsNormalizer
 from epoet.es.optimizer import OpenAIES
-from epoet.rollout.policy import init_params
-from epoet.rollout.engine import Episodes
+from epoet.poet.config import PoetConfig
+from epoet.poet.keys import Key
+from epoet.poet.pairs import Environment, FineTune, Pair, Thresholds
+from epoet.poet.reproduction import Reproduction
 from epoet.rollout.backends.base import Evaluator
+from epoet.rollout.engine import Episodes
+from epoet.rollout.policy import Standardizer, init_params
 from epoet.rollout.populations import Agents, Mirrored, Request
-from epoet.poet.novelty import pata_ec, rank_by_novelty
-from epoet.poet.pairs import Environment, Pair
-from epoet.terrain import (CppnMutationError, Terrain, cppn_inputs, make_terrain, mutate_genome,
-                           new_genome)
+from epoet.terrain import Terrain, make_terrain, new_genome
+from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
     from epoet.tracking import Tracker
 
 
-class Key(IntEnum):
-    """What a keyed seed is for; with the ids after it, it names one random stream."""
-
-    ROOT_GENOME = 0     # (0,)
-    ROOT_AGENT = 1      # (0,)
-    OPTIMISER = 2       # (env, iteration admitted): the pair's ES noise stream
-    BOWL = 3            # (env, iteration): the bowl part of an environment's terrain
-    ES_SPAWN = 4        # (env, iteration): starts of the ES episodes
-    EVAL = 5            # (env, iteration): starts of the evaluation episodes
-    TRANSFER = 6        # (target env, iteration, candidate + 1 or 0 for direct transfers)
-    PROPOSAL_NOISE = 7  # (target env, iteration, candidate)
-    PROPOSAL_SPAWN = 8  # (target env, iteration, candidate)
-    PARENTS = 9         # (iteration,): which eligible parent each child slot mutates
-    CHILD_GENOME = 10   # (parent env, iteration, slot)
-    CHILD_BOWL = 11     # (iteration, slot)
-    MC = 12             # (iteration, slot)
-    PATA = 13           # (env, iteration) for existing environments
-    CHILD_PATA = 14     # (iteration, slot)
-    ADMIT = 15          # (iteration, slot, candidate + 1 or 0 for direct transfers)
-    ADMIT_NOISE = 16    # (iteration, slot, candidate)
-    ADMIT_SPAWN = 17    # (iteration, slot, candidate)
-    # ePOET-SAC (epoet_sac.py)
-    SAC_ENV = 18        # (iteration,): which active environment Train_SAC uses
-    SAC = 19            # torch's stream: () initial weights, (iteration,) Train_SAC,
-                        # (iteration, 1 | 2) the transfer step's replay states | distillation
-    SAC_SPAWN = 20      # (iteration,): starts of SAC's own episodes
-    SAC_BOWL = 21       # (iteration,): the bowl of `sac_terrain=bowl`
-    JOIN = 22           # (iteration,) random mapping, (iteration, 0 | 1 | 2) distillation's
-                        # initial ES vector | replay states | shuffling
-    JOIN_EVAL = 23      # (iteration,): the mapped agent and the SAC actor on one terrain
-    CROSSOVER = 24      # (env, iteration): the coin flips of Algorithm 3
-    CROSSOVER_EVAL = 25  # (env, iteration): old and new agent on the same starts
-    PRETRAIN = 26       # (i, 0 | 1): the i-th pre-training Train_SAC's torch | spawn seed
-
-
-@dataclass(frozen=True)
-class Thresholds:
-    """The run's score thresholds: the paper's (set for 2000-step episodes) times the budget's
-    score scale."""
-
-    mc_lower: float
-    mc_upper: float
-    repro: float
-
-    def passes_mc(self, score: float) -> bool:
-        """The minimal criterion: neither too hard nor too easy."""
-        return self.mc_lower <= score <= self.mc_upper
-
-
-@dataclass
-class Child:
-    """A proposed child environment with the terrain the minimal criterion judged it on."""
-
-    env: Environment
-    terrain: Terrain
-    slot: int
-
-
-class FineTune(NamedTuple):
-    """One proposal ES step: `theta` on `terrain` with `es`'s settings and state; `ids` key its
-    noise and spawn seeds."""
-
-    es: OpenAIES
-    terrain: Terrain
-    theta: np.ndarray
-    ids: tuple[int, ...]
-
-
-class PhaseTimer:
-    """Wall time per named step of an iteration: `with timer("optimize"): ...`."""
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-
-    @contextmanager
-    def __call__(self, name: str) -> Iterator[None]:
-        start = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
-
-    def metrics(self) -> dict[str, float]:
-        return {f"time/{name}": seconds for name, seconds in self.seconds.items()}
-
-
-class EPOET:
+class EPOET(Reproduction):
     """The pool of environment-agent pairs and the three things that change it."""
 
     record_per_pair = 0  # ES-step episodes per pair whose transitions come back (ePOET: none)
@@ -148,8 +60,7 @@ class EPOET:
         self.transfer_interval = transfer_interval or algo.iterations_before_transfer
         self.reproduce_interval = (reproduce_interval
                                    or algo.adjust_interval * algo.iterations_before_transfer)
-        self.later_reproduce_interval = (algo.later_reproduce_interval
-                                         or self.reproduce_interval)
+        self.later_reproduce_interval = algo.later_reproduce_interval or self.reproduce_interval
         self.iteration = 0
         self.active: list[Pair] = []
         self.archived: list[Pair] = []
@@ -158,10 +69,9 @@ class EPOET:
         self.env_steps = 0
         self.elapsed = 0.0  # seconds of iterations, summed over resumes
         self.best_score = -np.inf  # the best `score` (best active pair's) of any iteration so far
-        # With observation normalisation, every theta of the pool (ES's search space) acts on
-        # standardised observations, one set of statistics for the run as in Salimans et al.;
-        # the workers, evaluations and agent files get `policy(theta)`, which acts on raw ones.
-        self.obs_norm = (ObsNormalizer(layer_sizes[0]) if algo.es.obs_norm_episodes else None)
+        # Observation normalisation: every theta of the pool acts on standardised observations
+        # (one set of statistics per run, as Salimans et al.); what runs is `policy(theta)`.
+        self.obs_norm = ObsNormalizer(layer_sizes[0]) if algo.es.obs_norm_episodes else None
         self._terrains: dict[tuple[int, int], Terrain] = {}
         root = Environment(index=0, genome=new_genome(terrain.cppn, self._seed(Key.ROOT_GENOME, 0)),
                            generation=0, parent=None, created_at=0)
@@ -422,85 +332,6 @@ class EPOET:
             return 0
         return self._admit_most_novel(passing)
 
-    def _propose_children(self, parents: list[Pair]) -> list[tuple[Child, Pair]]:
-        """Up to `num_children` valid CPPN mutations of randomly chosen eligible parents."""
-        t = self.iteration
-        rng = np.random.default_rng(self._seed(Key.PARENTS, t))
-        tc = self.terrain_cfg
-        children = []
-        for slot in range(self.cfg.num_children):
-            parent = parents[int(rng.integers(len(parents)))]
-            try:
-                genome = mutate_genome(parent.env.genome, tc.cppn, tc.mutation,
-                                       self._seed(Key.CHILD_GENOME, parent.env.index, t, slot),
-                                       cppn_inputs(tc))
-            except CppnMutationError:
-                continue  # this parent yielded no valid child in max_tries; propose the next
-            env = Environment(index=-1, genome=genome, generation=parent.env.generation + 1,
-                              parent=parent.env.index, created_at=t)
-            terrain = self._make_terrain(env, self._seed(Key.CHILD_BOWL, t, slot), t)
-            children.append((Child(env, terrain, slot), parent))
-        return children
-
-    def _minimal_criterion(self, children: list[tuple[Child, Pair]]) -> list[Child]:
-        """Children on which their parent's agent neither fails nor already excels."""
-        if not children:
-            return []
-        t = self.iteration
-        scores = self._scores([self._eval_request(child.terrain, parent.theta[None], Key.MC, t,
-                                                  child.slot) for child, parent in children])
-        return [child for (child, _), score in zip(children, scores)
-                if self.thresholds.passes_mc(float(score[0]))]
-
-    def _admit_most_novel(self, passing: list[Child]) -> int:
-        """In order of PATA-EC novelty, admit children whose best transferred agent also passes
-        the minimal criterion (the reference's rule), at most `max_admitted` of them."""
-        t, th = self.iteration, self.thresholds
-        pool = self.active + self.archived
-        agents = np.stack([p.theta for p in pool])
-        requests = ([self._eval_request(self.terrain(p.env), agents, Key.PATA, p.env.index, t)
-                     for p in pool]
-                    + [self._eval_request(c.terrain, agents, Key.CHILD_PATA, t, c.slot)
-                       for c in passing])
-        ranks = [pata_ec(s, th.mc_lower, th.mc_upper) for s in self._scores(requests)]
-        order, _ = rank_by_novelty(np.stack(ranks[len(pool):]), np.stack(ranks[:len(pool)]),
-                                   k=self.cfg.novelty_k)
-        admitted = 0
-        for i in order:
-            child = passing[i]
-            score, theta = self._best_agent_for(child)
-            if not th.passes_mc(score):
-                continue
-            child.env.index = self.next_index
-            self._admit(child.env, theta)
-            self._terrains[(child.env.index, t)] = child.terrain
-            admitted += 1
-            if admitted == self.cfg.max_admitted:
-                break
-        return admitted
-
-    def _best_agent_for(self, child: Child) -> tuple[float, np.ndarray]:
-        """(score, theta) of the best active agent on a child, directly or after one
-        fine-tuning ES step (`proposal_step`) with a fresh optimiser, as the reference's
-        candidate pair takes it."""
-        t, slot = self.iteration, child.slot
-        thetas = np.stack([p.theta for p in self.active])
-        direct = self._scores([self._eval_request(child.terrain, thetas, Key.ADMIT, t, slot,
-                                                  0)])[0]
-        # A fresh optimiser per candidate: initial lr and sigma, no Adam state (its own noise
-        # stream is unused: the step's noise comes from keyed seeds).
-        tuned = self._fine_tune([FineTune(self._new_es(theta, 0), child.terrain, theta,
-                                          (t, slot, j)) for j, theta in enumerate(thetas)],
-                                Key.ADMIT_NOISE, Key.ADMIT_SPAWN)
-        scores = self._scores([self._eval_request(child.terrain, theta[None], Key.ADMIT, t, slot,
-                                                  j + 1) for j, theta in enumerate(tuned)])
-        best = int(np.argmax(direct))
-        best_score, best_theta = float(direct[best]), thetas[best]
-        for theta, score in zip(tuned, scores):
-            if score[0] > best_score:
-                best_score, best_theta = float(score[0]), theta
-        return best_score, best_theta.copy()
-
     # --- open-endedness measure ------------------------------------------------------------------
     @property
     def annecs(self) -> int:
@@ -516,8 +347,8 @@ class EPOET:
         """Each environment's terrain (npz + PNG) and each agent's parameters: `theta` and
         `score` are the `choice` (its best evaluated, or its final); both are kept."""
         terrains, policies = run_dir / "terrains", run_dir / "policies"
-        terrains.mkdir(exist_ok=True)
-        policies.mkdir(exist_ok=True)
+        for folder in (terrains, policies):
+            folder.mkdir(exist_ok=True)
         for status, pairs in (("active", self.active), ("archived", self.archived)):
             for pair in pairs:
                 name = f"env{pair.env.index}"
@@ -555,11 +386,8 @@ class EPOET:
             es.load_state_dict(s["es"])
             return Pair(env=s["env"], es=es, scores=list(s["scores"]), sac_join=s["sac_join"],
                         best_score=s["best_score"], best_theta=s["best_theta"])
-        self.iteration = state["iteration"]
-        self.next_index = state["next_index"]
-        self.transfers = state["transfers"]
-        self.env_steps = state["env_steps"]
-        self.elapsed = state["elapsed"]
+        for name in ("iteration", "next_index", "transfers", "env_steps", "elapsed"):
+            setattr(self, name, state[name])
         # checkpoints older than the run-level best: the pairs' bests are the closest record
         self.best_score = state.get("best_score", max(
             s["best_score"] for s in state["active"] + state["archived"]))

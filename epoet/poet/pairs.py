@@ -1,12 +1,16 @@
-"""Environment-agent pairs: what the ePOET loop keeps for each environment it has admitted."""
+"""Environment-agent pairs, what the ePOET loop keeps for each environment it has admitted, and
+the small records its steps pass around (thresholds, proposed children, fine-tuning jobs)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from epoet.es.optimizer import OpenAIES
+
+if TYPE_CHECKING:
+    from epoet.terrain import Terrain
 
 
 @dataclass
@@ -44,3 +48,36 @@ class Pair:
     def score(self) -> float:
         """Latest evaluation score (-inf before the first evaluation)."""
         return self.scores[-1] if self.scores else -np.inf
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """The run's score thresholds: the paper's (set for 2000-step episodes) times the budget's
+    score scale."""
+
+    mc_lower: float
+    mc_upper: float
+    repro: float
+
+    def passes_mc(self, score: float) -> bool:
+        """The minimal criterion: neither too hard nor too easy."""
+        return self.mc_lower <= score <= self.mc_upper
+
+
+@dataclass
+class Child:
+    """A proposed child environment with the terrain the minimal criterion judged it on."""
+
+    env: Environment
+    terrain: Terrain
+    slot: int
+
+
+class FineTune(NamedTuple):
+    """One proposal ES step: `theta` on `terrain` with `es`'s settings and state; `ids` key its
+    noise and spawn seeds."""
+
+    es: OpenAIES
+    terrain: Terrain
+    theta: np.ndarray
+    ids: tuple[int, ...]

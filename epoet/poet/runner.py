@@ -6,13 +6,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from epoet.checkpoint import save_run_state
+from epoet.core.checkpoint import save_run_state
 from epoet.config import Config
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.rollout.policy import LAYER_SIZES
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import evaluator_for
-from epoet.lifecycle import raise_if_stopped, report_stop, stop_requested
+from epoet.core.lifecycle import raise_if_stopped, report_stop, stop_requested
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
 

@@ -3,7 +3,7 @@
 rendering without TorchRL or the training state.
 
 TorchRL and epoet.rl.setup (which imports MuJoCo) are imported where used, so reading
-POLICY_FORMAT to check a file (epoet.agents) imports neither.
+POLICY_FORMAT to check a file (epoet.eval.agents) imports neither.
 """
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from epoet.agents import read_torch_policy
-from epoet.files import atomic_write
+from epoet.eval.agents import read_torch_policy
+from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:
     from torchrl.envs import EnvBase
@@ -60,7 +60,7 @@ def load_policy(path: str | Path) -> Callable[[np.ndarray], np.ndarray]:
     """Rebuild an exported policy as `act(obs) -> action` (numpy in, numpy out, batched or not).
 
     action = tanh(first act_dim outputs of the MLP applied to clip((obs - loc) / scale)).
-    A file that is not such a policy for the task raises epoet.agents.AgentError.
+    A file that is not such a policy for the task raises epoet.eval.agents.AgentError.
     """
     from epoet.rl.setup import ACTIVATIONS
     spec = read_torch_policy(Path(path))

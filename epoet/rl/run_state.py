@@ -40,9 +40,9 @@ from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
-from epoet.checkpoint import save_run_state
+from epoet.core.checkpoint import save_run_state
 from epoet.config import Config
-from epoet.lifecycle import raise_if_stopped, report_stop, stop_requested
+from epoet.core.lifecycle import raise_if_stopped, report_stop, stop_requested
 from epoet.rl.policy_file import POLICY_FILE, export_policy
 from epoet.rl.setup import (OBS, RunningObsNorm, Seeds, batch_plan, episode_metrics, evaluate,
                             hexapod, make_collector, make_env, obs_norm_of, set_threads)

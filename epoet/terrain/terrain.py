@@ -22,8 +22,8 @@ from typing import Any
 import neat
 import numpy as np
 
-from epoet.errors import first_line
-from epoet.files import atomic_write
+from epoet.core.errors import first_line
+from epoet.core.files import atomic_write
 from epoet.terrain.cppn import fingerprint
 
 KINDS = ("bowl", "cppn")

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import re
 
-from epoet.errors import first_line
+from epoet.core.errors import first_line
 
 
 class TrackingError(ValueError):

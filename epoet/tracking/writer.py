@@ -21,7 +21,7 @@ from mlflow.exceptions import MlflowException
 from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_PARENT_RUN_ID
 from mlflow.utils.validation import MAX_METRICS_PER_BATCH, MAX_PARAM_VAL_LENGTH, MAX_TAG_VAL_LENGTH
 
-from epoet.lifecycle import Stopped
+from epoet.core.lifecycle import Stopped
 from epoet.tracking.errors import TrackingError, reason
 from epoet.tracking.inputs import existing_path, metric_key, metric_points
 from epoet.tracking.provenance import git_commit
@@ -216,7 +216,7 @@ class MlflowTracker:
         # MLFLOW_ASYNC_LOGGING_BUFFERING_SECONDS is set; its worker threads bypass
         # `RetryingClient`; and a failure only logs an error and drops the points, raising
         # nothing until someone waits on the call's future. A checkpoint needs its metrics in the
-        # store before it exists (`epoet.checkpoint.save_run_state`), and a failure must be one
+        # store before it exists (`epoet.core.checkpoint.save_run_state`), and a failure must be one
         # TrackingError here.
         run_id = self._require_open()
         self._last_flush = time.monotonic()

@@ -5,7 +5,7 @@ a shared queue as a slot frees up, whichever request it belongs to (the engine h
 terrain of the call), so a worker is busy until the queue is empty.
 
 Processes start with "forkserver" (fork after torch/OpenMP threads exist can deadlock); each
-builds its engine once in the pool initializer and ends with the main process (`epoet.lifecycle`).
+builds its engine once in the pool initializer and ends with the main process (`epoet.core.lifecycle`).
 A worker exception is re-raised in the parent (the pool stays usable: the queue items of a failed
 call are tagged with its call number and skipped later).
 """
@@ -25,7 +25,7 @@ import numpy as np
 
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
-from epoet.lifecycle import end_with, ignore_stop_signals
+from epoet.core.lifecycle import end_with, ignore_stop_signals
 from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
                                          split_results)
 from epoet.rollout.engine import DEFAULT_BATCH, Episodes, RolloutEngine
@@ -113,7 +113,7 @@ class PoolEvaluator(Backend):
             return [f.result() for f in futures]
         except BrokenProcessPool as err:
             # The broken executor terminates the other workers with SIGTERM, which they ignore
-            # (epoet.lifecycle), then joins them: kill them, so that join returns. (It closes
+            # (epoet.core.lifecycle), then joins them: kill them, so that join returns. (It closes
             # its task pipe's read end itself, gh-94777; closing it here too raced that close.)
             self._kill_workers()
             raise WorkerLost("a rollout worker process died") from err

@@ -19,7 +19,7 @@ import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from epoet.files import atomic_write
+from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
     from epoet.config import Config

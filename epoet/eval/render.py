@@ -1,7 +1,7 @@
-"""`python -m epoet.render run=<spec> terrain=<suite terrain name | terrain .npz> [seed=0]
+"""`python -m epoet.eval.render run=<spec> terrain=<suite terrain name | terrain .npz> [seed=0]
 [steps=N] [width=640] [height=480] [out=path.mp4]`: one episode of a trained agent as an mp4.
 
-`run` is what `python -m epoet.evaluate` takes (an MLflow run id, a run folder or a policy file);
+`run` is what `python -m epoet.eval.evaluate` takes (an MLflow run id, a run folder or a policy file);
 the agent walks with the episode rules it was trained with (its run's agent config), on a suite
 terrain along the suite's course as evaluation runs it, for `steps` steps or its episode length,
 from the start `seed` keys. The video plays in real time
@@ -43,11 +43,11 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.agents import AgentError, TrainedRun, resolve_run
-from epoet.cli import fail
+from epoet.eval.agents import AgentError, TrainedRun, resolve_run
+from epoet.core.cli import fail
 from epoet.config import RenderConfig, compose, validate
 from epoet.core.schema import ConfigError
-from epoet.film import Film, caption_text
+from epoet.eval.film import Film, caption_text
 from epoet.terrain import Terrain, TerrainFileError
 from epoet.tracking import TrackingError
 
@@ -115,7 +115,7 @@ def load_terrain(spec: str, suite: str | None) -> tuple[Any, str, Any]:
     the suite's course for a suite terrain (None for a file: the run's own course)."""
     if spec.endswith(".npz") or Path(spec).is_file():
         return Terrain.load(spec), Path(spec).stem, None
-    from epoet.terrain.suite import load_suite  # imports mujoco: after open_gl
+    from epoet.eval.suite import load_suite  # imports mujoco: after open_gl
     loaded = load_suite(suite)
     return loaded.by_name(spec), spec, loaded.course
 
@@ -171,7 +171,7 @@ def record(cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str, course: 
     """One episode of the run's agent on the terrain (on `course`, as evaluation runs it, when
     it is a suite terrain), every frame (captioned, see `Film`) into the mp4."""
     from epoet.envs.hexapod_env import HexapodEnv  # imports mujoco: after open_gl
-    from epoet.terrain.suite import terrain_config_for
+    from epoet.eval.suite import terrain_config_for
 
     agent = run.agent_config(cfg.agent)
     if course is not None:
@@ -220,7 +220,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(err)
     # Imported only now, as in `record`: they import mujoco.
     from epoet.envs.model import TerrainMismatchError
-    from epoet.terrain.suite import SuiteError
+    from epoet.eval.suite import SuiteError
     try:
         terrain, name, course = load_terrain(cfg.terrain, cfg.suite)
         video = record(cfg, run, terrain, name, course, imageio)

@@ -1,4 +1,4 @@
-"""`python -m epoet.terrain terrain=cppn n=8 out=DIR`: a root terrain and its descendants as a PNG.
+"""`python -m epoet.eval.gallery terrain=cppn n=8 out=DIR`: a root terrain and its descendants as a PNG.
 
 Writes DIR/gallery.png (a chain: each panel is a mutated child of the previous one, at
 iterations 0, 25, 50, ... so S grows by the schedule) and each terrain's npz in DIR. With
@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
-from epoet.cli import fail, run_hydra_app
+from epoet.core.cli import fail, run_hydra_app
 from epoet.config import CONF_DIR, GalleryConfig, validate
 from epoet.core.schema import ConfigError
 from epoet.terrain.cppn import CppnMutationError

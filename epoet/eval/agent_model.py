@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from epoet.agents import Policy, file_source
+from epoet.eval.agents import Policy, file_source
 
 
 class PolicyModel:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from epoet.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
+from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from epoet.envs.config import AgentConfig
 from epoet.rl.config import RL_ACTIVATIONS
 from epoet.rollout.policy import LAYER_SIZES, forward, num_params
@@ -49,7 +49,7 @@ def task_sizes() -> tuple[int, int]:
 
     Read from the ES layer sizes' ends, which are those numbers (tests/test_bad_agents.py checks
     it), because epoet.envs imports MuJoCo, and rendering must resolve its run before MuJoCo
-    picks its OpenGL backend (epoet.render.open_gl).
+    picks its OpenGL backend (epoet.eval.render.open_gl).
     """
     return LAYER_SIZES[0], LAYER_SIZES[-1]
 

@@ -1,4 +1,4 @@
-"""`python -m epoet.evaluate run=<MLflow run id | run folder | policy file> [episodes=5]
+"""`python -m epoet.eval.evaluate run=<MLflow run id | run folder | policy file> [episodes=5]
 [suite=<folder>]`: a trained agent on the fixed evaluation suite (paper Section 4).
 
 Every terrain of the suite is run `episodes` times (the paper: 32 x 5 = 160 episodes), each from
@@ -39,17 +39,17 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.agents import AgentError, AgentSource, TrainedRun, resolve_run
-from epoet.cli import fail
+from epoet.eval.agents import AgentError, AgentSource, TrainedRun, resolve_run
+from epoet.core.cli import fail
 from epoet.config import EvaluateConfig, compose, validate
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.core.compute import default_workers
-from epoet.files import atomic_write
-from epoet.lifecycle import end_with
-from epoet.terrain.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, example_terrain,
+from epoet.core.files import atomic_write
+from epoet.core.lifecycle import end_with
+from epoet.eval.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, example_terrain,
                                  load_suite, terrain_config_for)
 from epoet.tracking import TrackingError
 
@@ -165,7 +165,7 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
             # The fork server imports this module (MuJoCo, the env, MLflow) once; each
             # worker is then a cheap fork instead of ~5 s of imports per process and call.
             ctx.set_forkserver_preload([__name__])
-            # Workers end with this process, however it ends (epoet.lifecycle).
+            # Workers end with this process, however it ends (epoet.core.lifecycle).
             pool = stack.enter_context(ProcessPoolExecutor(
                 workers, mp_context=ctx, initializer=end_with, initargs=(os.getpid(),)))
             done = (f.result() for f in as_completed([pool.submit(run_task, t) for t in tasks]))
@@ -254,7 +254,7 @@ def main(argv: list[str] | None = None) -> None:
     if run.stored is not None:
         print(f"  logged to MLflow run {run.run_id} under {RESULTS}/")
         print(f"  runs:     {run.stored.ui_hint()}")
-    print(f"  render:   python -m epoet.render run={cfg.run} terrain={example_terrain()}")
+    print(f"  render:   python -m epoet.eval.render run={cfg.run} terrain={example_terrain()}")
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from hydra.errors import HydraException, MissingConfigException
 from omegaconf.errors import OmegaConfBaseException
 
 from epoet.config import register_configs
-from epoet.errors import first_line
+from epoet.core.errors import first_line
 
 
 def fail(err: BaseException) -> NoReturn:

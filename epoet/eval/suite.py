@@ -45,14 +45,14 @@ import numpy as np
 import hydra
 from omegaconf import DictConfig
 
-from epoet.cli import fail, run_hydra_app
+from epoet.core.cli import fail, run_hydra_app
 from epoet.config import CONF_DIR, SuiteConfig, load, validate
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
-from epoet.files import atomic_write
+from epoet.core.files import atomic_write
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain
@@ -312,7 +312,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
         index = json.loads((folder / "suite.json").read_text())
         if index.get("format") != SUITE_FORMAT:
             raise ValueError(f"format is {index.get('format')!r}, not {SUITE_FORMAT!r} "
-                             "(regenerate it with python -m epoet.terrain.suite out=<folder>)")
+                             "(regenerate it with python -m epoet.eval.suite out=<folder>)")
         size, grid = float(index["size"]), int(index["grid"])
         course = Course(**index["course"])
         terrains = []

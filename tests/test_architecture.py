@@ -1,0 +1,117 @@
+"""The house's shape (docs/architecture.md): every module of epoet/ and analysis/ under 400
+lines, no import cycle, and no import from a lower wing to a higher one, so data flows one way:
+config -> run -> algorithm -> rollout -> envs/terrain, with tracking and core beside.
+
+Imports are read from the source (ast): module-level ones, those under `if`/`try`/`with`
+included, except `if TYPE_CHECKING:` blocks (annotations only). Imports inside functions are
+deferred on purpose (optional extras, heavy imports) and count as edges too, for the wing rule.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+MAX_LINES = 400
+
+# Lowest first; a module may import its own wing and the wings before it.
+WINGS: list[tuple[str, tuple[str, ...]]] = [
+    ("schemas", ("epoet.core.schema", "epoet.envs.config", "epoet.terrain.config",
+                 "epoet.es.config", "epoet.poet.config", "epoet.epoet_sac.config",
+                 "epoet.rl.config")),
+    ("config", ("epoet.config",)),
+    ("core and tracking", ("epoet.core", "epoet.tracking")),
+    ("terrain", ("epoet.terrain",)),
+    ("envs", ("epoet.envs",)),
+    ("rollout", ("epoet.rollout",)),
+    ("algorithms", ("epoet.es", "epoet.poet", "epoet.epoet_sac", "epoet.rl")),
+    ("eval", ("epoet.eval",)),
+    ("commands", ("epoet.run", "epoet.sweep", "epoet.__main__", "epoet")),
+    ("analysis", ("analysis",)),
+]
+
+
+def _module(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {_module(p): p for d in ("epoet", "analysis") for p in sorted((ROOT / d).rglob("*.py"))}
+
+
+def _wing(module: str) -> int:
+    """The index of the most specific wing prefix that names `module`."""
+    best = (-1, -1)
+    for level, (_, prefixes) in enumerate(WINGS):
+        for prefix in prefixes:
+            if module == prefix or module.startswith(prefix + "."):
+                best = max(best, (len(prefix), level))
+    assert best[1] >= 0, f"{module} belongs to no wing: add it to WINGS"
+    return best[1]
+
+
+def _imports(path: Path, *, deferred: bool) -> set[str]:
+    """The project modules `path` imports: at module level, or also inside functions."""
+    found: set[str] = set()
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            children: list[ast.AST] = list(node.orelse)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and not deferred:
+            return
+        else:
+            children = list(ast.iter_child_nodes(node))
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name in MODULES)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            found.update(name for name in (node.module,
+                                           *(f"{node.module}.{a.name}" for a in node.names))
+                         if name in MODULES)
+        for child in children:
+            visit(child)
+
+    visit(ast.parse(path.read_text()))
+    return found
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_no_module_is_over_400_lines(module: str) -> None:
+    lines = len(MODULES[module].read_text().splitlines())
+    assert lines <= MAX_LINES, f"{module} has {lines} lines"
+
+
+def test_no_import_cycle() -> None:
+    graph = {m: _imports(p, deferred=False) for m, p in MODULES.items()}
+    done: set[str] = set()
+
+    def walk(module: str, path: list[str]) -> None:
+        if module in path:
+            pytest.fail("import cycle: " + " -> ".join(path[path.index(module):] + [module]))
+        if module in done:
+            return
+        for imported in sorted(graph[module]):
+            walk(imported, path + [module])
+        done.add(module)
+
+    for module in sorted(graph):
+        walk(module, [])
+
+
+def test_no_wing_imports_a_higher_one() -> None:
+    upward = [f"{m} ({WINGS[_wing(m)][0]}) imports {i} ({WINGS[_wing(i)][0]})"
+              for m, p in MODULES.items() for i in sorted(_imports(p, deferred=True))
+              if _wing(i) > _wing(m)]
+    assert not upward, "\n".join(upward)
+
+
+def test_the_rules_see_what_they_check() -> None:
+    """Deferred imports count for the wing rule only; TYPE_CHECKING imports for neither; and the
+    wings order the modules as the data flows."""
+    evaluators = MODULES["epoet.rollout.evaluators"]  # Ray's backend is imported on demand
+    assert "epoet.rollout.backends.ray_cluster" not in _imports(evaluators, deferred=False)
+    assert "epoet.rollout.backends.ray_cluster" in _imports(evaluators, deferred=True)
+    assert "epoet.poet.loop" not in _imports(MODULES["epoet.poet.reproduction"], deferred=True)
+    assert _wing("epoet.run") > _wing("epoet.poet.loop") > _wing("epoet.rollout.engine")
+    assert _wing("epoet.rollout.engine") > _wing("epoet.envs.model") > _wing("epoet.config")
