@@ -56,9 +56,9 @@ class BudgetConfig:
 
     def __post_init__(self) -> None:
         positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
-                  "eval_every", "score_scale")
+                 "eval_every", "score_scale")
         check(self.hours is None or self.hours > 0,
-               f"budget.hours must be > 0 or null, got {self.hours}.")
+              f"budget.hours must be > 0 or null, got {self.hours}.")
         for name in ("transfer_interval", "reproduce_interval", "sac_frames_per_iteration"):
             value = getattr(self, name)
             check(value is None or value > 0, f"budget.{name} must be > 0 or null, got {value}.")
@@ -81,14 +81,14 @@ class WorkersConfig:
 
     def __post_init__(self) -> None:
         check(self.backend in ("local", "ray"),
-               f"workers.backend must be 'local' or 'ray', got {self.backend!r}.")
+              f"workers.backend must be 'local' or 'ray', got {self.backend!r}.")
         check(self.num is None or self.num > 0, f"workers.num must be > 0, got {self.num}.")
         positive(self, "batch")
         check(self.address is None or self.backend == "ray",
-               "workers.address is the Ray cluster to join, so it needs workers=ray.")
+              "workers.address is the Ray cluster to join, so it needs workers=ray.")
         check(self.backend != "ray" or importlib.util.find_spec("ray") is not None,
-               "workers=ray needs Ray, the 'distributed' extra: "
-               "pip install -c constraints.txt -e '.[distributed]'.")
+              "workers=ray needs Ray, the 'distributed' extra: "
+              "pip install -c constraints.txt -e '.[distributed]'.")
 
 
 @dataclass
@@ -127,22 +127,22 @@ class Config:
         check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
         positive(self, "checkpoint_every")
         check(self.agent_choice in ("best", "final"),
-               f"agent_choice must be 'best' or 'final', got {self.agent_choice!r}.")
+              f"agent_choice must be 'best' or 'final', got {self.agent_choice!r}.")
         # One source of truth for the episode length: the budget (it also scales thresholds).
         check(self.agent.max_episode_steps == self.budget.episode_steps,
-               f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
-               f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.")
+              f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
+              f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.")
         if isinstance(self.algo, SacConfig):
             check(self.budget.frames >= self.algo.batch_size,
-                   f"budget.frames ({self.budget.frames}) must be at least algo.batch_size "
-                   f"({self.algo.batch_size}), or SAC never updates.")
+                  f"budget.frames ({self.budget.frames}) must be at least algo.batch_size "
+                  f"({self.algo.batch_size}), or SAC never updates.")
         check(self.workers.backend == "local" or isinstance(self.algo, PoetConfig),
-               f"workers={self.workers.backend} runs ES rollouts, and algo={self.algo.name} "
-               f"has none (it collects in-process): use workers=local.")
+              f"workers={self.workers.backend} runs ES rollouts, and algo={self.algo.name} "
+              f"has none (it collects in-process): use workers=local.")
         if isinstance(self.algo, PoetConfig):
             check(self.terrain.kind == "cppn",
-                   f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "
-                   f"(got terrain={self.terrain.kind}).")
+                  f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "
+                  f"(got terrain={self.terrain.kind}).")
 
     def unused_keys(self) -> tuple[str, ...]:
         """Dotted keys (and key prefixes) of settings this run never reads, so its MLflow params
@@ -184,8 +184,8 @@ class SuiteConfig:
         positive(self, "children", "max_tries", "episode_ratio")
         check(len(self.max_heights) > 0 and all(0 < s <= self.terrain.max_height_limit
                                                  for s in self.max_heights),
-               f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "
-               f"{self.terrain.max_height_limit}], got {self.max_heights}.")
+              f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "
+              f"{self.terrain.max_height_limit}], got {self.max_heights}.")
 
 
 @dataclass
@@ -220,7 +220,7 @@ class EvaluateConfig(AgentCommandConfig):
         positive(self, "episodes")
         non_negative(self, "action_samples")
         check(self.processes is None or self.processes > 0,
-               f"processes must be > 0 or null, got {self.processes}.")
+              f"processes must be > 0 or null, got {self.processes}.")
 
 
 @dataclass

@@ -95,7 +95,8 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
                 f"checkpoint {path} was made with a different config ({', '.join(changed)}); "
                 f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change).")
     if cfg.workers.address is not None:
-        from epoet.rollout.backends.ray_cluster import check_address  # the optional extra, on demand
+        # the optional extra, on demand
+        from epoet.rollout.backends.ray_cluster import check_address
         check_address(cfg.workers.address)
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)

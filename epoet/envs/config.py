@@ -30,8 +30,8 @@ class RewardConfig:
     def __post_init__(self) -> None:
         positive(self, "target_speed")
         non_negative(self, "lateral_speed_penalty", "w_velocity", "w_heading", "w_lateral",
-                      "c_lateral", "c_heading", "c_pitch", "c_roll", "c_actuator", "c_vertical",
-                      "finish_bonus")
+                     "c_lateral", "c_heading", "c_pitch", "c_roll", "c_actuator", "c_vertical",
+                     "finish_bonus")
 
 
 # rk4: the reference's; implicitfast: faster and stable here (README "Budgets"); epoet.envs.model
@@ -63,9 +63,9 @@ class AgentConfig:
     def __post_init__(self) -> None:
         check(self.name == "hexapod", f"agent.name must be 'hexapod', got {self.name!r}.")
         check(self.integrator in INTEGRATORS,
-               f"agent.integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}.")
+              f"agent.integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}.")
         positive(self, "timestep", "max_episode_steps", "no_progress_steps", "spawn_clearance")
         non_negative(self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std",
-                      "progress_margin")
+                     "progress_margin")
         check(self.finish_x > self.start_x,
-               f"agent.finish_x ({self.finish_x}) must be ahead of agent.start_x ({self.start_x}).")
+              f"agent.finish_x ({self.finish_x}) must be ahead of agent.start_x ({self.start_x}).")

@@ -49,10 +49,10 @@ class EpoetSacConfig(PoetConfig):
         positive(self, "frames_per_iteration", "join_every_transfers")
         non_negative(self, "updates_per_frame", "es_episodes_per_pair", "pretrain_iterations")
         check(self.sac_terrain in SAC_TERRAINS,
-               f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
+              f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
         check(self.mapping in JOIN_MAPPINGS,
-               f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
+              f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
         # The SAC actor and the join exchange raw-observation policies with the ES pool.
         check(self.es.obs_norm_episodes == 0,
-               "algo.es.obs_norm_episodes must be 0 for algo=epoet_sac: observation "
-               "normalisation is implemented for ePOET's ES only.")
+              "algo.es.obs_norm_episodes must be 0 for algo=epoet_sac: observation "
+              "normalisation is implemented for ePOET's ES only.")

@@ -31,11 +31,11 @@ class PoetConfig:
 
     def __post_init__(self) -> None:
         positive(self, "iterations_before_transfer", "adjust_interval", "max_num_envs",
-                  "num_children", "max_admitted", "novelty_k", "transfer_bar_window")
+                 "num_children", "max_admitted", "novelty_k", "transfer_bar_window")
         check(self.later_reproduce_interval is None or self.later_reproduce_interval > 0,
-               f"algo.later_reproduce_interval must be > 0 or null, got "
-               f"{self.later_reproduce_interval}.")
+              f"algo.later_reproduce_interval must be > 0 or null, got "
+              f"{self.later_reproduce_interval}.")
         check(self.proposal_step in ("sgd", "adam"),
-               f"algo.proposal_step must be 'sgd' or 'adam', got {self.proposal_step!r}.")
+              f"algo.proposal_step must be 'sgd' or 'adam', got {self.proposal_step!r}.")
         check(self.mc_lower < self.mc_upper,
-               f"algo.mc_lower ({self.mc_lower}) must be below algo.mc_upper ({self.mc_upper}).")
+              f"algo.mc_lower ({self.mc_lower}) must be below algo.mc_upper ({self.mc_upper}).")

@@ -18,10 +18,11 @@ RL_ACTIVATIONS = ("tanh", "relu", "elu")
 def _check_network(obj: Any) -> None:
     """The checks of an RL network config (hidden sizes, activation, lr, discount)."""
     check(len(obj.hidden) > 0 and all(h > 0 for h in obj.hidden),
-           f"{config_key(obj, 'hidden')} must be a non-empty list of positive sizes, got {obj.hidden}.")
+          f"{config_key(obj, 'hidden')} must be a non-empty list of positive sizes, got "
+          f"{obj.hidden}.")
     check(obj.activation in RL_ACTIVATIONS,
-           f"{config_key(obj, 'activation')} must be one of {list(RL_ACTIVATIONS)}, got "
-           f"{obj.activation!r}.")
+          f"{config_key(obj, 'activation')} must be one of {list(RL_ACTIVATIONS)}, got "
+          f"{obj.activation!r}.")
     positive(obj, "lr")
     check(0.0 < obj.gamma <= 1.0, f"{config_key(obj, 'gamma')} must be in (0, 1], got {obj.gamma}.")
 
@@ -58,10 +59,10 @@ class OnPolicyConfig(RlConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         check(0.0 <= self.gae_lambda <= 1.0,
-               f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.")
+              f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.")
         positive(self, "epochs", "minibatch", "critic_coeff")
         check(self.max_grad_norm is None or self.max_grad_norm > 0,
-               f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.")
+              f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.")
 
 
 @dataclass
@@ -91,7 +92,7 @@ class VmpoConfig(OnPolicyConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         check(0.0 < self.top_fraction <= 1.0,
-               f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.")
+              f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.")
         positive(self, "eta_init", "eps_eta", "alpha_init", "eps_alpha")
 
 
@@ -118,10 +119,11 @@ class SacLearnerConfig:
         _check_network(self)
         positive(self, "batch_size", "alpha_init", "reward_scale", "buffer_size")
         non_negative(self, "init_random_frames")
-        check(0.0 < self.tau <= 1.0, f"{config_key(self, 'tau')} must be in (0, 1], got {self.tau}.")
+        check(0.0 < self.tau <= 1.0,
+              f"{config_key(self, 'tau')} must be in (0, 1], got {self.tau}.")
         check(self.buffer_size >= self.batch_size,
-               f"{config_key(self, 'buffer_size')} ({self.buffer_size}) must hold at least one batch "
-               f"({config_key(self, 'batch_size')}={self.batch_size}).")
+              f"{config_key(self, 'buffer_size')} ({self.buffer_size}) must hold at least one batch "
+              f"({config_key(self, 'batch_size')}={self.batch_size}).")
 
 
 @dataclass

@@ -62,7 +62,7 @@ class CppnConfig:
 
     def __post_init__(self) -> None:
         check(self.num_inputs == 2 and self.num_outputs == 1,
-               "terrain.cppn must map 2 inputs (x, y) to 1 output (height).")
+              "terrain.cppn must map 2 inputs (x, y) to 1 output (height).")
         non_negative(self, "num_hidden")
         known = {"identity", "sin", "sigmoid", "square", "tanh", "gauss", "relu", "abs", "exp",
                  "log", "inv", "clamped", "cube", "hat", "softplus", "elu", "lelu", "selu"}
@@ -71,7 +71,7 @@ class CppnConfig:
         # The vectorised CPPN evaluator (epoet/terrain/cppn.py) implements these neat built-ins.
         unknown = sorted(set(self.aggregation_options) - {"sum", "product", "max", "min", "mean"})
         check(not unknown,
-               f"terrain.cppn.aggregation_options has unsupported aggregations {unknown}.")
+              f"terrain.cppn.aggregation_options has unsupported aggregations {unknown}.")
 
 
 @dataclass
@@ -96,8 +96,8 @@ class MutationConfig:
         for name in ("small_peak_response", "large_peak_response"):
             lo_hi = getattr(self, name)
             check(len(lo_hi) == 2 and 0.0 < lo_hi[0] <= lo_hi[1],
-                   f"terrain.mutation.{name} must be [low, high] with 0 < low <= high, got "
-                   f"{list(lo_hi)}.")
+                  f"terrain.mutation.{name} must be [low, high] with 0 < low <= high, got "
+                  f"{list(lo_hi)}.")
         non_negative(self, "min_genome_distance", "min_range", "min_variance")
 
 
@@ -125,20 +125,20 @@ class TerrainConfig:
 
     def __post_init__(self) -> None:
         check(self.kind in ("bowl", "cppn"),
-               f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.")
+              f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.")
         positive(self, "grid", "size", "base", "bump_grid", "max_height_limit", "cppn_scale")
         non_negative(self, "max_height", "max_height_step")
         check(self.grid >= 8, f"terrain.grid must be >= 8 samples, got {self.grid}.")
         check(0.0 <= self.bowl_weight <= 1.0,
-               f"terrain.bowl_weight must be in [0, 1], got {self.bowl_weight}.")
+              f"terrain.bowl_weight must be in [0, 1], got {self.bowl_weight}.")
         check(0.0 < self.bump_low <= self.bump_high,
-               f"terrain.bump_low/bump_high must satisfy 0 < low <= high, got "
-               f"{self.bump_low}/{self.bump_high}.")
+              f"terrain.bump_low/bump_high must satisfy 0 < low <= high, got "
+              f"{self.bump_low}/{self.bump_high}.")
         check(len(self.cppn_origin) == 2,
-               f"terrain.cppn_origin must be [x, y] metres, got {list(self.cppn_origin)}.")
+              f"terrain.cppn_origin must be [x, y] metres, got {list(self.cppn_origin)}.")
         check(self.max_height <= self.max_height_limit,
-               f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
-               f"({self.max_height_limit}).")
+              f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
+              f"({self.max_height_limit}).")
 
     def unused_keys(self) -> tuple[str, ...]:
         """The settings this terrain never reads: the bowl has no CPPN."""

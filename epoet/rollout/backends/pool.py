@@ -5,7 +5,8 @@ a shared queue as a slot frees up, whichever request it belongs to (the engine h
 terrain of the call), so a worker is busy until the queue is empty.
 
 Processes start with "forkserver" (fork after torch/OpenMP threads exist can deadlock); each
-builds its engine once in the pool initializer and ends with the main process (`epoet.core.lifecycle`).
+builds its engine once in the pool initializer and ends with the main process
+(`epoet.core.lifecycle`).
 A worker exception is re-raised in the parent (the pool stays usable: the queue items of a failed
 call are tagged with its call number and skipped later).
 """
