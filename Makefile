@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml constraints.txt
 # One test process per core; a file's tests share a process (module fixtures run once, and the Ray
 # tests, which stop every Ray process on the machine, never overlap one another).
 test: install
-	$(PY) -m pytest -q -n auto --dist loadfile tests
+	$(PY) -m pytest -q -n auto --dist loadfile --durations=10 tests
 
 # The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
 train: install
