@@ -14,9 +14,10 @@ from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.rollout.evaluators import make_evaluator
-from epoet.poet.epoet_sac import EpoetSac, ReplayMix
+from epoet.epoet_sac.loop import EpoetSac
+from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.poet.runner import layer_sizes, make_loop
-from epoet.poet.sac_bridge import distill_into_actor
+from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.run import run
 
 # Small everything; transfer every iteration, so joins come at t mod 4 = 2 (2, 6, ...).

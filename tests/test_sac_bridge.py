@@ -7,7 +7,7 @@ import torch
 
 from epoet.config import load
 from epoet.rollout.policy import LAYER_SIZES, forward, init_params, unflatten
-from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping
+from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.setup import make_actor, make_env
 
 

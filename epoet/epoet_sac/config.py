@@ -17,7 +17,7 @@ JOIN_MAPPINGS = ("distill", "random")
 
 @dataclass
 class DistillConfig:
-    """Behaviour cloning between the SAC actor and ES agents (epoet/poet/sac_bridge.py)."""
+    """Behaviour cloning between the SAC actor and ES agents (epoet/epoet_sac/bridge.py)."""
 
     KEY: ClassVar[str] = "algo.distill"
 

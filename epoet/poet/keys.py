@@ -26,7 +26,7 @@ class Key(IntEnum):
     ADMIT = 15          # (iteration, slot, candidate + 1 or 0 for direct transfers)
     ADMIT_NOISE = 16    # (iteration, slot, candidate)
     ADMIT_SPAWN = 17    # (iteration, slot, candidate)
-    # ePOET-SAC (epoet_sac.py)
+    # ePOET-SAC (epoet_sac/loop.py)
     SAC_ENV = 18        # (iteration,): which active environment Train_SAC uses
     SAC = 19            # torch's stream: () initial weights, (iteration,) Train_SAC,
                         # (iteration, 1 | 2) the transfer step's replay states | distillation

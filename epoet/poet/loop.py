@@ -77,7 +77,6 @@ class EPOET(Reproduction):
                            generation=0, parent=None, created_at=0)
         self._admit(root, init_params(self._seed(Key.ROOT_AGENT, 0), layer_sizes))
 
-    # --- keyed randomness -------------------------------------------------------------------
     def _seeds(self, n: int, key: Key, *ids: int) -> np.ndarray:
         """n non-negative int64 seeds, a function of the run seed, the key and the ids alone."""
         seq = np.random.SeedSequence([self.seed, int(key), *ids])
@@ -332,13 +331,15 @@ class EPOET(Reproduction):
             return 0
         return self._admit_most_novel(passing)
 
-    # --- open-endedness measure ------------------------------------------------------------------
     @property
     def annecs(self) -> int:
-        """Admitted environments (the root excluded) whose agent later reached the threshold.
-        The environment copies ePOET-SAC's joins pair with are not novel, so not counted."""
+        """Admitted novel environments (not the root) whose agent later reached the threshold."""
         return sum(p.env.solved for p in self.active + self.archived
-                   if p.env.index > 0 and not p.sac_join)
+                   if p.env.index > 0 and self.novel(p))
+
+    def novel(self, pair: Pair) -> bool:
+        """Whether the pair's environment was admitted as new (ePOET: every one)."""
+        return True
 
     def close(self) -> None:
         """Release what the loop holds besides its evaluator (ePOET: nothing)."""

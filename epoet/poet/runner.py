@@ -30,7 +30,7 @@ def make_loop(cfg: Config, evaluator: Evaluator) -> EPOET:
               "reproduce_interval": budget.reproduce_interval}
     if isinstance(cfg.algo, EpoetSacConfig):
         # Imported on demand: torch and TorchRL take seconds to import, which ePOET never needs.
-        from epoet.poet.epoet_sac import make_epoet_sac
+        from epoet.epoet_sac.loop import make_epoet_sac
         return make_epoet_sac(cfg, evaluator, **common)
     return EPOET(cfg.algo, cfg.terrain, evaluator, **common)
 

@@ -35,7 +35,6 @@ Decisions the paper leaves open (README "ePOET-SAC"):
 from __future__ import annotations
 
 import dataclasses
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -48,6 +47,7 @@ from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config
 from epoet.epoet_sac.config import EpoetSacConfig
+from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.terrain.config import TerrainConfig
 from epoet.rollout.policy import init_params
 from epoet.rollout.engine import Episodes
@@ -56,7 +56,7 @@ from epoet.core.timing import PhaseTimer
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
 from epoet.poet.pairs import Environment, Pair
-from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping
+from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
 from epoet.rl.setup import OBS, episode_metrics, hexapod, make_env, set_threads
@@ -84,43 +84,6 @@ class Mapped(NamedTuple):
     error: float            # distillation's mean squared action error; NaN for `random`
     score: float
     sac_score: float
-
-
-class ReplayMix:
-    """Where the replay buffer's transitions came from (`es`: pool agents, `sac`: SAC's own).
-
-    The buffer is first-in first-out, so its contents are the last `capacity` rows added."""
-
-    SOURCES = ("es", "sac")
-
-    def __init__(self, capacity: int) -> None:
-        self.capacity = capacity
-        self.added = dict.fromkeys(self.SOURCES, 0)
-        self._chunks: deque[list] = deque()     # [source, rows] in the order added
-        self._held = 0
-
-    def add(self, source: str, rows: int) -> None:
-        self.added[source] += rows
-        self._chunks.append([source, rows])
-        self._held += rows
-        while self._held > self.capacity:       # the oldest rows were overwritten
-            drop = min(self._chunks[0][1], self._held - self.capacity)
-            self._chunks[0][1] -= drop
-            self._held -= drop
-            if not self._chunks[0][1]:
-                self._chunks.popleft()
-
-    def share(self, source: str) -> float:
-        """Fraction of the buffer's rows from `source`."""
-        return sum(n for s, n in self._chunks if s == source) / max(self._held, 1)
-
-    def state_dict(self) -> dict[str, Any]:
-        return {"added": dict(self.added), "chunks": [list(c) for c in self._chunks]}
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.added = dict(state["added"])
-        self._chunks = deque(list(c) for c in state["chunks"])
-        self._held = sum(n for _, n in self._chunks)
 
 
 class EpoetSac(EPOET):
@@ -358,6 +321,10 @@ class EpoetSac(EPOET):
         return outcome
 
     # --- generation curves, artifacts, checkpoints ------------------------------------------
+    def novel(self, pair: Pair) -> bool:
+        """The environment copies that the joins pair with are not novel (not in ANNECS)."""
+        return not pair.sac_join
+
     def lineage(self, pair: Pair) -> int:
         """The k-th join made the pair (0: the ES lineage), the paper's Figure 2b
         ePOET-SAC_gen<k> curves."""
