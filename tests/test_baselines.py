@@ -21,8 +21,8 @@ from epoet.checkpoint import CheckpointError, load_checkpoint
 from epoet.config import ConfigError, validate
 from epoet.config import compose as compose_config
 from epoet.rl import sac
+from epoet.rl.env import RunningObsNorm, hexapod, make_env, obs_norm_of
 from epoet.rl.policy_file import load_policy
-from epoet.rl.setup import RunningObsNorm, make_env, obs_norm_of
 from epoet.run import run
 from epoet.tracking import MemoryTracker
 
@@ -228,7 +228,7 @@ def test_training_env_draws_a_new_terrain_per_episode_on_the_height_schedule(ter
     seen = []
     for _ in range(4):
         env.reset()
-        seen.append(setup.hexapod(env).terrain)
+        seen.append(hexapod(env).terrain)
     env.close()
     assert all(t.kind == terrain for t in seen)
     assert len({t.id for t in seen}) == 4

@@ -21,7 +21,8 @@ from torchrl.objectives.value import GAE
 
 from epoet.config import Config, OnPolicyConfig, PpoConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
-from epoet.rl.setup import BatchPlan, make_actor, make_value, step_if_finite
+from epoet.rl.nets import make_actor, make_value, step_if_finite
+from epoet.rl.setup import BatchPlan
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker

@@ -44,8 +44,9 @@ from epoet.checkpoint import save_run_state
 from epoet.config import Config
 from epoet.lifecycle import raise_if_stopped, report_stop, stop_requested
 from epoet.rl.policy_file import POLICY_FILE, export_policy
-from epoet.rl.setup import (OBS, RunningObsNorm, Seeds, batch_plan, episode_metrics, evaluate,
-                            hexapod, make_collector, make_env, obs_norm_of, set_threads)
+from epoet.rl.env import (OBS, RunningObsNorm, Seeds, episode_metrics, hexapod, make_env,
+                          obs_norm_of)
+from epoet.rl.setup import batch_plan, evaluate, make_collector, set_threads
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker

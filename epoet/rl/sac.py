@@ -28,7 +28,8 @@ from torchrl.envs import EnvBase
 from epoet.config import Config, SacConfig, SacLearnerConfig
 from epoet.rl.run_state import TrainingRun, TrainResult
 from epoet.rl.sac_loss import SacLoss, TwinQ
-from epoet.rl.setup import ACTIVATIONS, OBS, make_actor, policy_key, step_if_finite
+from epoet.rl.env import OBS, policy_key
+from epoet.rl.nets import ACTIVATIONS, make_actor, step_if_finite
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
