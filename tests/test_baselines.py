@@ -16,12 +16,12 @@ from omegaconf import DictConfig
 from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
-import epoet.rl.setup as setup
 from epoet.checkpoint import CheckpointError, load_checkpoint
 from epoet.config import ConfigError, validate
 from epoet.config import compose as compose_config
 from epoet.rl import sac
 from epoet.rl.env import RunningObsNorm, hexapod, make_env, obs_norm_of
+from epoet.rl.harness import batch_plan
 from epoet.rl.policy_file import load_policy
 from epoet.run import run
 from epoet.tracking import MemoryTracker
@@ -187,11 +187,11 @@ def test_resume_from_another_algorithm_is_refused(store, tmp_path):
 
 def test_budget_scales_the_batch_and_keeps_the_ratios():
     cfg = validate(compose_config(["algo=sac", "budget=smoke"]))  # 400 frames < 2000 per batch
-    plan = setup.batch_plan(cfg)
+    plan = batch_plan(cfg)
     assert (plan.frames_per_batch, plan.batches) == (400, 1)
     assert plan.scaled(cfg.algo.updates_per_batch) == 200  # 1000 per 2000 frames
     cfg = validate(compose_config(["algo=ppo", "budget=laptop"]))
-    plan = setup.batch_plan(cfg)
+    plan = batch_plan(cfg)
     assert (plan.frames_per_batch, plan.batches, plan.scale) == (2000, 50, 1.0)
 
 

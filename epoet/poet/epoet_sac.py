@@ -54,9 +54,9 @@ from epoet.poet.loop import EPOET, Key, PhaseTimer
 from epoet.poet.pairs import Environment, Pair
 from epoet.poet.sac_bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.env import OBS, episode_metrics, hexapod, make_env
+from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
-from epoet.rl.setup import set_threads
 from epoet.terrain import Terrain, make_terrain
 
 if TYPE_CHECKING:  # the tracking module imports mlflow
