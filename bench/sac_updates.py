@@ -28,8 +28,9 @@ from torch import nn
 
 from epoet.config import load
 from epoet.envs.task import ACT_DIM, OBS_DIM
+from epoet.rl.env import make_env
+from epoet.rl.harness import set_threads
 from epoet.rl.sac import SacLearner
-from epoet.rl.setup import make_env, set_threads
 
 BUFFER = 10_000
 

@@ -8,7 +8,8 @@ import torch
 from epoet.config import load
 from epoet.rollout.policy import LAYER_SIZES, forward, init_params, unflatten
 from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
-from epoet.rl.setup import make_actor, make_env
+from epoet.rl.env import make_env
+from epoet.rl.nets import make_actor
 
 
 def sac_actor(hidden: tuple[int, ...] = (64, 64)):

@@ -8,8 +8,9 @@ from torchrl.modules import MLP, ValueOperator
 from torchrl.objectives import SACLoss, ValueEstimators
 
 from epoet.config import load
+from epoet.rl.env import make_env
+from epoet.rl.nets import make_actor
 from epoet.rl.sac_loss import SacLoss, TwinQ
-from epoet.rl.setup import make_actor, make_env
 
 HIDDEN = [32, 32]
 

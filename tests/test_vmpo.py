@@ -18,7 +18,8 @@ from torchrl.modules import (
 )
 from torchrl.objectives.value import GAE
 
-from epoet.rl.vmpo_loss import top_half_weights, VMPOLoss
+from epoet.rl.vmpo_loss import VMPOLoss
+from epoet.rl.vmpo_parts import top_half_weights
 
 torch.set_num_threads(1)
 

@@ -57,9 +57,10 @@ from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
 from epoet.poet.pairs import Environment, Pair
 from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
+from epoet.rl.env import OBS, episode_metrics, hexapod, make_env
+from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
-from epoet.rl.setup import OBS, episode_metrics, hexapod, make_env, set_threads
 from epoet.terrain import Terrain, make_terrain
 
 if TYPE_CHECKING:  # the tracking module imports mlflow

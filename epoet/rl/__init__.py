@@ -1,1 +1,2 @@
-"""TorchRL baselines: PPO and SAC (TorchRL's own losses) and V-MPO (:mod:`epoet.rl.vmpo`)."""
+"""TorchRL baselines: PPO, SAC and V-MPO, each trained by the loop in its own module (ppo.py,
+sac.py, vmpo.py) on the pieces they share (env.py, nets.py, harness.py)."""

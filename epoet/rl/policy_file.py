@@ -2,7 +2,7 @@
 `load_policy` turns back into `act(obs) -> action` with nothing but torch, for evaluation and
 rendering without TorchRL or the training state.
 
-TorchRL and epoet.rl.setup (which imports MuJoCo) are imported where used, so reading
+TorchRL and epoet.rl.env and nets (which import MuJoCo) are imported where used, so reading
 POLICY_FORMAT to check a file (epoet.eval.agents) imports neither.
 """
 from __future__ import annotations
@@ -37,7 +37,7 @@ def export_policy(path: Path, actor: ProbabilisticActor, env: EnvBase, hidden: l
     `load_policy` rebuilds it with nothing but torch: a reader needs neither TorchRL nor the
     training state.
     """
-    from epoet.rl.setup import OBS, OBS_CLIP, obs_norm_of
+    from epoet.rl.env import OBS, OBS_CLIP, obs_norm_of
     norm = obs_norm_of(env)
     net = _actor_mlp(actor)
     spec = {
@@ -62,7 +62,7 @@ def load_policy(path: str | Path) -> Callable[[np.ndarray], np.ndarray]:
     action = tanh(first act_dim outputs of the MLP applied to clip((obs - loc) / scale)).
     A file that is not such a policy for the task raises epoet.eval.agents.AgentError.
     """
-    from epoet.rl.setup import ACTIVATIONS
+    from epoet.rl.nets import ACTIVATIONS
     spec = read_torch_policy(Path(path))
     sizes = [spec["obs_dim"], *spec["hidden"]]
     layers: list[nn.Module] = []

@@ -1,4 +1,5 @@
-"""SAC on the hexapod (paper Table 3), read top to bottom: the learner, then `train`.
+"""SAC on the hexapod (paper Table 3), read top to bottom: the learner, then the whole run in
+`train`.
 
 A ReLU tanh-Gaussian actor (TorchRL's ProbabilisticActor, which the collector runs) and twin
 ReLU Q networks, the SAC losses of sac_loss.py, a uniform TorchRL replay buffer, soft target
@@ -7,7 +8,9 @@ unless set). Rewards are multiplied by the reward scale when they enter the repl
 logged returns are the env's). Each collector batch is followed by `updates_per_batch` gradient
 updates; the first batch comes from uniform random actions (Table 3: one pre-training epoch).
 Settings: conf/learner/sac.yaml (networks, losses, replay; shared with ePOET-SAC) and
-conf/algo/sac.yaml (collection and updates). `SacLearner.gradient_steps` is what bench/sac_updates.py times.
+conf/algo/sac.yaml (collection and updates). `SacLearner.gradient_steps` is what
+bench/sac_updates.py times. What every baseline's run shares (seeds, envs, counters,
+evaluation, checkpoints): harness.py.
 
 Speed (the project's target: the update rate of a plain-PyTorch SAC; bench/sac_updates.py):
 the loss is ours (sac_loss.py: the twin critics as one batched ensemble, no functional
@@ -17,6 +20,7 @@ SAMPLE_CHUNK batches per call and split.
 """
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,9 +31,11 @@ from torchrl.envs import EnvBase
 
 from epoet.config import Config
 from epoet.rl.config import SacConfig, SacLearnerConfig
-from epoet.rl.run_state import TrainingRun, TrainResult
+from epoet.core.lifecycle import raise_if_stopped
+from epoet.rl.env import OBS, policy_key
+from epoet.rl.harness import Harness, TrainResult, make_collector
+from epoet.rl.nets import ACTIVATIONS, make_actor, step_if_finite
 from epoet.rl.sac_loss import SacLoss, TwinQ
-from epoet.rl.setup import ACTIVATIONS, OBS, make_actor, policy_key, step_if_finite
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -122,14 +128,32 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
           ) -> TrainResult:
     """The `algo=sac` runner (see epoet.run.RUNNERS)."""
     algo: SacConfig = cfg.algo
-    with TrainingRun(cfg, tracker, run_dir, resume) as run:
+    with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         learner = SacLearner(algo, run.env)
         updates = run.plan.scaled(algo.updates_per_batch, minimum=1)
+        # uniform random actions first (Table 3's pre-training epoch); none are left after a
+        # resume that is past them
+        random_frames = max(0, run.plan.scaled(algo.init_random_frames) - run.state.frames)
+        collector = make_collector(run.env, learner.actor, run.plan, random_frames)
+        run.start(collector, learner)  # a resumed run continues from its checkpoint
 
-        run.start(learner.actor, learner, algo.init_random_frames)
-        for batch in run.batches():
-            learned = learner.learn(batch, updates)
-            run.log(batch, learned)
-            run.evaluate_if_due(learner.actor)
-            run.checkpoint_if_due(learner)
+        state = run.state
+        if state.frames >= state.next_eval:  # frame 0
+            run.evaluate(learner.actor)
+        batches = iter(collector)
+        while not run.budget_spent():  # budget.frames or budget.hours
+            started = time.perf_counter()
+            batch = next(batches)                                    # collect
+            learned = learner.learn(batch, updates)                  # store, then learn
+            if run.obs_stats is not None:  # after learning: one normalisation per batch
+                run.obs_stats.update(batch[OBS])
+            run.log(batch, learned, started)                         # log
+            if state.frames >= state.next_eval:                      # evaluate
+                run.evaluate(learner.actor)
+            if run.checkpoint_due():                                 # checkpoint
+                run.checkpoint(learner)
+                raise_if_stopped(f"at frame {state.frames}")  # a stop signal ends the run here
+                collector.reset()  # checkpoints end the running episode (harness.py)
+        if state.last_eval_frames != state.frames:  # the final policy, unless just evaluated
+            run.evaluate(learner.actor)
         return run.finish(learner.actor, learner)

@@ -8,49 +8,23 @@ batch whose advantages and value targets a TorchRL value estimator (GAE by defau
 written, and returns the loss terms as ``loss_*`` entries whose sum is what the trainer
 backpropagates.
 
-The loss of Song et al. (Sec. 3) is
-
-.. math::
-
-    \mathcal{L}(\phi, \theta, \eta, \alpha) = \mathcal{L}_V(\phi)
-        + \mathcal{L}_\pi(\theta) + \mathcal{L}_\eta(\eta) + \mathcal{L}_\alpha(\theta, \alpha)
-
-on a batch :math:`\mathcal{D}` of transitions, with
-
-* the E-step (Sec. 3.2): :math:`\tilde{\mathcal{D}}` is the half of :math:`\mathcal{D}` with
-  the largest advantages :math:`A`, and
-  :math:`\psi(s, a) = \exp(A(s, a)/\eta) / \sum_{\tilde{\mathcal{D}}} \exp(A/\eta)` on
-  :math:`\tilde{\mathcal{D}}`, 0 elsewhere (:func:`top_half_weights`);
-* the policy loss :math:`\mathcal{L}_\pi = -\sum_{\tilde{\mathcal{D}}} \psi(s, a)
-  \log \pi_\theta(a \mid s)`;
-* the temperature loss :math:`\mathcal{L}_\eta = \eta \epsilon_\eta + \eta \log\big[
-  \frac{1}{|\tilde{\mathcal{D}}|} \sum_{\tilde{\mathcal{D}}} \exp(A/\eta)\big]`;
-* the M-step trust region :math:`\mathcal{L}_\alpha = \alpha\,(\epsilon_\alpha -
-  \mathrm{sg}[D_{KL}]) + \mathrm{sg}[\alpha]\, D_{KL}` with
-  :math:`D_{KL} = \frac{1}{|\mathcal{D}|} \sum_s \mathrm{KL}(\pi_{old}(\cdot \mid s)
-  \,\|\, \pi_\theta(\cdot \mid s))`;
-* the value loss (Sec. 3.1) :math:`\mathcal{L}_V = \frac{1}{2|\mathcal{D}|}
-  \sum (V_\phi(s) - G)^2`, :math:`G` the value target.
+The equations and the pieces that need no TorchRL module (the E-step weights, the temperature
+and trust-region terms, the KL, the keys) are in :mod:`epoet.rl.vmpo_parts`.
 """
-
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams, unravel_key
 from tensordict.nn import (
-    composite_lp_aggregate,
     dispatch,
     ProbabilisticTensorDictModule,
     ProbabilisticTensorDictSequential,
     TensorDictModule,
 )
 from tensordict.utils import NestedKey
-from torch import distributions as d, nn
-from torchrl.modules.distributions import has_analytic_entropy, has_analytic_kl
-from torchrl.modules.distributions.utils import sample_and_log_prob
+from torch import nn
 from torchrl.objectives import LossModule
 from torchrl.objectives.utils import (
     dispatch_value_estimator,
@@ -58,101 +32,35 @@ from torchrl.objectives.utils import (
     ValueEstimators,
 )
 
-__all__ = ["VMPOLoss", "top_half_weights"]
+from epoet.rl.vmpo_parts import (
+    check_settings,
+    policy_entropy,
+    policy_kl,
+    sum_event_dims,
+    temperature_loss,
+    top_half_weights,
+    trust_region_loss,
+    VMPOKeys,
+)
 
-_CRITIC_LOSS_TYPES = ("l1", "l2", "smooth_l1")
-
-
-def top_half_weights(
-    advantage: torch.Tensor,
-    eta: torch.Tensor | float,
-    fraction: float = 0.5,
-    valid: torch.Tensor | None = None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    r"""Non-parametric E-step of V-MPO: softmax weights on the best advantages.
-
-    Song et al. (2019), Sec. 3.2: keep the subset :math:`\tilde{\mathcal{D}}` of the batch
-    with the largest advantages and weight its samples by
-
-    .. math::
-
-        \psi(s, a) = \frac{\exp(A(s, a) / \eta)}
-                          {\sum_{(s', a') \in \tilde{\mathcal{D}}} \exp(A(s', a') / \eta)},
-
-    the rest of the batch gets weight 0. The paper keeps the top half (``fraction=0.5``).
-
-    Args:
-        advantage (torch.Tensor): the advantages; every entry, whatever the shape, is one
-            sample of the batch.
-        eta (torch.Tensor or float): the temperature :math:`\eta > 0`. It is detached: the
-            weights are targets for the policy and carry no gradient.
-        fraction (float, optional): share of the batch kept, in ``(0, 1]``: the
-            ``floor(fraction * N)`` largest advantages of the ``N`` valid samples, at least
-            one. Defaults to ``0.5``.
-        valid (torch.Tensor, optional): boolean mask shaped like ``advantage``; invalid
-            (e.g. padded) samples are never kept and do not count in ``N``.
-
-    Returns:
-        ``(weights, mask)``, both shaped like ``advantage``: ``mask`` marks
-        :math:`\tilde{\mathcal{D}}`, ``weights`` sums to one over it and is zero elsewhere.
-
-    Examples:
-        >>> weights, mask = top_half_weights(torch.tensor([0.0, 2.0, 1.0, -1.0]), eta=1.0)
-        >>> mask
-        tensor([False,  True,  True, False])
-        >>> weights  # softmax([2, 1]) on the kept half
-        tensor([0.0000, 0.7311, 0.2689, 0.0000])
-    """
-    if not 0.0 < fraction <= 1.0:
-        raise ValueError(f"fraction must be in (0, 1], got {fraction}.")
-    flat = advantage.detach().reshape(-1)
-    eta = torch.as_tensor(eta, dtype=flat.dtype, device=flat.device).detach()
-    if not bool((eta > 0).all()):
-        raise ValueError(f"eta must be > 0, got {eta}.")
-    if valid is None:
-        num_valid = flat.numel()
-    else:
-        valid = valid.reshape(-1)
-        # -inf never wins a top-k against a finite advantage
-        flat = flat.masked_fill(~valid, float("-inf"))
-        num_valid = int(valid.sum())
-    if num_valid == 0:
-        raise ValueError("top_half_weights needs at least one valid sample.")
-    # floor rather than ceil: with fraction=0.5 an odd batch keeps its strictly better half
-    num_kept = max(1, int(fraction * num_valid))
-    mask = torch.zeros_like(flat, dtype=torch.bool)
-    mask[flat.topk(num_kept).indices] = True
-    weights = (flat / eta).masked_fill(~mask, float("-inf")).softmax(0)
-    return weights.view_as(advantage), mask.view_as(advantage)
-
-
-def _sum_event_dims(value: torch.Tensor, batch_ndim: int) -> torch.Tensor:
-    # Distributions without an ``Independent`` wrapper (e.g. torch's ``Normal``) give one
-    # log-prob or KL per action dimension; the action's is their sum.
-    if value.ndim == batch_ndim:
-        return value
-    return value.flatten(batch_ndim).sum(-1)
+__all__ = ["VMPOLoss"]
 
 
 class VMPOLoss(LossModule):
     r"""V-MPO loss (Song et al., 2019) with a learned temperature and KL multiplier.
 
-    The terms, all computed from one batch :math:`\mathcal{D}` (see the module docstring
-    for the equations):
+    The terms, all computed from one batch :math:`\mathcal{D}` (see
+    :mod:`epoet.rl.vmpo_parts` for the equations):
 
     - ``loss_policy``: :math:`\mathcal{L}_\pi = -\sum_{\tilde{\mathcal{D}}} \psi(s, a)
       \log \pi_\theta(a \mid s)`, the weighted maximum likelihood of the E-step's
       non-parametric policy :math:`\psi` (:func:`top_half_weights`, detached);
-    - ``loss_eta``: :math:`\mathcal{L}_\eta = \eta \epsilon_\eta + \eta \log\big[
-      \frac{1}{|\tilde{\mathcal{D}}|} \sum_{\tilde{\mathcal{D}}} \exp(A/\eta)\big]`, the
-      dual of the E-step's KL constraint :math:`\mathrm{KL}(\psi \,\|\, \mathcal{U}) <
-      \epsilon_\eta`: its gradient in :math:`\eta` is :math:`\epsilon_\eta -
-      \mathrm{KL}(\psi \,\|\, \mathcal{U})`, so :math:`\eta` grows while :math:`\psi` is
-      more peaked than allowed and shrinks otherwise;
-    - ``loss_alpha``: :math:`\mathcal{L}_\alpha = \alpha\,(\epsilon_\alpha -
-      \mathrm{sg}[D_{KL}]) + \mathrm{sg}[\alpha]\, D_{KL}`, the M-step trust region: the
-      policy is penalised by :math:`\alpha D_{KL}` and :math:`\alpha` grows while
-      :math:`D_{KL} > \epsilon_\alpha`. Both terms live in this entry, as in the paper;
+    - ``loss_eta``: :math:`\mathcal{L}_\eta`, the dual of the E-step's KL constraint on
+      :math:`\psi`, which tunes the temperature :math:`\eta` (:func:`temperature_loss`);
+    - ``loss_alpha``: :math:`\mathcal{L}_\alpha`, the M-step trust region: the policy is
+      penalised by :math:`\alpha D_{KL}` and :math:`\alpha` grows while
+      :math:`D_{KL} > \epsilon_\alpha`. Both terms live in this entry, as in the paper
+      (:func:`trust_region_loss`);
     - ``loss_critic``: ``critic_coeff * distance(V(s), value_target)``, by default
       :math:`\frac{1}{2}(V_\phi(s) - G)^2` (Sec. 3.1).
 
@@ -168,11 +76,7 @@ class VMPOLoss(LossModule):
     :class:`~torchrl.objectives.KLPENPPOLoss` does. A frozen copy of the actor would need
     extra parameters and a sync at every collection; the stored parameters are exactly the
     data's policy at no cost, across all the epochs spent on the batch. The KL is the closed
-    form when torch registers one (``Normal``, ``IndependentNormal``, ``TanhNormal`` --
-    whose shared tanh bijection leaves the KL of the underlying Gaussians unchanged --,
-    ``Categorical``, ...); otherwise it is estimated from the batch itself:
-    the actions were drawn from :math:`\pi_{old}`, so the batch mean of
-    ``sample_log_prob - log pi(action)`` is an unbiased estimate.
+    form when torch registers one, else an estimate from the batch (:func:`policy_kl`).
 
     Song et al. bound the Gaussian's mean and covariance with separate multipliers; this
     loss uses one KL and one multiplier :math:`\alpha`.
@@ -235,52 +139,7 @@ class VMPOLoss(LossModule):
         ['alpha', 'entropy', 'eta', 'kl', 'loss_alpha', 'loss_critic', 'loss_eta', 'loss_policy']
     """
 
-    @dataclass
-    class _AcceptedKeys:
-        """Maintains default values for all configurable tensordict keys.
-
-        This class defines which tensordict keys can be set using
-        ``.set_keys(key_name=key_value)`` and their default values.
-
-        Attributes:
-            advantage (NestedKey): the input key of the advantage. Defaults to
-                ``"advantage"``.
-            value_target (NestedKey): the input key of the value target. Defaults to
-                ``"value_target"``.
-            value (NestedKey): the key of the state value the critic writes. Defaults to
-                ``"state_value"``.
-            sample_log_prob (NestedKey): the input key of the collecting policy's
-                log-probability of the action, read when the KL has no closed form.
-                Defaults to the actor's log-prob key (``"action_log_prob"`` unless
-                :func:`~tensordict.nn.composite_lp_aggregate` is set, then
-                ``"sample_log_prob"``).
-            action (NestedKey): the input key of the action. Defaults to the actor's
-                sample key, ``"action"``.
-            reward (NestedKey): the reward key, for the value estimator. Defaults to
-                ``"reward"``.
-            done (NestedKey): the done key, for the value estimator. Defaults to
-                ``"done"``.
-            terminated (NestedKey): the terminated key, for the value estimator. Defaults
-                to ``"terminated"``.
-        """
-
-        advantage: NestedKey = "advantage"
-        value_target: NestedKey = "value_target"
-        value: NestedKey = "state_value"
-        sample_log_prob: NestedKey | None = None
-        action: NestedKey = "action"
-        reward: NestedKey = "reward"
-        done: NestedKey = "done"
-        terminated: NestedKey = "terminated"
-
-        def __post_init__(self) -> None:
-            if self.sample_log_prob is None:
-                self.sample_log_prob = (
-                    "sample_log_prob"
-                    if composite_lp_aggregate(nowarn=True)
-                    else "action_log_prob"
-                )
-
+    _AcceptedKeys = VMPOKeys
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
     default_value_estimator = ValueEstimators.GAE
@@ -321,22 +180,15 @@ class VMPOLoss(LossModule):
                 "VMPOLoss supports actors with a single action distribution, got "
                 f"log-prob keys {actor_network.log_prob_keys}."
             )
-        if not 0.0 < top_fraction <= 1.0:
-            raise ValueError(f"top_fraction must be in (0, 1], got {top_fraction}.")
-        for name, value in (
-            ("eta_init", eta_init),
-            ("eps_eta", eps_eta),
-            ("alpha_init", alpha_init),
-            ("eps_alpha", eps_alpha),
-            ("critic_coeff", critic_coeff),
-        ):
-            if not (value > 0 and math.isfinite(value)):
-                raise ValueError(f"{name} must be a finite number > 0, got {value}.")
-        if loss_critic_type not in _CRITIC_LOSS_TYPES:
-            raise ValueError(
-                f"loss_critic_type must be one of {_CRITIC_LOSS_TYPES}, got "
-                f"{loss_critic_type!r}."
-            )
+        check_settings(
+            top_fraction,
+            loss_critic_type,
+            eta_init=eta_init,
+            eps_eta=eps_eta,
+            alpha_init=alpha_init,
+            eps_alpha=eps_alpha,
+            critic_coeff=critic_coeff,
+        )
 
         self._in_keys = None
         super().__init__()
@@ -454,23 +306,6 @@ class VMPOLoss(LossModule):
     ) -> torch.Tensor:
         return self._reduce_loss(value, mask=valid, reduction="mean")
 
-    def _kl(
-        self,
-        old_dist: d.Distribution,
-        dist: d.Distribution,
-        log_prob: torch.Tensor,
-        tensordict: TensorDictBase,
-    ) -> torch.Tensor:
-        """Per-sample KL(pi_old || pi_theta), differentiable in theta."""
-        if has_analytic_kl(old_dist, dist):
-            return _sum_event_dims(
-                d.kl_divergence(old_dist, dist), log_prob.ndim
-            )
-        # No closed form: the batch's actions were sampled from pi_old, so
-        # log pi_old(a) - log pi_theta(a) averages to KL(pi_old || pi_theta).
-        old_log_prob = tensordict.get(self.tensor_keys.sample_log_prob).detach()
-        return _sum_event_dims(old_log_prob, log_prob.ndim) - log_prob
-
     @dispatch
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Computes the V-MPO loss terms on one batch.
@@ -509,7 +344,7 @@ class VMPOLoss(LossModule):
             self.actor_network, preserve_module_state=False
         ):
             dist = self.actor_network.get_dist(tensordict)
-        log_prob = _sum_event_dims(
+        log_prob = sum_event_dims(
             dist.log_prob(tensordict.get(self.tensor_keys.action)), advantage.ndim
         )
 
@@ -518,16 +353,18 @@ class VMPOLoss(LossModule):
         eta = self.log_eta.exp()
         weights, kept = top_half_weights(advantage, eta, self.top_fraction, valid)
         loss_policy = -(weights[kept] * log_prob[kept]).sum()
-        kept_advantage = advantage[kept]
-        loss_eta = eta * self.eps_eta + eta * (
-            torch.logsumexp(kept_advantage / eta, dim=0)
-            - math.log(kept_advantage.numel())
-        )
+        loss_eta = temperature_loss(advantage[kept], eta, self.eps_eta)
 
         # M-step trust region L_alpha, over the whole batch
-        kl = self._masked_mean(self._kl(old_dist, dist, log_prob, tensordict), valid)
+        kl = policy_kl(
+            old_dist,
+            dist,
+            log_prob,
+            lambda: tensordict.get(self.tensor_keys.sample_log_prob),
+        )
+        kl = self._masked_mean(kl, valid)
         alpha = self.log_alpha.exp()
-        loss_alpha = alpha * (self.eps_alpha - kl.detach()) + alpha.detach() * kl
+        loss_alpha = trust_region_loss(kl, alpha, self.eps_alpha)
 
         with self.critic_network_params.to_module(
             self.critic_network, preserve_module_state=False
@@ -539,13 +376,7 @@ class VMPOLoss(LossModule):
         )
 
         with torch.no_grad():
-            if has_analytic_entropy(dist):
-                entropy = dist.entropy()
-            else:
-                entropy = -sample_and_log_prob(dist)[1]
-            entropy = self._masked_mean(
-                _sum_event_dims(entropy, advantage.ndim), valid
-            )
+            entropy = self._masked_mean(policy_entropy(dist, advantage.ndim), valid)
 
         return TensorDict(
             {

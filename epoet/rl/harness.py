@@ -1,17 +1,15 @@
-"""A baseline run's bookkeeping around its algorithm's loop: seeds and environments, counters,
-metrics, evaluations, checkpoints and exact resume, the progress bar and the exported policy.
+"""What every baseline's training loop shares: how the budget maps onto collector batches, the
+collector, the seeded envs, counters, metrics, evaluation, checkpoints with exact resume, stop
+handling and the exported policy. The loop itself -- when to collect, learn, log, evaluate and
+checkpoint -- is written out in each algorithm's file (ppo.py, sac.py, vmpo.py):
 
-The algorithm (ppo.py, sac.py, vmpo.py) owns the loop and the update; `TrainingRun` is what each
-step of that loop calls:
-
-    with TrainingRun(cfg, tracker, run_dir, resume) as run:     # seeds, envs, counters
-        ... build networks, loss, optimiser ...
-        run.start(actor, learner)                               # restores a resumed run
-        for batch in run.batches():                             # collect
-            learned = learner.learn(batch)                      # learn
-            run.log(batch, learned)                             # log
-            run.evaluate_if_due(actor)                          # evaluate
-            run.checkpoint_if_due(learner)                      # checkpoint
+    with Harness(cfg, tracker, run_dir, resume) as run:      # threads, seeds, envs, counters
+        ... networks, learner, collector ...
+        run.start(collector, learner)                        # restores a resumed run
+        while not run.budget_spent():
+            batch = next(batches); learner.learn(batch); run.log(...)
+            if due: run.evaluate(actor)
+            if run.checkpoint_due(): run.checkpoint(learner); raise_if_stopped(); reset
         return run.finish(actor, learner)
 
 Checkpoints: every `cfg.checkpoint_every` collector batches and at the end. To make a resumed run
@@ -19,6 +17,11 @@ continue exactly like an uninterrupted one, a checkpoint ends the running episod
 resets its env right after saving (and a resumed run resets right after loading), so no
 mid-episode simulator state needs saving. The cut episode is not counted in the training episode
 statistics; its transitions are still learned from.
+
+Evaluation (the paper's tables do not fix it): `budget.eval_episodes` episodes of the
+deterministic policy on a separate env whose terrains come from a fixed seed, at the training
+env's current point of the height schedule, at frame 0, every `budget.eval_every` frames and at
+the end. It runs under `fork_rng`, so it never changes the training's random streams.
 """
 from __future__ import annotations
 
@@ -26,7 +29,6 @@ import dataclasses
 import math
 import random
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -36,20 +38,92 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, ExplorationType
+from torchrl.envs.utils import set_exploration_type
 from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
 from epoet.core.checkpoint import save_run_state
 from epoet.config import Config
-from epoet.core.lifecycle import raise_if_stopped, report_stop, stop_requested
+from epoet.core.compute import default_workers
+from epoet.core.lifecycle import report_stop, stop_requested
+from epoet.rl.env import RunningObsNorm, Seeds, episode_metrics, hexapod, make_env, obs_norm_of
 from epoet.rl.policy_file import POLICY_FILE, export_policy
-from epoet.rl.setup import (OBS, RunningObsNorm, Seeds, batch_plan, episode_metrics, evaluate,
-                            hexapod, make_collector, make_env, obs_norm_of, set_threads)
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
 
+
+# --- the compute plan and the collector -----------------------------------------------------------
+
+@dataclass(frozen=True)
+class BatchPlan:
+    """How a budget maps onto collector batches.
+
+    budget.frames is the total; a batch is `algo.frames_per_batch` frames unless the budget is
+    smaller, then the batch is the whole budget. `scale` (batch / algo.frames_per_batch) shrinks
+    what is counted per batch in the config (SAC's updates and random frames), so the ratios of
+    the paper -- e.g. 1000 SAC updates per 2000 frames -- hold at every budget. The run ends after
+    `batches` batches, the first multiple of the batch at or above budget.frames.
+    """
+
+    frames_per_batch: int
+    batches: int
+    scale: float
+
+    @property
+    def total_frames(self) -> int:
+        return self.frames_per_batch * self.batches
+
+    def scaled(self, count: int, minimum: int = 0) -> int:
+        """A per-batch count from the config, scaled to this batch size."""
+        return max(minimum, round(count * self.scale))
+
+
+def batch_plan(cfg: Config) -> BatchPlan:
+    frames = min(cfg.algo.frames_per_batch, cfg.budget.frames)
+    return BatchPlan(frames, math.ceil(cfg.budget.frames / frames),
+                     frames / cfg.algo.frames_per_batch)
+
+
+def set_threads(cfg: Config) -> int:
+    """torch threads = workers.num, else the cores this process may use; returns the count."""
+    threads = cfg.workers.num or default_workers()
+    torch.set_num_threads(threads)
+    return threads
+
+
+def make_collector(env: EnvBase, actor: ProbabilisticActor, plan: BatchPlan,
+                   random_frames: int = 0) -> Collector:
+    """Batches of `plan.frames_per_batch` frames from the stochastic actor, forever (the loop
+    counts); the first `random_frames` frames use uniform random actions (SAC)."""
+    return Collector(env, actor, frames_per_batch=plan.frames_per_batch, total_frames=-1,
+                     init_random_frames=random_frames, exploration_type=ExplorationType.RANDOM,
+                     auto_register_policy_transforms=False)  # the policy is not recurrent
+
+
+def evaluate(env: EnvBase, actor: ProbabilisticActor, episodes: int, seed: int,
+             episode_index: int, max_steps: int) -> dict[str, float]:
+    """Mean return, length and finish rate of `episodes` deterministic-policy episodes.
+
+    Terrains come from `seed` at height-schedule position `episode_index`, so evaluations at the
+    same schedule point see the same terrains.
+    """
+    returns, lengths, finished = [], [], []
+    with torch.random.fork_rng(devices=[]), torch.no_grad(), \
+            set_exploration_type(ExplorationType.DETERMINISTIC):
+        env.set_seed(seed)
+        hexapod(env).episodes = episode_index
+        for _ in range(episodes):
+            td = env.rollout(max_steps, policy=actor)
+            returns.append(float(td["next", "reward"].sum()))
+            lengths.append(td.shape[0])
+            finished.append(bool(td["next", "finished"].any()))
+    return {"return_mean": float(np.mean(returns)), "return_std": float(np.std(returns)),
+            "length_mean": float(np.mean(lengths)), "finish_rate": float(np.mean(finished))}
+
+
+# --- the run's state ------------------------------------------------------------------------------
 
 class Learner(Protocol):
     """What a run checkpoints of an algorithm: networks, optimisers, learned multipliers, the
@@ -101,7 +175,7 @@ def _set_rng_state(env: EnvBase, state: dict[str, Any]) -> None:
     gym_env.episodes = state["env_episodes"]
 
 
-class TrainingRun:
+class Harness:
     """Seeds, the training and evaluation envs, counters, tracking, checkpoints and progress of
     one baseline run. Metrics go to the tracker at step = frames: `train/*` (episode return and
     length, the learner's losses and diagnostics), `eval/*` (return_mean, return_std,
@@ -122,11 +196,10 @@ class TrainingRun:
         self.obs_stats = RunningObsNorm(obs_norm_of(self.env)) if cfg.algo.obs_norm else None
         self.collector: Collector | None = None
         self.progress: tqdm | None = None
-        self._batch_start = 0.0
         if resume is None:
             tracker.log_dict(dataclasses.asdict(self.seeds), "seeds.json")
 
-    def __enter__(self) -> TrainingRun:
+    def __enter__(self) -> Harness:
         return self
 
     def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
@@ -137,17 +210,10 @@ class TrainingRun:
             self.collector.shutdown()
         self.eval_env.close()
 
-    # --- start ------------------------------------------------------------------------------------
-
-    def start(self, actor: ProbabilisticActor, learner: Learner,
-              init_random_frames: int = 0) -> None:
-        """Make the collector of `actor`, restore a resumed run's state, evaluate at frame 0.
-
-        `init_random_frames` (from the config, scaled to the batch) of uniform random actions
-        come first; none are left after a resume that is past them.
-        """
-        random_frames = max(0, self.plan.scaled(init_random_frames) - self.state.frames)
-        self.collector = make_collector(self.env, actor, self.plan, random_frames)
+    def start(self, collector: Collector, learner: Learner) -> None:
+        """Restore a resumed run's state and open the progress bar; the harness shuts
+        `collector` down when it exits."""
+        self.collector = collector
         if self.resume is not None:
             # After the collector's construction, which resets the env and may draw random
             # numbers; then a new episode starts exactly as the interrupted run's did right
@@ -156,23 +222,25 @@ class TrainingRun:
             if self.obs_stats is not None:
                 self.obs_stats.load_state_dict(self.resume["obs_norm"])
             _set_rng_state(self.env, self.resume["rng"])
-            self.collector.reset()
+            collector.reset()
         self.progress = tqdm(total=self.plan.total_frames, initial=self.state.frames,
                              unit="frame", desc=self.cfg.algo.name, disable=None,
                              dynamic_ncols=True)
-        self.evaluate_if_due(actor)
 
-    # --- the loop's steps -------------------------------------------------------------------------
+    def budget_spent(self) -> bool:
+        """The budget's batches are collected or its hours are used."""
+        return (self.state.batches >= self.plan.batches
+                or self.cfg.budget.time_is_up(self.state.wall_time))
 
-    def batches(self) -> Iterator[TensorDictBase]:
-        """Collector batches until the budget's frames are collected or its hours are used."""
-        stream = iter(self.collector)
-        while not self._done():
-            self._batch_start = time.perf_counter()
-            yield next(stream)
+    def checkpoint_due(self) -> bool:
+        """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
+        signal asked the run to stop."""
+        return ((self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested())
+                and not self.budget_spent())
 
-    def log(self, batch: TensorDictBase, learned: dict[str, float]) -> None:
-        """Count the batch, update the observation statistics, send the batch's metrics.
+    def log(self, batch: TensorDictBase, learned: dict[str, float], started: float) -> None:
+        """Count the batch (collected from time.perf_counter() = `started` on) and send its
+        metrics.
 
         Stops the run on a non-finite learner metric rather than train on (and checkpoint)
         NaN weights.
@@ -183,9 +251,7 @@ class TrainingRun:
                 f"{self.cfg.algo.name} produced non-finite {broken} in the batch ending at "
                 f"frame {self.state.frames + batch.numel()}.")
         metrics = {f"train/{k}": v for k, v in {**episode_metrics(batch), **learned}.items()}
-        if self.obs_stats is not None:
-            self.obs_stats.update(batch[OBS])
-        elapsed = time.perf_counter() - self._batch_start
+        elapsed = time.perf_counter() - started
         state = self.state
         state.episodes += int(batch["next", "done"].sum())
         state.frames += batch.numel()
@@ -199,46 +265,9 @@ class TrainingRun:
         self.tracker.log_metrics(state.frames, metrics)
         self.progress.update(batch.numel())
 
-    def evaluate_if_due(self, actor: ProbabilisticActor) -> None:
-        if self.state.frames < self.state.next_eval:
-            return
-        self._evaluate(actor)
-        while self.state.next_eval <= self.state.frames:
-            self.state.next_eval += self.cfg.budget.eval_every
-
-    def checkpoint_if_due(self, learner: Learner) -> None:
-        """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
-        signal asked the run to stop."""
-        if ((self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested())
-                and not self._done()):
-            self._checkpoint(learner)
-            raise_if_stopped(f"at frame {self.state.frames}")
-            self.collector.reset()  # see the module docstring: checkpoints end the episode
-
-    def finish(self, actor: ProbabilisticActor, learner: Learner) -> TrainResult:
-        """Evaluate the final policy (unless just done), checkpoint, export the policy."""
-        if self.state.last_eval_frames != self.state.frames:
-            self._evaluate(actor)
-        self.tracker.log_metrics(self.state.frames,
-                                 {f"final/{k}": v for k, v in self.state.last_eval.items()})
-        self._checkpoint(learner)
-        policy_path = export_policy(self.run_dir / POLICY_FILE, actor, self.env,
-                                    self.cfg.algo.hidden, self.cfg.algo.activation)
-        self.tracker.log_artifact(policy_path)
-        report_stop(self.tracker, self.cfg.algo.name, self.cfg.budget,
-                    self.state.batches < self.plan.batches, self.state.frames, "frames",
-                    self.state.wall_time)
-        self.tracker.flush()
-        return TrainResult(self.state.frames, self.state.batches, dict(self.state.last_eval),
-                           policy_path, learner)
-
-    # --- helpers ----------------------------------------------------------------------------------
-
-    def _done(self) -> bool:
-        return (self.state.batches >= self.plan.batches
-                or self.cfg.budget.time_is_up(self.state.wall_time))
-
-    def _evaluate(self, actor: ProbabilisticActor) -> None:
+    def evaluate(self, actor: ProbabilisticActor) -> None:
+        """Evaluate `actor` (see the module docstring) and log it; the next evaluation is due
+        `budget.eval_every` frames on."""
         if self.obs_stats is not None:  # the evaluation env normalises as the training env
             obs_norm_of(self.eval_env).load_state_dict(obs_norm_of(self.env).state_dict())
         state = self.state
@@ -247,6 +276,8 @@ class TrainingRun:
                                    self.cfg.budget.episode_steps)
         state.last_eval_frames = state.frames
         state.best_score = max(state.best_score, state.last_eval["return_mean"])
+        while state.next_eval <= state.frames:
+            state.next_eval += self.cfg.budget.eval_every
         metrics = {**{f"eval/{k}": v for k, v in state.last_eval.items()},
                    "score": state.last_eval["return_mean"], "best_score": state.best_score}
         if state.batches == 0:  # later evaluations follow a batch that logged the axes already
@@ -256,8 +287,25 @@ class TrainingRun:
                             f"{state.last_eval['return_mean']:.1f} "
                             f"finish={state.last_eval['finish_rate']:.2f}")
 
-    def _checkpoint(self, learner: Learner) -> None:
+    def checkpoint(self, learner: Learner) -> None:
+        """Save the counters, `learner`, the normaliser and every random stream."""
         save_run_state(self.run_dir, self.tracker, self.cfg, {
             "loop": dataclasses.asdict(self.state), "learner": learner.state_dict(),
             "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
             "rng": _rng_state(self.env), "seeds": dataclasses.asdict(self.seeds)})
+
+    def finish(self, actor: ProbabilisticActor, learner: Learner) -> TrainResult:
+        """Log the last evaluation as `final/*`, checkpoint, export the policy, say why the run
+        stopped."""
+        self.tracker.log_metrics(self.state.frames,
+                                 {f"final/{k}": v for k, v in self.state.last_eval.items()})
+        self.checkpoint(learner)
+        policy_path = export_policy(self.run_dir / POLICY_FILE, actor, self.env,
+                                    self.cfg.algo.hidden, self.cfg.algo.activation)
+        self.tracker.log_artifact(policy_path)
+        report_stop(self.tracker, self.cfg.algo.name, self.cfg.budget,
+                    self.state.batches < self.plan.batches, self.state.frames, "frames",
+                    self.state.wall_time)
+        self.tracker.flush()
+        return TrainResult(self.state.frames, self.state.batches, dict(self.state.last_eval),
+                           policy_path, learner)
