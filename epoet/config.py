@@ -110,7 +110,7 @@ class Config:
 
     KEY: ClassVar[str] = ""
 
-    algo: Any                        # one of ALGO_SCHEMAS: its YAML file names its schema
+    algo: Any                        # one of ALGO_SCHEMAS (its YAML names its schema and runner)
     agent: AgentConfig
     terrain: TerrainConfig
     budget: BudgetConfig
@@ -132,30 +132,12 @@ class Config:
         check(self.agent.max_episode_steps == self.budget.episode_steps,
               f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
               f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.")
-        if isinstance(self.algo, SacConfig):
-            check(self.budget.frames >= self.algo.batch_size,
-                  f"budget.frames ({self.budget.frames}) must be at least algo.batch_size "
-                  f"({self.algo.batch_size}), or SAC never updates.")
-        check(self.workers.backend == "local" or isinstance(self.algo, PoetConfig),
-              f"workers={self.workers.backend} runs ES rollouts, and algo={self.algo.name} "
-              f"has none (it collects in-process): use workers=local.")
-        if isinstance(self.algo, PoetConfig):
-            check(self.terrain.kind == "cppn",
-                  f"algo={self.algo.name} evolves CPPN terrains, so it needs terrain=cppn "
-                  f"(got terrain={self.terrain.kind}).")
+        self.algo.check_run(self)  # what the algorithm needs of the other settings
 
     def unused_keys(self) -> tuple[str, ...]:
         """Dotted keys (and key prefixes) of settings this run never reads, so its MLflow params
         hold only what shaped it: ES budgets are iterations, the baselines' are frames."""
-        unused = list(self.terrain.unused_keys())
-        if isinstance(self.algo, PoetConfig):
-            unused += ["budget.frames", "budget.eval_every"]
-        else:
-            unused += ["budget.iterations", "budget.n_pairs", "budget.transfer_interval",
-                       "budget.reproduce_interval", "workers.batch", "workers.address"]
-        if not isinstance(self.algo, EpoetSacConfig):
-            unused.append("budget.sac_frames_per_iteration")
-        return tuple(unused)
+        return (*self.terrain.unused_keys(), *self.algo.unused_keys())
 
 
 # --- the commands around a trained agent: the suite, evaluate, render, gallery ---------------

@@ -7,10 +7,10 @@ fails here, in one sentence, before any long work starts.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 from pathlib import Path
 from typing import Any, Callable
 
+from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
@@ -20,22 +20,14 @@ from epoet.core.compute import default_workers
 from epoet.core.lifecycle import StopOnSignal
 from epoet.tracking import MlflowTracker, StoredRun, Tracker, flatten, parent_run_id
 
-# algo.name -> "module:function" with the runner shape
-#   train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict | None) -> Any
-RUNNERS: dict[str, str] = {
-    "epoet": "epoet.poet.runner:train",
-    "epoet_sac": "epoet.poet.runner:train",
-    "ppo": "epoet.rl.ppo:train",
-    "sac": "epoet.rl.sac:train",
-    "vmpo": "epoet.rl.vmpo:train",
-}
-
 AUTO = "auto"     # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
 DONE = "DONE"     # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
+# (`algo._target_` says where the algorithm's code lives, not how it runs: checkpoints from
+# before the key existed resume.)
 RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations",
-             "budget.hours")
+             "budget.hours", "algo._target_")
 
 Runner = Callable[[Config, Tracker, Path, "dict[str, Any] | None"], Any]
 
@@ -64,9 +56,10 @@ def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict
     return params
 
 
-def runner_for(name: str) -> Runner:
-    module, func = RUNNERS[name].split(":")
-    return getattr(importlib.import_module(module), func)
+def runner_for(cfg: Config) -> Runner:
+    """The algorithm's runner, named by its YAML's `_target_`:
+    train(cfg, tracker, run_dir, resume) -> its final state."""
+    return get_method(cfg.algo._target_)
 
 
 def run(raw: DictConfig, run_dir: Path) -> Any:
@@ -112,7 +105,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         print(f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
               f"run_id={tracker.run_id} dir={run_dir}", flush=True)
         with StopOnSignal():
-            result = runner_for(cfg.algo.name)(cfg, tracker, run_dir, resume)
+            result = runner_for(cfg)(cfg, tracker, run_dir, resume)
         log_agent_model(tracker, run_dir)
     if cfg.evaluate:
         evaluate_agent(cfg, run_dir)

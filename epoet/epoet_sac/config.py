@@ -44,6 +44,10 @@ class EpoetSacConfig(PoetConfig):
     join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
     pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
 
+    def unused_keys(self) -> list[str]:
+        """As ePOET's, but Train_SAC's frames per iteration are read."""
+        return ["budget.frames", "budget.eval_every"]
+
     def __post_init__(self) -> None:
         super().__post_init__()
         positive(self, "frames_per_iteration", "join_every_transfers")

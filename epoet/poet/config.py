@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Optional
+from typing import Any, ClassVar, Optional
 
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
@@ -14,6 +14,7 @@ class PoetConfig:
 
     KEY: ClassVar[str] = "algo"
 
+    _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
     es: EsConfig
     iterations_before_transfer: int
@@ -39,3 +40,13 @@ class PoetConfig:
               f"algo.proposal_step must be 'sgd' or 'adam', got {self.proposal_step!r}.")
         check(self.mc_lower < self.mc_upper,
               f"algo.mc_lower ({self.mc_lower}) must be below algo.mc_upper ({self.mc_upper}).")
+
+    def check_run(self, cfg: Any) -> None:
+        """What ePOET needs of the run's other settings (`cfg`: the root Config)."""
+        check(cfg.terrain.kind == "cppn",
+              f"algo={self.name} evolves CPPN terrains, so it needs terrain=cppn "
+              f"(got terrain={cfg.terrain.kind}).")
+
+    def unused_keys(self) -> list[str]:
+        """Settings of the budget an ES run never reads: its budget is iterations."""
+        return ["budget.frames", "budget.eval_every", "budget.sac_frames_per_iteration"]

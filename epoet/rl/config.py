@@ -27,12 +27,29 @@ def _check_network(obj: Any) -> None:
     check(0.0 < obj.gamma <= 1.0, f"{config_key(obj, 'gamma')} must be in (0, 1], got {obj.gamma}.")
 
 
+class BaselineConfig:
+    """What the RL baselines ask of a run: they collect in-process and count frames."""
+
+    def check_run(self, cfg: Any) -> None:
+        """What a baseline needs of the run's other settings (`cfg`: the root Config)."""
+        check(cfg.workers.backend == "local",
+              f"workers={cfg.workers.backend} runs ES rollouts, and algo={self.name} "
+              f"has none (it collects in-process): use workers=local.")
+
+    def unused_keys(self) -> list[str]:
+        """Settings an RL run never reads: its budget is frames, and it has no ES workers."""
+        return ["budget.iterations", "budget.n_pairs", "budget.transfer_interval",
+                "budget.reproduce_interval", "workers.batch", "workers.address",
+                "budget.sac_frames_per_iteration"]
+
+
 @dataclass
-class RlConfig:
+class RlConfig(BaselineConfig):
     """What PPO and VMPO share: the networks, the optimiser and the collector batch."""
 
     KEY: ClassVar[str] = "algo"
 
+    _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
     hidden: list[int]
     activation: str
@@ -127,11 +144,12 @@ class SacLearnerConfig:
 
 
 @dataclass
-class SacConfig(SacLearnerConfig):
+class SacConfig(SacLearnerConfig, BaselineConfig):
     """`algo=sac`: the learner on its own TorchRL collector (paper Table 3)."""
 
     KEY: ClassVar[str] = "algo"
 
+    _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
     frames_per_batch: int            # the paper's trajectory_length
     obs_norm: bool                   # false: the paper normalises for PPO and VMPO only
@@ -140,3 +158,9 @@ class SacConfig(SacLearnerConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         positive(self, "frames_per_batch", "updates_per_batch")
+
+    def check_run(self, cfg: Any) -> None:
+        super().check_run(cfg)
+        check(cfg.budget.frames >= self.batch_size,
+              f"budget.frames ({cfg.budget.frames}) must be at least algo.batch_size "
+              f"({self.batch_size}), or SAC never updates.")
