@@ -16,7 +16,7 @@ import torch
 from conftest import one_terrain_suite
 from test_render import one_error_line, render_cli
 
-from epoet.eval.agents import task_sizes
+from epoet.rollout.agent_files import task_sizes
 from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.rollout.policy import LAYER_SIZES, init_params, num_params
 from epoet.rl.policy_file import POLICY_FORMAT

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from epoet.eval.agents import read_torch_policy
+from epoet.rollout.agent_files import POLICY_FORMAT, read_torch_policy
 from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:
@@ -22,7 +22,6 @@ if TYPE_CHECKING:
     from torchrl.modules import MLP, ProbabilisticActor
 
 POLICY_FILE = "policy.pt"
-POLICY_FORMAT = "epoet-policy/1"
 
 
 def _actor_mlp(actor: ProbabilisticActor) -> MLP:

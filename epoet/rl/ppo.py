@@ -29,7 +29,7 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
           ) -> TrainResult:
-    """The `algo=ppo` runner (see epoet.run.RUNNERS)."""
+    """The `algo=ppo` runner (conf/algo/ppo.yaml `_target_`)."""
     algo: PpoConfig = cfg.algo
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)

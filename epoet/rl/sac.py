@@ -126,7 +126,7 @@ class SacLearner:
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
           ) -> TrainResult:
-    """The `algo=sac` runner (see epoet.run.RUNNERS)."""
+    """The `algo=sac` runner (conf/algo/sac.yaml `_target_`)."""
     algo: SacConfig = cfg.algo
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         learner = SacLearner(algo, run.env)

@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
           ) -> TrainResult:
-    """The `algo=vmpo` runner (see epoet.run.RUNNERS)."""
+    """The `algo=vmpo` runner (conf/algo/vmpo.yaml `_target_`)."""
     algo: VmpoConfig = cfg.algo
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)
