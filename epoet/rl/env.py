@@ -33,7 +33,7 @@ from torchrl.envs import (ClipTransform, Compose, DoubleToFloat, EnvBase, GymWra
 from torchrl.envs.gym_like import BaseInfoDictReader
 
 from epoet.config import Config
-from epoet.envs import HexapodEnv
+from epoet.envs.hexapod_env import HexapodEnv
 
 OBS = "observation"
 OBS_NORM = "observation_norm"
