@@ -25,7 +25,7 @@ from epoet.rl.env import RunningObsNorm, hexapod, make_env, obs_norm_of
 from epoet.rl.harness import batch_plan
 from epoet.rl.policy_file import load_policy
 from epoet.run import run
-from epoet.tracking import MemoryTracker
+from epoet.tracking import MlflowTracker
 
 # 30-step episodes, 60-frame batches, 4 batches, evaluations every 2 batches
 TINY = ["budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
@@ -138,7 +138,7 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
     assert max(frames) == 240 and frames.count(180) == 1
 
 
-def test_sac_learns_on_flat_terrain(tmp_path):
+def test_sac_learns_on_flat_terrain(store, tmp_path):
     """The deterministic evaluation return on flat ground rises clearly above the untrained
     policy's within 6000 frames (~45 s). Short 50-step episodes, gamma 0.9, one update per frame
     and a small initial temperature make the signal -- walking forward, keeping straight -- quick
@@ -151,10 +151,13 @@ def test_sac_learns_on_flat_terrain(tmp_path):
         "budget.eval_episodes=5", "algo.frames_per_batch=500", "algo.updates_per_batch=500",
         "algo.init_random_frames=500", "algo.hidden=[64,64]", "algo.batch_size=128",
         "algo.gamma=0.9", "algo.alpha_init=0.05"])
-    tracker = MemoryTracker()
-    sac.train(validate(raw), tracker, tmp_path, None)
-    (_, before), (_, after) = tracker.metrics["eval/return_mean"]
-    assert after > before + 5.0, tracker.metrics["eval/return_mean"]
+    with MlflowTracker(experiment="sac-flat") as tracker:
+        run_id = tracker.start("sac-flat")
+        sac.train(validate(raw), tracker, tmp_path, None)
+    returns = sorted((m.step, m.value) for m in store.get_metric_history(run_id,
+                                                                         "eval/return_mean"))
+    (_, before), (_, after) = returns
+    assert after > before + 5.0, returns
 
 
 @pytest.mark.parametrize("overrides, message", [
