@@ -24,13 +24,14 @@ test: install
 train: install
 	$(PY) -m epoet
 
-# The paper's tables and figures from the runs in ./mlflow.db (EXPERIMENT: its experiment).
-EXPERIMENT ?= epoet
+# The paper's tables and figures from the runs in ./mlflow.db (EXPERIMENT: its experiment;
+# default: the runs' default, tracking.experiment).
+EXPERIMENT ?=
 tables: install
-	$(PY) -m analysis.tables --experiment $(EXPERIMENT)
+	$(PY) -m analysis.tables $(if $(EXPERIMENT),--experiment $(EXPERIMENT))
 
 figures: install
-	$(PY) -m analysis.figures --experiment $(EXPERIMENT)
+	$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT))
 
 # Every algorithm x seed at one budget, evaluated, tabled and plotted; resumable (README).
 BUDGET ?= laptop
@@ -38,7 +39,7 @@ SEEDS  ?= 1,2,3
 JOBS   ?= 1
 OVERRIDES ?=
 paper: install
-	$(PY) -m analysis.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(OVERRIDES)
+	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(OVERRIDES)
 
 # Check the shipped evaluation suite against a fresh regeneration (about a minute).
 suite: install

@@ -34,7 +34,7 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 
 from analysis.store import (ALGO_COLOURS, BASELINE_ALGOS, AnalysisError, connect,  # noqa: E402
-                            history, run_command, select_runs)
+                            default_experiment, history, run_command, select_runs)
 from analysis.store import seed_of as _seed  # noqa: E402
 
 EPOET_ALGOS = ("epoet",)
@@ -156,8 +156,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="python -m analysis.curves",
         description="Learning curves (paper Figure 2 style) of ePOET and baseline runs from "
                     "the MLflow store (MLFLOW_TRACKING_URI overrides the project's mlflow.db).")
-    parser.add_argument("--experiment", default="epoet",
-                        help="MLflow experiment whose FINISHED runs are plotted (default: epoet)")
+    parser.add_argument("--experiment", default=default_experiment(),
+                        help="MLflow experiment whose FINISHED runs are plotted (default: the "
+                             "runs' default, tracking.experiment)")
     parser.add_argument("--out", type=Path, default=Path("figures"),
                         help="folder for the PNG and CSV files (default: figures)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",

@@ -36,8 +36,8 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
-from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, history,  # noqa: E402
-                            in_order, require_runs, run_command, seed_of, select_runs)
+from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, default_experiment,  # noqa: E402
+                            history, in_order, require_runs, run_command, seed_of, select_runs)
 from epoet.eval.evaluate import RESULTS  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
 from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
@@ -271,7 +271,8 @@ def write_figures(experiment: str, out: Path, suite: str | None = None,
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m analysis.figures",
                                      description="The paper's figures from the MLflow store.")
-    parser.add_argument("--experiment", default="epoet")
+    parser.add_argument("--experiment", default=default_experiment(),
+                        help="MLflow experiment (default: the runs' default, tracking.experiment)")
     parser.add_argument("--out", type=Path, default=Path("results/figures"))
     parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID")

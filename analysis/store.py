@@ -11,7 +11,9 @@ from collections.abc import Callable, Iterable, Sequence
 from mlflow import MlflowClient
 from mlflow.entities import Run
 from mlflow.exceptions import MlflowException
+from omegaconf import OmegaConf
 
+from epoet.config import CONF_DIR
 from epoet.eval.agents import AgentError
 from epoet.core.errors import first_line
 from epoet.eval.suite import SuiteError
@@ -22,6 +24,11 @@ POET_ALGOS = ("epoet", "epoet_sac")
 BASELINE_ALGOS = ("ppo", "sac", "vmpo")
 ALGO_COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "vmpo": "tab:green",
                 "epoet": "tab:red", "epoet_sac": "tab:purple"}
+
+
+def default_experiment() -> str:
+    """The experiment a run logs to unless told otherwise (conf/tracking/mlflow.yaml)."""
+    return str(OmegaConf.load(CONF_DIR / "tracking" / "mlflow.yaml").experiment)
 
 
 def in_order(present: Iterable[str], order: Sequence[str] = ALGOS) -> list[str]:

@@ -24,8 +24,8 @@ import pandas as pd
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
-from analysis.store import (AnalysisError, connect, in_order, require_runs, run_command, seed_of,
-                            select_runs)
+from analysis.store import (AnalysisError, connect, default_experiment, in_order, require_runs,
+                            run_command, seed_of, select_runs)
 from epoet.config import compose, validate
 from epoet.eval.evaluate import RESULTS, evaluate_run
 from epoet.eval.suite import LEVELS, load_suite
@@ -173,8 +173,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="python -m analysis.tables",
         description="Success-rate and return tables (paper Tables 1-2) from the evaluations in "
                     "the MLflow store; runs without one are evaluated first.")
-    parser.add_argument("--experiment", default="epoet",
-                        help="MLflow experiment whose FINISHED runs are tabled (default: epoet)")
+    parser.add_argument("--experiment", default=default_experiment(),
+                        help="MLflow experiment whose FINISHED runs are tabled (default: the "
+                             "runs' default, tracking.experiment)")
     parser.add_argument("--out", type=Path, default=Path("results"),
                         help="folder for the Markdown, LaTeX and CSV files (default: results)")
     parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")

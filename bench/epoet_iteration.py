@@ -46,7 +46,7 @@ class Counting:
 def bare_rate(poet: EPOET, cfg: Config, samples: int) -> float:
     """One core's bare mj_step steps/s replaying ES episodes like the timed ones: `samples`
     mirrored pairs around each pool agent with its current sigma, on its current terrain."""
-    engine = RolloutEngine(cfg.agent, cfg.terrain, batch=cfg.workers.batch)
+    engine = RolloutEngine(cfg.agent, cfg.terrain, cfg.workers.batch, layer_sizes(cfg))
     steps, seconds = 0, 0.0
     for pair in poet.active:
         noise = np.arange(samples) + 1000 * pair.env.index

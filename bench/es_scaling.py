@@ -18,9 +18,8 @@ from dataclasses import replace
 import numpy as np
 
 from epoet.config import load
-from epoet.rollout.policy import init_params
+from epoet.rollout.policy import init_params, policy_sizes
 from epoet.rollout.backends.ray_cluster import RayEvaluator
-from epoet.rollout.engine import DEFAULT_BATCH
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Mirrored, Request
@@ -31,7 +30,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--pairs", type=int, default=32)
     parser.add_argument("--max-steps", type=int, default=200)
-    parser.add_argument("--batch", type=int, default=DEFAULT_BATCH)
+    parser.add_argument("--batch", type=int, default=None,
+                        help="robots per process (default: workers.batch)")
     parser.add_argument("--repeats", type=int, default=2)
     args = parser.parse_args()
 
@@ -40,7 +40,9 @@ def main() -> None:
     terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
     rng = np.random.default_rng(0)
-    theta = init_params(0)
+    sizes = policy_sizes(paper.algo.es.hidden)
+    batch = args.batch or paper.workers.batch
+    theta = init_params(0, sizes)
     es = Request(terrain, Mirrored.of(theta, rng.integers(0, 2**62, args.pairs),
                                       paper.algo.es.sigma, rng.integers(0, 2**62, args.pairs)))
 
@@ -50,12 +52,12 @@ def main() -> None:
         return time.perf_counter() - start, episodes.returns
 
     start = time.perf_counter()
-    pool = make_evaluator(agent, terrain_cfg, workers=2, batch=args.batch)
+    pool = make_evaluator(agent, terrain_cfg, 2, batch, sizes)
     startup = time.perf_counter() - start
     start = time.perf_counter()
-    ray = RayEvaluator(agent, terrain_cfg, workers=2, batch=args.batch)
+    ray = RayEvaluator(agent, terrain_cfg, 2, batch, sizes)
     ray_startup = time.perf_counter() - start
-    serial = make_evaluator(agent, terrain_cfg, workers=1, batch=args.batch)
+    serial = make_evaluator(agent, terrain_cfg, 1, batch, sizes)
     with pool, serial, ray:
         one = two = on_ray = np.inf
         for _ in range(args.repeats):

@@ -23,7 +23,7 @@ import numpy as np
 from epoet.config import Config, compose, validate
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import action_to_targets
-from epoet.rollout.policy import forward, init_params
+from epoet.rollout.policy import forward, init_params, policy_sizes
 from epoet.terrain import Terrain, cppn_inputs, make_terrain, mutate_genome
 
 INTEGRATORS = ("rk4", "implicitfast")
@@ -64,12 +64,14 @@ def steps_per_second(cfg: Config, integrator: str, terrain: Terrain, steps: int,
 Policy = Callable[[np.ndarray], np.ndarray]
 
 
-def policies(paths: list[Path], n_random: int) -> dict[str, Policy]:
+def policies(paths: list[Path], n_random: int, hidden: list[int]) -> dict[str, Policy]:
     rng = np.random.default_rng(1)
     out: dict[str, Policy] = {"uniform random actions": lambda obs: rng.uniform(-1, 1, 18)}
     for i in range(n_random):
-        theta = init_params(i, std=0.5)
-        out[f"random ES policy {i}"] = lambda obs, theta=theta: forward(theta, obs)
+        sizes = policy_sizes(hidden)
+        theta = init_params(i, sizes, std=0.5)
+        out[f"random ES policy {i}"] = lambda obs, theta=theta, sizes=sizes: forward(theta, obs,
+                                                                                      sizes)
     for path in paths:
         saved = np.load(path)
         theta, sizes = saved["theta"], tuple(int(s) for s in saved["layer_sizes"])
@@ -115,7 +117,7 @@ def main() -> None:
     print(f"terrains: {len(terrains)} CPPN, {args.generations} mutations deep, "
           f"S = {terrains[0].max_height:.2f} m")
     for name, policy in ({} if args.speed_only else
-                         policies(args.policy, args.random_policies)).items():
+                         policies(args.policy, args.random_policies, cfg.algo.es.hidden)).items():
         for integrator in INTEGRATORS:
             n, bad, steps = unstable_episodes(cfg, integrator, terrains, policy, args.episodes)
             print(f"stability {integrator:12s} {name}: {bad}/{n} unstable episodes "

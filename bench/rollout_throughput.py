@@ -24,8 +24,8 @@ from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, action_to_targets, build_model
 from epoet.envs.spawn import spawn
 from epoet.rollout.populations import mirrored_population
-from epoet.rollout.policy import init_params
-from epoet.rollout.engine import DEFAULT_BATCH, RolloutEngine, TerrainLike
+from epoet.rollout.policy import init_params, policy_sizes
+from epoet.rollout.engine import RolloutEngine, TerrainLike
 from epoet.terrain import make_terrain
 
 
@@ -52,7 +52,8 @@ def raw_seconds(agent: AgentConfig, terrain_cfg: TerrainConfig, terrain: Terrain
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--pairs", type=int, default=32, help="mirrored pairs (2x episodes)")
-    parser.add_argument("--batch", type=int, default=DEFAULT_BATCH)
+    parser.add_argument("--batch", type=int, default=None,
+                        help="robots stepped together (default: workers.batch)")
     parser.add_argument("--max-steps", type=int, default=400)
     parser.add_argument("--terrain", default="cppn", choices=["bowl", "cppn"])
     parser.add_argument("--repeats", type=int, default=2)
@@ -60,14 +61,14 @@ def main() -> None:
                                                       "e.g. agent.integrator=implicitfast")
     args = parser.parse_args()
 
-    paper = load(["budget=paper", f"algo={'epoet' if args.terrain == 'cppn' else 'ppo'}",
-                  *args.overrides])
+    paper = load(["budget=paper", f"terrain={args.terrain}", *args.overrides])
     agent = replace(paper.agent, max_episode_steps=args.max_steps)
     terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
-    engine = RolloutEngine(agent, terrain_cfg, batch=args.batch)
+    sizes = policy_sizes(paper.algo.es.hidden)
+    engine = RolloutEngine(agent, terrain_cfg, args.batch or paper.workers.batch, sizes)
     rng = np.random.default_rng(0)
-    params = mirrored_population(init_params(0), rng.integers(0, 2**62, args.pairs), 0.02)
+    params = mirrored_population(init_params(0, sizes), rng.integers(0, 2**62, args.pairs), 0.02)
     seeds = np.tile(rng.integers(0, 2**62, args.pairs), 2)
 
     # Same episodes with recording (untimed), for the actions the raw replay needs.

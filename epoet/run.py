@@ -18,6 +18,7 @@ from epoet.config import Config, compose, validate
 from epoet.core.files import atomic_write
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import StopOnSignal
+from epoet.envs.spaces import ACT_DIM, OBS_DIM
 from epoet.tracking import MlflowTracker, StoredRun, Tracker, flatten, parent_run_id
 
 AUTO = "auto"     # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
@@ -143,7 +144,6 @@ def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:
     """The exported agent (as `agent_choice` picked it, what evaluation uses) as the run's MLflow
     model `agent` (epoet.eval.agent_model)."""
     from epoet.eval.agents import policy_in
-    from epoet.envs.task import ACT_DIM, OBS_DIM
     found = policy_in(run_dir)
     if found is None:
         raise RuntimeError(f"the run exported no agent into {run_dir}.")  # a runner's bug

@@ -26,7 +26,7 @@ class MlflowSweepCallback(Callback):
     in that case; a sweep that ends normally is FAILED too if any child run failed.
     """
 
-    def __init__(self, experiment: str = "epoet", tracking_uri: str | None = None) -> None:
+    def __init__(self, experiment: str, tracking_uri: str | None = None) -> None:
         self.experiment = experiment
         self.tracking_uri = tracking_uri
         self._tracker: MlflowTracker | None = None

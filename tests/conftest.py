@@ -13,9 +13,13 @@ from epoet.config import load
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
 from epoet.config import compose as compose_config
+from epoet.rollout.policy import policy_sizes
 from epoet.terrain import Terrain
 
 torch.set_num_threads(1)
+
+# The ES policy's layer sizes with the default config's hidden layers (algo.es.hidden).
+ES_SIZES = policy_sizes(load([]).algo.es.hidden)
 
 
 @pytest.fixture

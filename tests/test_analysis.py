@@ -28,7 +28,7 @@ def _tracked(algo: str | None, seed: int, evals: list[tuple[int, float]],
              status: str = "FINISHED", parent: str | None = None) -> str:
     """A run in the store with `eval/return_mean` at the given frames; algo None = sweep parent."""
     tags = {} if algo is None else {"algo": algo, "seed": str(seed), "budget": "smoke"}
-    with MlflowTracker() as tracker:
+    with MlflowTracker(None, "epoet") as tracker:
         run_id = tracker.start(f"{algo}-s{seed}", tags=tags, parent_run_id=parent)
         for frames, value in evals:
             tracker.log_metrics(frames, {"eval/return_mean": value})
@@ -142,8 +142,8 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
 
 def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
     """JOBS=k: k jobs at a time through the joblib launcher, k x workers <= cores."""
-    from analysis.paper import main as paper_main
-    from analysis.paper import parallel_overrides
+    from pipeline.paper import main as paper_main
+    from pipeline.paper import parallel_overrides
     assert parallel_overrides(1, 2) == []
     assert parallel_overrides(2, 2) == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
                                         "workers.num=1"]
@@ -154,7 +154,7 @@ def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
 
 def test_make_paper_overrides_reach_every_job_last() -> None:
     """OVERRIDES=...: appended after the budget, so a value such as budget.hours wins over it."""
-    from analysis.paper import train_command
+    from pipeline.paper import train_command
     command = train_command("workstation", "1", ["epoet", "sac"], "paper-workstation",
                             Path("multirun/x"), overrides=["budget.hours=0.4"])
     assert command[-1] == "budget.hours=0.4"

@@ -13,12 +13,10 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from conftest import one_terrain_suite
+from conftest import ES_SIZES, one_terrain_suite
 from test_render import one_error_line, render_cli
 
-from epoet.rollout.agent_files import task_sizes
-from epoet.envs.task import ACT_DIM, OBS_DIM
-from epoet.rollout.policy import LAYER_SIZES, init_params, num_params
+from epoet.rollout.policy import init_params, num_params
 from epoet.rl.policy_file import POLICY_FORMAT
 
 
@@ -29,7 +27,7 @@ def evaluate_cli(*args: str, cwd: Path, uri: str) -> subprocess.CompletedProcess
 
 
 def es_file(path: Path, theta: np.ndarray | None = None,
-            sizes: tuple[int, ...] | None = LAYER_SIZES) -> Path:
+            sizes: tuple[int, ...] | None = ES_SIZES) -> Path:
     arrays = {} if theta is None else {"theta": theta}
     if sizes is not None:
         arrays["layer_sizes"] = np.array(sizes)
@@ -53,9 +51,9 @@ CASES = ["random bytes .npz", "random bytes .pt", "other torch file", "no layer_
 
 def bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
     """(file, words its error names) for each kind of bad file."""
-    nan_theta = init_params(0)
+    nan_theta = init_params(0, ES_SIZES)
     nan_theta[7] = np.nan
-    inf_theta = init_params(0)
+    inf_theta = init_params(0, ES_SIZES)
     inf_theta[-1] = np.inf
     (tmp / "random.npz").write_bytes(np.random.default_rng(0).bytes(500))
     (tmp / "random.pt").write_bytes(np.random.default_rng(1).bytes(500))
@@ -64,13 +62,13 @@ def bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
         "random bytes .npz": (tmp / "random.npz", "not a readable .npz"),
         "random bytes .pt": (tmp / "random.pt", "not a readable torch file"),
         "other torch file": (tmp / "other.pt", "is not an epoet policy"),
-        "no layer_sizes": (es_file(tmp / "no_sizes.npz", init_params(0), None),
+        "no layer_sizes": (es_file(tmp / "no_sizes.npz", init_params(0, ES_SIZES), None),
                            "has no layer_sizes"),
         "no theta": (es_file(tmp / "no_theta.npz"), "has no theta"),
         "wrong input size": (es_file(tmp / "wrong_in.npz", init_params(0, (10, 64, 18)),
                                      (10, 64, 18)), f"the task has {OBS_DIM} observations"),
-        "theta length": (es_file(tmp / "short.npz", init_params(0)[:-5]),
-                         f"take {num_params(LAYER_SIZES)} numbers"),
+        "theta length": (es_file(tmp / "short.npz", init_params(0, ES_SIZES)[:-5]),
+                         f"take {num_params(ES_SIZES)} numbers"),
         "NaN theta": (es_file(tmp / "nan.npz", nan_theta), "non-finite"),
         "inf theta": (es_file(tmp / "inf.npz", inf_theta), "non-finite"),
         "torch wrong action size": (
@@ -92,10 +90,6 @@ def assert_nothing_written(cwd: Path, store: Path) -> None:
     assert not (store / "mlflow.db").exists() and not (cwd / "mlflow.db").exists()
     assert not (cwd / "mlruns").exists() and not (cwd / "evaluation").exists()
     assert not (cwd / "videos").exists()
-
-
-def test_the_task_sizes_agents_check_against_are_the_envs() -> None:
-    assert task_sizes() == (OBS_DIM, ACT_DIM)
 
 
 @pytest.mark.parametrize("command", ["evaluate", "render"])

@@ -151,7 +151,7 @@ def test_sac_learns_on_flat_terrain(store, tmp_path):
         "budget.eval_episodes=5", "algo.frames_per_batch=500", "algo.updates_per_batch=500",
         "algo.init_random_frames=500", "algo.hidden=[64,64]", "algo.batch_size=128",
         "algo.gamma=0.9", "algo.alpha_init=0.05"])
-    with MlflowTracker(experiment="sac-flat") as tracker:
+    with MlflowTracker(None, "sac-flat") as tracker:
         run_id = tracker.start("sac-flat")
         sac.train(validate(raw), tracker, tmp_path, None)
     returns = sorted((m.step, m.value) for m in store.get_metric_history(run_id,

@@ -3,11 +3,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import ES_SIZES
 
 from epoet.config import load
 from epoet.es.optimizer import OpenAIES, adam_step, centered_ranks, es_gradient
 from epoet.rollout.populations import mirrored_population, noise
-from epoet.rollout.policy import (LAYER_SIZES, forward, forward_rows, init_params, num_params,
+from epoet.rollout.policy import (forward, forward_rows, init_params, num_params,
                                   sizes_array, unflatten)
 
 SMALL = (5, 4, 3)  # a 2-layer net keeps policy tests tiny
@@ -17,15 +18,15 @@ ES = load(["budget=paper"]).algo.es  # the paper's ES settings
 # ---------------------------------------------------------------- policy
 
 def test_num_params_of_paper_policy_and_custom_sizes():
-    assert num_params() == 4538
-    assert num_params(LAYER_SIZES) == 53 * 40 + 40 + 40 * 40 + 40 + 40 * 18 + 18
+    assert num_params(ES_SIZES) == 4538
+    assert num_params(ES_SIZES) == 53 * 40 + 40 + 40 * 40 + 40 + 40 * 18 + 18
     assert num_params(SMALL) == 5 * 4 + 4 + 4 * 3 + 3
 
 
 def test_init_is_seeded_gaussian_with_std_0_1():
-    a, b = init_params(3), init_params(3)
+    a, b = init_params(3, ES_SIZES), init_params(3, ES_SIZES)
     np.testing.assert_array_equal(a, b)
-    assert not np.array_equal(a, init_params(4))
+    assert not np.array_equal(a, init_params(4, ES_SIZES))
     assert a.shape == (4538,) and a.dtype == np.float64
     assert abs(a.std() - 0.1) < 0.005 and abs(a.mean()) < 0.01
 
@@ -50,34 +51,34 @@ def test_forward_matches_hand_computation():
 @pytest.mark.parametrize("std", [0.3, 30.0])  # 30: saturated units, tanh of |x| in the hundreds
 def test_forward_equals_the_numpy_mlp(std: float):
     rng = np.random.default_rng(5)
-    params = rng.normal(0, std, num_params())
+    params = rng.normal(0, std, num_params(ES_SIZES))
     obs = rng.standard_normal((8, 53))
     h = obs
-    for w, b in unflatten(params, LAYER_SIZES):
+    for w, b in unflatten(params, ES_SIZES):
         h = np.tanh(h @ w + b)
-    got = forward(params, obs)
+    got = forward(params, obs, ES_SIZES)
     np.testing.assert_allclose(got, h, rtol=0, atol=1e-14)
     assert np.all(np.abs(got) <= 1.0)
 
 
 def test_forward_single_and_batch_of_observations_agree():
-    params = init_params(0)
+    params = init_params(0, ES_SIZES)
     obs = np.random.default_rng(1).standard_normal((4, 53))
-    batch = forward(params, obs)
+    batch = forward(params, obs, ES_SIZES)
     assert batch.shape == (4, 18)
     for i in range(4):
-        np.testing.assert_allclose(forward(params, obs[i]), batch[i], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(forward(params, obs[i], ES_SIZES), batch[i], rtol=0, atol=1e-12)
     assert np.all(np.abs(batch) < 1.0)  # tanh on the output layer
 
 
 def test_forward_rows_equals_forward_row_by_row():
     rng = np.random.default_rng(2)
-    params = rng.normal(0, 0.3, size=(6, num_params()))
+    params = rng.normal(0, 0.3, size=(6, num_params(ES_SIZES)))
     obs = rng.standard_normal((6, 53))
     actions = np.empty((6, 18))
-    forward_rows(params, sizes_array(LAYER_SIZES), obs, actions)
+    forward_rows(params, sizes_array(ES_SIZES), obs, actions)
     for i in range(6):  # one implementation: the engine's actions are forward's, bit for bit
-        np.testing.assert_array_equal(actions[i], forward(params[i], obs[i]))
+        np.testing.assert_array_equal(actions[i], forward(params[i], obs[i], ES_SIZES))
 
 
 def test_forward_rows_rows_do_not_depend_on_each_other():
@@ -95,8 +96,8 @@ def test_forward_rows_rows_do_not_depend_on_each_other():
 
 
 @pytest.mark.parametrize("call", [
-    lambda: forward(np.zeros(10), np.zeros(53)),
-    lambda: forward(init_params(0), np.zeros(52)),
+    lambda: forward(np.zeros(10), np.zeros(53), ES_SIZES),
+    lambda: forward(init_params(0, ES_SIZES), np.zeros(52), ES_SIZES),
     lambda: forward(np.zeros((2, num_params(SMALL))), np.zeros(5), SMALL),
     lambda: sizes_array((53,)),
     lambda: num_params((53,)),

@@ -16,7 +16,7 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
-from conftest import without_evaluation
+from conftest import ES_SIZES, without_evaluation
 import torch
 
 from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
@@ -151,10 +151,10 @@ def test_a_worker_killed_mid_call_is_replaced_and_the_results_are_unchanged() ->
     agent = replace(CFG.agent, max_episode_steps=200)
     terrain_cfg = replace(CFG.terrain, grid=40)
     seeds = np.arange(80)  # a call of seconds, so the kill lands inside it
-    es = Request(terrain, Mirrored.of(init_params(3), seeds, 0.05, seeds + 100))
-    with make_evaluator(agent, terrain_cfg, workers=1, batch=4) as one:
+    es = Request(terrain, Mirrored.of(init_params(3, ES_SIZES), seeds, 0.05, seeds + 100))
+    with make_evaluator(agent, terrain_cfg, 1, 4, ES_SIZES) as one:
         expected = one.run([es])[0].returns
-    with make_evaluator(agent, terrain_cfg, workers=2, batch=4) as two:
+    with make_evaluator(agent, terrain_cfg, 2, 4, ES_SIZES) as two:
         victim = next(iter(two._pool._processes))
         killer = threading.Timer(0.5, os.kill, (victim, signal.SIGKILL))
         killer.start()
@@ -169,9 +169,9 @@ def test_a_worker_killed_mid_call_is_replaced_and_the_results_are_unchanged() ->
 def test_a_physics_blow_up_ends_the_episode_as_a_failure(tmp_path: Path) -> None:
     # A 1 s RK4 step makes the hexapod's physics diverge (NaN) within its first steps.
     agent = replace(CFG.agent, timestep=1.0, integrator="rk4", max_episode_steps=50)
-    engine = RolloutEngine(agent, replace(CFG.terrain, grid=40), batch=4)
+    engine = RolloutEngine(agent, replace(CFG.terrain, grid=40), 4, ES_SIZES)
     terrain = Terrain(np.zeros((40, 40)), 0.0, CFG.terrain.size, "bowl", 0)
-    params = np.stack([init_params(s) for s in range(4)])
+    params = np.stack([init_params(s, ES_SIZES) for s in range(4)])
     episodes = engine.run(terrain, params, np.arange(4), record=True)
     assert (episodes.lengths < 50).all() and not episodes.finished.any()
     assert np.isfinite(episodes.returns).all()

@@ -42,16 +42,16 @@ def test_novelty_is_mean_distance_to_k_nearest():
 
 
 def test_novelty_with_one_environment_and_with_none():
-    assert novelty(np.array([0.5, -0.5]), np.array([[-0.5, 0.5]])) == pytest.approx(np.sqrt(2))
-    assert novelty(np.array([0.5, -0.5]), np.empty((0, 2))) == np.inf
-    assert novelty(np.array([0.5, -0.5]), []) == np.inf
+    assert novelty(np.array([0.5, -0.5]), np.array([[-0.5, 0.5]]), k=5) == pytest.approx(np.sqrt(2))
+    assert novelty(np.array([0.5, -0.5]), np.empty((0, 2)), k=5) == np.inf
+    assert novelty(np.array([0.5, -0.5]), [], k=5) == np.inf
 
 
 def test_single_agent_pipeline_has_no_nan():
     archive = pata_ec(np.array([[700.0], [2900.0]]), LOW, HIGH)
     candidate = pata_ec(np.array([100.0]), LOW, HIGH)
-    assert novelty(candidate, archive) == 0.0
-    order, values = rank_by_novelty(candidate[None, :], archive)
+    assert novelty(candidate, archive, k=5) == 0.0
+    order, values = rank_by_novelty(candidate[None, :], archive, k=5)
     assert order.tolist() == [0] and not np.isnan(values).any()
 
 
@@ -63,24 +63,25 @@ def test_rank_by_novelty_puts_the_odd_candidate_first():
     candidates = np.array([[150.0, 850.0, 1250.0, 1850.0, 2650.0],   # same ordering
                            [2900.0, 1900.0, 1200.0, 800.0, 100.0],   # reversed: the novel one
                            [100.0, 900.0, 1300.0, 2900.0, 1900.0]])  # one swap
-    order, values = rank_by_novelty(pata_ec(candidates, LOW, HIGH), pata_ec(existing, LOW, HIGH))
+    order, values = rank_by_novelty(pata_ec(candidates, LOW, HIGH), pata_ec(existing, LOW, HIGH),
+                                    k=5)
     assert order.tolist() == [1, 2, 0]
     assert values[0] == pytest.approx(0.0) and values[1] > values[2] > 0
 
 
 def test_rank_by_novelty_with_empty_archive_keeps_proposal_order():
-    order, values = rank_by_novelty(np.zeros((3, 4)), np.empty((0, 4)))
+    order, values = rank_by_novelty(np.zeros((3, 4)), np.empty((0, 4)), k=5)
     assert order.tolist() == [0, 1, 2]
     assert np.all(values == np.inf)
-    np.testing.assert_array_equal(novelties(np.zeros((3, 4)), np.empty((0, 4))), values)
+    np.testing.assert_array_equal(novelties(np.zeros((3, 4)), np.empty((0, 4)), k=5), values)
 
 
 @pytest.mark.parametrize("call, message", [
     (lambda: pata_ec(np.array([1.0, np.nan]), LOW, HIGH), "NaN"),
     (lambda: pata_ec(np.array([]), LOW, HIGH), "n_agents >= 1"),
-    (lambda: novelty(np.zeros(3), np.zeros((2, 4))), "match"),
+    (lambda: novelty(np.zeros(3), np.zeros((2, 4)), k=5), "match"),
     (lambda: novelty(np.zeros(3), np.zeros((2, 3)), k=0), "k must be"),
-    (lambda: rank_by_novelty(np.zeros(3), np.zeros((2, 3))), "candidates"),
+    (lambda: rank_by_novelty(np.zeros(3), np.zeros((2, 3)), k=5), "candidates"),
 ])
 def test_bad_input_raises_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message):

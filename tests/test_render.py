@@ -13,11 +13,11 @@ from pathlib import Path
 import imageio.v2 as imageio
 import numpy as np
 import pytest
-from conftest import one_terrain_suite
+from conftest import ES_SIZES, one_terrain_suite
 from mlflow import MlflowClient
 
 from epoet.config import load
-from epoet.rollout.policy import LAYER_SIZES, init_params
+from epoet.rollout.policy import init_params
 from epoet.eval.render import NO_GL
 from epoet.terrain import make_terrain
 from epoet.tracking import MlflowTracker
@@ -52,7 +52,7 @@ def decoded(path: Path) -> list[np.ndarray]:
 def policy(tmp_path: Path) -> Path:
     """An ePOET policy file (untrained: the video's content does not matter here)."""
     path = tmp_path / "my policy.npz"
-    np.savez(path, theta=init_params(0), layer_sizes=np.array(LAYER_SIZES))
+    np.savez(path, theta=init_params(0, ES_SIZES), layer_sizes=np.array(ES_SIZES))
     return path
 
 
@@ -80,7 +80,7 @@ def test_an_es_policy_on_a_terrain_file_becomes_an_mp4_of_the_episode(policy, tm
 
 def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tmp_path,
                                                                mlflow_uri):
-    with MlflowTracker(mlflow_uri, experiment="render") as tracker:
+    with MlflowTracker(mlflow_uri, "render") as tracker:
         run_id = tracker.start("es-run")
         pool = tmp_path / "policies"
         pool.mkdir()
@@ -129,7 +129,7 @@ except RenderError:
     print(NO_GL, file=sys.stderr)
     sys.exit(2)
 from epoet.config import load
-from epoet.envs.hexapod_env import HexapodEnv
+from epoet.envs.hexapod_env import make_hexapod
 from epoet.eval.film import Film, caption_text
 from epoet.terrain import Terrain
 from epoet.eval.suite import terrain_config_for
@@ -140,7 +140,7 @@ bumps = 0.5 + 0.5 * np.sin(2 * np.pi * x / 3.0)[:, None] * np.sin(2 * np.pi * x 
 frames = {}
 for name, heightmap in (("flat", np.zeros((cfg.grid, cfg.grid))), ("bumps", bumps)):
     terrain = Terrain(heightmap, 0.9, cfg.size, "bowl", 0)
-    env = HexapodEnv(terrain=terrain_config_for([terrain]))
+    env = make_hexapod(terrain=terrain_config_for([terrain]))
     env.reset(seed=0, options={"terrain": terrain})
     for key, caption in ((name, caption_text("run", name, 0, 10, 0.0, 0.0)),
                          ("uncaptioned", ("", ""))):

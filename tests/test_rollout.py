@@ -7,13 +7,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import ES_SIZES
 
 from epoet.config import load
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
 from epoet.rollout.populations import mirrored_population
 from epoet.rollout.policy import forward, init_params
-from epoet.rollout.engine import DEFAULT_BATCH, RolloutEngine
+from epoet.rollout.engine import RolloutEngine
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Agents, Mirrored, Request
 from epoet.terrain import Terrain, make_terrain
@@ -34,7 +35,7 @@ def terrain() -> Terrain:
 
 def population(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """n different policies (std 0.3 makes them act differently) and n spawn seeds."""
-    params = np.stack([init_params(seed * 1000 + i, std=0.3) for i in range(n)])
+    params = np.stack([init_params(seed * 1000 + i, ES_SIZES, std=0.3) for i in range(n)])
     return params, np.arange(n) + 100 * seed
 
 
@@ -43,13 +44,13 @@ def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
     agent = replace(AGENT, integrator=integrator)
     params, seeds = population(4, seed=3)
     # batch 2 < 4 episodes: slots are refilled as episodes end.
-    episodes = RolloutEngine(agent, TERRAIN_CFG, batch=2).run(terrain, params, seeds)
+    episodes = RolloutEngine(agent, TERRAIN_CFG, 2, ES_SIZES).run(terrain, params, seeds)
     env = HexapodEnv(agent=agent, terrain=TERRAIN_CFG)
     for e in range(len(seeds)):
         obs, _ = env.reset(seed=int(seeds[e]), options={"terrain": terrain})
         total, steps, done, info = 0.0, 0, False, {}
         while not done:
-            obs, reward, terminated, truncated, info = env.step(forward(params[e], obs))
+            obs, reward, terminated, truncated, info = env.step(forward(params[e], obs, ES_SIZES))
             total, steps, done = total + reward, steps + 1, terminated or truncated
         assert episodes.returns[e] == pytest.approx(total, abs=1e-9)
         assert episodes.lengths[e] == steps
@@ -57,15 +58,14 @@ def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
     assert len(set(episodes.lengths.tolist())) > 1  # the refill path was exercised
 
 
-def test_runs_and_the_engine_default_to_the_same_batch():
-    # the value lives in conf/workers/local.yaml (ray.yaml inherits it) and, for direct API use,
-    # in DEFAULT_BATCH
-    assert load([]).workers.batch == load(["workers=ray"]).workers.batch == DEFAULT_BATCH
+def test_ray_actors_step_as_many_robots_as_local_workers():
+    # the value lives once, in conf/workers/local.yaml; ray.yaml inherits it
+    assert load(["workers=ray"]).workers.batch == load([]).workers.batch
 
 
 def test_results_do_not_depend_on_batch_size(terrain):
     params, seeds = population(6, seed=4)
-    runs = [RolloutEngine(AGENT, TERRAIN_CFG, batch=b).run(terrain, params, seeds, record=True)
+    runs = [RolloutEngine(AGENT, TERRAIN_CFG, b, ES_SIZES).run(terrain, params, seeds, record=True)
             for b in (1, 4, 8)]
     assert len(set(runs[0].lengths.tolist())) >= 3  # slots free up at different steps
     for other in runs[1:]:
@@ -77,7 +77,7 @@ def test_results_do_not_depend_on_batch_size(terrain):
 
 def test_finished_episodes_stop_while_others_run_on(terrain):
     params, seeds = population(8, seed=2)
-    engine = RolloutEngine(NEAR_FINISH, TERRAIN_CFG, batch=8)
+    engine = RolloutEngine(NEAR_FINISH, TERRAIN_CFG, 8, ES_SIZES)
     episodes = engine.run(terrain, params, seeds)
     finished = episodes.finished
     assert finished.any() and not finished.all()
@@ -92,7 +92,7 @@ def test_finished_episodes_stop_while_others_run_on(terrain):
 
 def test_recorded_transitions_add_up_to_the_returns(terrain):
     params, seeds = population(5, seed=3)
-    episodes = RolloutEngine(AGENT, TERRAIN_CFG, batch=3).run(terrain, params, seeds,
+    episodes = RolloutEngine(AGENT, TERRAIN_CFG, 3, ES_SIZES).run(terrain, params, seeds,
                                                               record=True)
     t = episodes.transitions
     assert len(t["reward"]) == episodes.lengths.sum()
@@ -104,17 +104,17 @@ def test_recorded_transitions_add_up_to_the_returns(terrain):
                                                                         rel=1e-5, abs=1e-4)
         np.testing.assert_array_equal(t["obs"][mine][1:], t["next_obs"][mine][:-1])
         np.testing.assert_allclose(t["action"][mine][0],
-                                   forward(params[e], t["obs"][mine][0].astype(np.float64)),
+                                   forward(params[e], t["obs"][mine][0].astype(np.float64), ES_SIZES),
                                    rtol=1e-4, atol=1e-5)
         assert not t["terminated"][mine][:-1].any()
 
 
 def test_one_and_two_workers_give_identical_results(terrain):
-    theta = init_params(7)
+    theta = init_params(7, ES_SIZES)
     es = Request(terrain, Mirrored.of(theta, np.array([11, 12, 13]), 0.05, np.array([21, 22, 23])))
     evaluation = Request(terrain, Agents.of(np.stack([theta, -theta]), np.array([5, 6])))
-    with make_evaluator(AGENT, TERRAIN_CFG, workers=1, batch=2) as one, \
-            make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=2) as two:
+    with make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as one, \
+            make_evaluator(AGENT, TERRAIN_CFG, 2, 2, ES_SIZES) as two:
         (returns,) = [e.returns for e in one.run([es])]
         np.testing.assert_array_equal(two.run([es])[0].returns, returns)
         evaluation = evaluation._replace(record=len(evaluation.population))  # record them all
@@ -133,7 +133,7 @@ def test_one_and_two_workers_give_identical_results(terrain):
         np.testing.assert_array_equal(two.run([es])[0].returns, returns)
         assert two.restarts == 1
     # The mirrored population is the one `mirrored_population` builds, pairs sharing a start.
-    direct = RolloutEngine(AGENT, TERRAIN_CFG, batch=6).run(
+    direct = RolloutEngine(AGENT, TERRAIN_CFG, 6, ES_SIZES).run(
         terrain, mirrored_population(theta, np.array([11, 12, 13]), 0.05),
         np.tile([21, 22, 23], 2))
     np.testing.assert_array_equal(direct.returns, returns)
@@ -145,14 +145,14 @@ def test_one_call_of_many_requests_equals_one_call_each(terrain):
     """An iteration's work goes out as one call over several terrains; results are those of
     separate calls, in request order, for any worker count."""
     other = make_terrain(TERRAIN_CFG, seed=2, iteration=30)
-    theta = init_params(3)
+    theta = init_params(3, ES_SIZES)
     requests = [Request(terrain, Mirrored.of(theta, np.array([1, 2, 3]), 0.05,
                                              np.array([4, 5, 6]))),
                 Request(other, Agents.of(np.stack([theta, -theta]), np.array([7, 8, 9]))),
                 Request(terrain, Agents.of(theta[None], np.array([10])))]
     requests = [r._replace(record=len(r.population)) for r in requests]  # record them all
-    with make_evaluator(AGENT, TERRAIN_CFG, workers=1, batch=2) as one, \
-            make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=4) as two:
+    with make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as one, \
+            make_evaluator(AGENT, TERRAIN_CFG, 2, 4, ES_SIZES) as two:
         separate = [one.run([r])[0] for r in requests]
         for evaluator in (one, two):
             together = evaluator.run(requests)
@@ -171,11 +171,11 @@ def test_a_request_records_its_first_episodes_from_the_worker_processes(terrain)
     """ePOET-SAC's shared replay takes a bounded share of an ES step: the first `record`
     episodes of a request come back recorded from the workers, step for step, with the same
     results as an unrecorded call."""
-    theta = init_params(5)
+    theta = init_params(5, ES_SIZES)
     es = Request(terrain, Mirrored.of(theta, np.array([1, 2, 3, 4]), 0.05, np.arange(4)),
                  record=3)
     evaluation = Request(terrain, Agents.of(theta[None], np.array([9, 10])))
-    with make_evaluator(AGENT, TERRAIN_CFG, workers=2, batch=2) as pool:
+    with make_evaluator(AGENT, TERRAIN_CFG, 2, 2, ES_SIZES) as pool:
         recorded, unrecorded = pool.run([es, evaluation])
         plain = pool.run([es._replace(record=0)])[0]
     t = recorded.transitions
@@ -189,7 +189,7 @@ def test_a_request_records_its_first_episodes_from_the_worker_processes(terrain)
 
 
 def test_bad_input_is_refused_in_one_sentence(terrain):
-    engine = RolloutEngine(AGENT, TERRAIN_CFG, batch=2)
+    engine = RolloutEngine(AGENT, TERRAIN_CFG, 2, ES_SIZES)
     params, seeds = population(3)
     with pytest.raises(ValueError, match="episode_seeds must have shape"):
         engine.run(terrain, params, seeds[:2])
@@ -197,7 +197,7 @@ def test_bad_input_is_refused_in_one_sentence(terrain):
         engine.run(terrain, params[:, :-1], seeds)
     with pytest.raises(ValueError, match="integers >= 0"):
         engine.run(terrain, params, seeds - 1)
-    with make_evaluator(AGENT, TERRAIN_CFG, workers=1) as evaluator:
+    with make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as evaluator:
         with pytest.raises(ValueError, match="one seed per noise seed"):
             evaluator.run([Request(terrain, Mirrored.of(params[0], np.arange(3), 0.02,
                                                         np.arange(2)))])
@@ -205,4 +205,4 @@ def test_bad_input_is_refused_in_one_sentence(terrain):
             evaluator.run([Request(terrain, Agents.of(params, np.zeros((2, 4), dtype=int)))])
     for workers in (0, "ray"):
         with pytest.raises(ValueError, match="workers must be"):
-            make_evaluator(AGENT, TERRAIN_CFG, workers=workers)
+            make_evaluator(AGENT, TERRAIN_CFG, workers, 2, ES_SIZES)

@@ -18,7 +18,7 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
-from conftest import without_evaluation
+from conftest import ES_SIZES, without_evaluation
 
 from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
@@ -64,10 +64,10 @@ def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> No
     agent, terrain_cfg = replace(cfg.agent, max_episode_steps=200), cfg.terrain
     terrain = Terrain(np.zeros((40, 40)), 0.0, terrain_cfg.size, "bowl", 0)
     seeds = np.arange(80)  # a call of seconds, so the kill lands inside it
-    es = Request(terrain, Mirrored.of(init_params(3), seeds, 0.05, seeds + 100), record=3)
-    with make_evaluator(agent, terrain_cfg, workers=1, batch=4) as one:
+    es = Request(terrain, Mirrored.of(init_params(3, ES_SIZES), seeds, 0.05, seeds + 100), record=3)
+    with make_evaluator(agent, terrain_cfg, 1, 4, ES_SIZES) as one:
         (expected,) = one.run([es])
-    with RayEvaluator(agent, terrain_cfg, workers=2, batch=4) as on_ray:  # starts a local Ray
+    with RayEvaluator(agent, terrain_cfg, 2, 4, ES_SIZES) as on_ray:  # starts a local Ray
         (episodes,) = on_ray.run([es])
         np.testing.assert_array_equal(episodes.returns, expected.returns)
         for key, value in expected.transitions.items():

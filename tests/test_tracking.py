@@ -239,7 +239,7 @@ def test_unusable_store_fails_fast_with_one_line(tmp_path, monkeypatch, uri, pro
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)  # the env var overrides the default store
     start = time.monotonic()
     with pytest.raises(TrackingError) as info:
-        MlflowTracker()
+        MlflowTracker(None, "unusable")
     assert time.monotonic() - start < 15
     message = str(info.value)
     assert "\n" not in message and uri in message and problem in message
@@ -288,7 +288,7 @@ from epoet.tracking import MlflowTracker, flatten, parent_run_id
 
 @hydra.main(version_base="1.3", config_path=".", config_name="config")
 def main(cfg):
-    with MlflowTracker(experiment=cfg.experiment) as tracker:
+    with MlflowTracker(None, cfg.experiment) as tracker:
         tracker.start(f"x={cfg.x}", params=flatten(OmegaConf.to_container(cfg, resolve=True)),
                       parent_run_id=parent_run_id())
         tracker.log_metrics(0, {"x": cfg.x})

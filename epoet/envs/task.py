@@ -14,9 +14,8 @@ from numba import njit
 
 from epoet.envs.config import AgentConfig, RewardConfig
 from epoet.envs.model import Layout
+from epoet.envs.spaces import ACT_DIM, OBS_DIM
 
-OBS_DIM = 53
-ACT_DIM = 18
 # MuJoCo's own bound on a sane state value (mjMAXVAL): beyond it, or NaN, the physics blew up.
 MAX_STATE = 1e10
 REWARD_TERMS = ("velocity", "heading", "lateral", "penalty", "bonus")

@@ -17,8 +17,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import rankdata
 
-DEFAULT_K = 5
-
 
 def pata_ec(scores: np.ndarray, mc_lower: float, mc_upper: float) -> np.ndarray:
     """Centered, tie-averaged ranks of clipped scores along the last axis (same shape).
@@ -48,7 +46,7 @@ def _check_archive(archive: np.ndarray, n_agents: int) -> np.ndarray:
     return archive
 
 
-def novelty(candidate: np.ndarray, archive: np.ndarray, k: int = DEFAULT_K) -> float:
+def novelty(candidate: np.ndarray, archive: np.ndarray, k: int) -> float:
     """Mean Euclidean distance from `candidate` (n_agents,) to its k nearest rows of `archive`.
 
     `archive` (m, n_agents) holds the PATA-EC vectors of all active and archived environments;
@@ -62,7 +60,7 @@ def novelty(candidate: np.ndarray, archive: np.ndarray, k: int = DEFAULT_K) -> f
     return float(novelties(candidate[None, :], archive, k)[0])
 
 
-def novelties(candidates: np.ndarray, archive: np.ndarray, k: int = DEFAULT_K) -> np.ndarray:
+def novelties(candidates: np.ndarray, archive: np.ndarray, k: int) -> np.ndarray:
     """`novelty` of each row of `candidates` (c, n_agents) against the same `archive`."""
     candidates = np.asarray(candidates, dtype=np.float64)
     if candidates.ndim != 2 or candidates.shape[1] == 0:
@@ -78,7 +76,7 @@ def novelties(candidates: np.ndarray, archive: np.ndarray, k: int = DEFAULT_K) -
     return nearest.mean(axis=1)
 
 
-def rank_by_novelty(candidates: np.ndarray, archive: np.ndarray, k: int = DEFAULT_K
+def rank_by_novelty(candidates: np.ndarray, archive: np.ndarray, k: int
                     ) -> tuple[np.ndarray, np.ndarray]:
     """(order, novelties): candidate indices most novel first (ties by index) and their novelty."""
     scores = novelties(candidates, archive, k)

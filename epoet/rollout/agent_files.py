@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from epoet.rl.config import RL_ACTIVATIONS
-from epoet.rollout.policy import LAYER_SIZES, num_params
+from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.rollout.policy import num_params
 
 TORCH_POLICY = "policy.pt"
 ES_POLICIES = "policies"
@@ -30,31 +31,19 @@ VALID = {"es": "an .npz of ES parameters (theta: the flat finite parameter vecto
          "torch": f"a {TORCH_POLICY} that a PPO, SAC or VMPO run exported"}
 
 
-def task_sizes() -> tuple[int, int]:
-    """The task's observation and action sizes (epoet.envs.task.OBS_DIM, ACT_DIM).
-
-    Read from the ES layer sizes' ends, which are those numbers (tests/test_bad_agents.py checks
-    it), because epoet.envs imports MuJoCo, and rendering must resolve its run before MuJoCo
-    picks its OpenGL backend (epoet.eval.render.open_gl).
-    """
-    return LAYER_SIZES[0], LAYER_SIZES[-1]
-
-
 def bad_agent(path: Path, kind: str, problem: str) -> AgentError:
     """One sentence: the file, what is wrong with it and what a valid one is."""
-    obs, act = task_sizes()
     return AgentError(f"{path} {problem}: a valid agent file is "
-                      f"{VALID[kind].format(obs=obs, act=act)}.")
+                      f"{VALID[kind].format(obs=OBS_DIM, act=ACT_DIM)}.")
 
 
 def check_network(path: Path, kind: str, sizes: Sequence[int],
                   params: Iterable[tuple[str, np.ndarray]]) -> None:
     """The check every policy format shares: it maps the task's observations to its actions
     and all its parameters are finite (NaN weights would act NaN and crash the episode)."""
-    obs, act = task_sizes()
-    if sizes[0] != obs or sizes[-1] != act:
+    if sizes[0] != OBS_DIM or sizes[-1] != ACT_DIM:
         raise bad_agent(path, kind, f"maps {sizes[0]} observations to {sizes[-1]} actions, but "
-                                    f"the task has {obs} observations and {act} actions")
+                                    f"the task has {OBS_DIM} observations and {ACT_DIM} actions")
     for name, values in params:
         if not np.isfinite(values).all():
             raise bad_agent(path, kind, f"has non-finite parameters (NaN or inf) in {name}")

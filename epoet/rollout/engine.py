@@ -40,17 +40,10 @@ from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
-from epoet.rollout.policy import LAYER_SIZES, forward_rows, num_params, sizes_array
+from epoet.rollout.policy import forward_rows, num_params, sizes_array
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
 
-# Slots per engine (conf/workers/local.yaml gives runs the same value). Each slot's MjData touches
-# ~130 KB a step (36 KB buffer, up to 94 KB of arena), so a dozen already overflow this CPU's
-# 512 KB L2, and two workers then contend for L3; the fixed per-step cost (four compiled calls)
-# wants many. Measured on the laptop configuration with the compiled step
-# (bench/epoet_iteration.py, 2 workers; noisy machine): iteration/raw 0.95, 0.81 at 8;
-# 0.93, 0.93, 0.82, 0.88, 0.83 at 12; 0.76-0.89 (median 0.85, 8 runs) at 16.
-DEFAULT_BATCH = 12
 _STAGE_VEL = int(mujoco.mjtStage.mjSTAGE_VEL)
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
@@ -184,8 +177,9 @@ def _tally(reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
 class RolloutEngine:
     """Runs episodes of many parameter vectors on given terrains at close to raw MuJoCo speed."""
 
-    def __init__(self, agent: AgentConfig, terrain: TerrainConfig, batch: int = DEFAULT_BATCH,
-                 layer_sizes: Sequence[int] = LAYER_SIZES) -> None:
+    def __init__(self, agent: AgentConfig, terrain: TerrainConfig, batch: int,
+                 layer_sizes: Sequence[int]) -> None:
+        """`batch` robots step together (`workers.batch`); `layer_sizes` is the policy's."""
         if batch < 1:
             raise ValueError(f"batch must be >= 1, got {batch}.")
         self.agent = agent

@@ -10,13 +10,10 @@ from epoet.core.compute import default_workers
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.backends.pool import PoolEvaluator
 from epoet.rollout.backends.serial import SerialEvaluator
-from epoet.rollout.engine import DEFAULT_BATCH
-from epoet.rollout.policy import LAYER_SIZES
 
 
-def make_evaluator(agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | str = "local",
-                   batch: int = DEFAULT_BATCH, layer_sizes: Sequence[int] = LAYER_SIZES
-                   ) -> Evaluator:
+def make_evaluator(agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | str,
+                   batch: int, layer_sizes: Sequence[int]) -> Evaluator:
     """workers: 'local' (a pool with one process per core) or a count; 1 runs in-process."""
     if workers == "local":
         workers = default_workers()
@@ -28,7 +25,7 @@ def make_evaluator(agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int 
 
 
 def evaluator_for(workers: WorkersConfig, agent: AgentConfig, terrain_cfg: TerrainConfig,
-                  layer_sizes: Sequence[int] = LAYER_SIZES) -> Evaluator:
+                  layer_sizes: Sequence[int]) -> Evaluator:
     """The evaluator a run's `workers` config asks for."""
     if workers.backend == "ray":
         # the optional extra, imported on demand

@@ -18,8 +18,14 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-LAYER_SIZES: tuple[int, ...] = (53, 40, 40, 18)
+from epoet.envs.spaces import ACT_DIM, OBS_DIM
+
 INIT_STD = 0.1
+
+
+def policy_sizes(hidden: Sequence[int]) -> tuple[int, ...]:
+    """The task's policy sizes: observations -> `hidden` (algo.es.hidden) -> actions."""
+    return (OBS_DIM, *(int(h) for h in hidden), ACT_DIM)
 
 
 def _check_sizes(layer_sizes: Sequence[int]) -> tuple[int, ...]:
@@ -41,13 +47,13 @@ def _layer_slices(layer_sizes: Sequence[int]) -> list[tuple[int, int, int, int]]
     return offsets
 
 
-def num_params(layer_sizes: Sequence[int] = LAYER_SIZES) -> int:
+def num_params(layer_sizes: Sequence[int]) -> int:
     """Length of the flat parameter vector (4538 for 53 -> 40 -> 40 -> 18)."""
     sizes = _check_sizes(layer_sizes)
     return sum(n_in * n_out + n_out for n_in, n_out in zip(sizes[:-1], sizes[1:]))
 
 
-def init_params(seed: int | np.random.Generator, layer_sizes: Sequence[int] = LAYER_SIZES,
+def init_params(seed: int | np.random.Generator, layer_sizes: Sequence[int],
                 std: float = INIT_STD) -> np.ndarray:
     """A fresh parameter vector, every entry (weights and biases) drawn from N(0, std^2)."""
     if std < 0:
@@ -65,7 +71,7 @@ def _check_flat(params: np.ndarray, layer_sizes: Sequence[int], ndim: int) -> np
     return params
 
 
-def unflatten(params: np.ndarray, layer_sizes: Sequence[int] = LAYER_SIZES
+def unflatten(params: np.ndarray, layer_sizes: Sequence[int]
               ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per-layer (W, b) views into `params` (P,); writing to them writes to `params`."""
     params = _check_flat(params, layer_sizes, ndim=1)
@@ -78,7 +84,7 @@ def sizes_array(layer_sizes: Sequence[int]) -> np.ndarray:
     return np.array(_check_sizes(layer_sizes), dtype=np.int64)
 
 
-def forward(params: np.ndarray, obs: np.ndarray, layer_sizes: Sequence[int] = LAYER_SIZES
+def forward(params: np.ndarray, obs: np.ndarray, layer_sizes: Sequence[int]
             ) -> np.ndarray:
     """Actions of one parameter vector for one observation (n_0,) or a batch (N, n_0); the
     same computation as the rollout engine's, so an episode replayed step by step (the gym env,

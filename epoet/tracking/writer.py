@@ -53,11 +53,11 @@ class MlflowTracker:
     """One MLflow run: buffered metrics, params from the flattened config, tags, artifacts.
 
     Use as a context manager so an exception closes the run as FAILED (KILLED on Ctrl-C):
-        with MlflowTracker(experiment="epoet") as tracker:
+        with MlflowTracker(cfg.tracking.uri, cfg.tracking.experiment) as tracker:
             tracker.start("ppo-seed1", params=flatten(cfg_dict), parent_run_id=parent_run_id())
     """
 
-    def __init__(self, tracking_uri: str | None = None, experiment: str = "epoet",
+    def __init__(self, tracking_uri: str | None, experiment: str,
                  flush_every: int = MAX_METRICS_PER_BATCH, flush_seconds: float = 10.0) -> None:
         self.tracking_uri = resolve_tracking_uri(tracking_uri)
         self.experiment = experiment

@@ -29,8 +29,7 @@ from epoet.terrain.config import TerrainConfig
 from epoet.core.lifecycle import end_with, ignore_stop_signals
 from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
                                          split_results)
-from epoet.rollout.engine import DEFAULT_BATCH, Episodes, RolloutEngine
-from epoet.rollout.policy import LAYER_SIZES
+from epoet.rollout.engine import Episodes, RolloutEngine
 from epoet.rollout.populations import Population, Request
 
 T = TypeVar("T")
@@ -75,7 +74,7 @@ class PoolEvaluator(Backend):
     """A local process pool, one RolloutEngine per process; episodes are shared out one by one."""
 
     def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int,
-                 batch: int = DEFAULT_BATCH, layer_sizes: Sequence[int] = LAYER_SIZES) -> None:
+                 batch: int, layer_sizes: Sequence[int]) -> None:
         super().__init__(layer_sizes)
         if workers < 2:
             raise ValueError(f"a process pool needs workers >= 2, got {workers}.")

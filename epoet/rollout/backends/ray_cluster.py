@@ -34,8 +34,7 @@ from epoet.terrain.config import TerrainConfig
 from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
                                          split_results)
 from epoet.rollout.backends.pool import fair_slots
-from epoet.rollout.engine import DEFAULT_BATCH, Episodes, RolloutEngine
-from epoet.rollout.policy import LAYER_SIZES
+from epoet.rollout.engine import Episodes, RolloutEngine
 from epoet.rollout.populations import Population, Request
 
 try:
@@ -175,7 +174,7 @@ class RayEvaluator(Backend):
     """Rollout actors on a Ray cluster; `workers` actors (default: one per CPU of the cluster)."""
 
     def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | None = None,
-                 batch: int = DEFAULT_BATCH, layer_sizes: Sequence[int] = LAYER_SIZES,
+                 batch: int, layer_sizes: Sequence[int],
                  address: str | None = None) -> None:
         if ray is None:
             raise RuntimeError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")

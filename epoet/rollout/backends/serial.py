@@ -6,8 +6,7 @@ from collections.abc import Sequence
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
 from epoet.rollout.backends.base import Backend, engine_jobs, split_results
-from epoet.rollout.engine import DEFAULT_BATCH, Episodes, RolloutEngine
-from epoet.rollout.policy import LAYER_SIZES
+from epoet.rollout.engine import Episodes, RolloutEngine
 from epoet.rollout.populations import Request
 
 
@@ -16,8 +15,8 @@ class SerialEvaluator(Backend):
 
     workers = 1
 
-    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int = DEFAULT_BATCH,
-                 layer_sizes: Sequence[int] = LAYER_SIZES) -> None:
+    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
+                 layer_sizes: Sequence[int]) -> None:
         super().__init__(layer_sizes)
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
