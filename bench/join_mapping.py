@@ -19,6 +19,7 @@ import numpy as np
 from epoet.core.checkpoint import find_checkpoint, load_checkpoint
 from epoet.config import load
 from epoet.rollout.evaluators import make_evaluator
+from epoet.epoet_sac.loop import make_epoet_sac
 from epoet.poet.runner import layer_sizes, make_loop
 
 SEEDS = 3
@@ -29,7 +30,7 @@ def main(run_dir: str, overrides: list[str]) -> None:
     cfg = load(["algo=epoet_sac", *overrides])
     with make_evaluator(cfg.agent, cfg.terrain, "local", cfg.workers.batch,
                         layer_sizes(cfg)) as evaluator:
-        poet = make_loop(cfg, evaluator)
+        poet = make_loop(cfg, evaluator, make_epoet_sac)
         poet.load_state_dict(state)
         t = poet.iteration - 1
         gaps: dict[str, list[float]] = {"distill": [], "random": []}

@@ -14,7 +14,7 @@ from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.rollout.evaluators import make_evaluator
-from epoet.epoet_sac.loop import EpoetSac
+from epoet.epoet_sac.loop import EpoetSac, make_epoet_sac
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.poet.runner import layer_sizes, make_loop
 from epoet.epoet_sac.bridge import distill_into_actor
@@ -31,7 +31,7 @@ SMOKE = ["algo=epoet_sac", "budget=smoke", "algo.es.hidden=[8]", "terrain.grid=4
 def _loop(overrides: list[str], workers: int = 1) -> tuple[EpoetSac, object]:
     cfg = load(SMOKE + overrides)
     evaluator = make_evaluator(cfg.agent, cfg.terrain, workers, 8, layer_sizes(cfg))
-    return make_loop(cfg, evaluator), evaluator
+    return make_loop(cfg, evaluator, make_epoet_sac), evaluator
 
 
 def test_es_transitions_from_the_worker_processes_reach_the_replay_buffer() -> None:
@@ -64,7 +64,7 @@ def test_the_laptop_budget_holds_two_joins() -> None:
     cfg = load(["algo=epoet_sac"])
     assert cfg.budget.iterations < load([]).budget.iterations
     evaluator = make_evaluator(cfg.agent, cfg.terrain, 1, 8, layer_sizes(cfg))
-    laptop = make_loop(cfg, evaluator)
+    laptop = make_loop(cfg, evaluator, make_epoet_sac)
     with evaluator:
         assert [t for t in range(cfg.budget.iterations) if laptop.join_due(t)] == [38, 78]
     laptop.close()
@@ -102,7 +102,7 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
     (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
     run_id = r.info.run_id
     assert sorted(_metric(client, run_id, "joined")) == [2, 6]
-    assert poet.joins == 2 and sorted(p.sac_join for p in poet.active) == [0, 1, 2]
+    assert poet.joins == 2 and sorted(poet.lineage(p) for p in poet.active) == [0, 1, 2]
     # every crossover outcome: replaced exactly when the child's return is higher
     keys = [k for k in r.data.metrics if k.startswith("crossover/") and k.endswith("_replaced")]
     assert keys
@@ -155,8 +155,7 @@ def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
     a, b = (load_checkpoint(tmp_path / d / "checkpoint.pkl")["poet"] for d in
             ("straight", "resumed"))
     assert a["iteration"] == b["iteration"] == 5 and a["env_steps"] == b["env_steps"]
-    joins = [max(p["sac_join"] for p in s["active"] + s["archived"]) for s in (a, b)]
-    assert joins == [1, 1] and a["mix"] == b["mix"]
+    assert a["join_of"] == b["join_of"] and len(a["join_of"]) == 1 and a["mix"] == b["mix"]
     for pa, pb in zip(a["active"] + a["archived"], b["active"] + b["archived"]):
         assert pa["scores"] == pb["scores"]
         np.testing.assert_array_equal(pa["es"]["theta"], pb["es"]["theta"])

@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull i
     from epoet.tracking import Tracker
 
 CHECKPOINT_NAME = "checkpoint.pkl"
-# 2: ePOET-SAC's pairs (sac_join), 'learner' for the RL state, compact replay, elapsed time
+# 2: ePOET-SAC's joins, 'learner' for the RL state, compact replay, elapsed time
 FORMAT_VERSION = 2
 _MAGIC = b"EPOETCKP"
 # magic, format version (uint32), payload length (uint64), CRC-32 of the payload (uint32)

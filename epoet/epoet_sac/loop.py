@@ -107,6 +107,7 @@ class EpoetSac(EPOET):
         self.updates_per_iteration = round(frames_per_iteration * algo.updates_per_frame)
         self.mix = ReplayMix(algo.sac.buffer_size)
         self.replaced: list[ReplacedAgent] = []
+        self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
     # --- one iteration: Algorithm 1 ------------------------------------------------------------
     @property
@@ -116,8 +117,8 @@ class EpoetSac(EPOET):
 
     @property
     def joins(self) -> int:
-        """Joins so far: the k-th join's pair has sac_join = k, and pairs are never dropped."""
-        return max((p.sac_join for p in self.active + self.archived), default=0)
+        """Joins so far (each made one pair, and pairs are never dropped)."""
+        return len(self.join_of)
 
     def steps(self, t: int, timer: PhaseTimer) -> dict[str, float]:
         """Algorithm 1: ePOET's steps with SAC trained after the ES step and updated from the
@@ -286,7 +287,7 @@ class EpoetSac(EPOET):
         env = Environment(index=self.next_index, genome=home.env.genome,
                           generation=home.env.generation, parent=home.env.index, created_at=t)
         pair = self._admit(env, mapped.theta)
-        pair.sac_join = joins
+        self.join_of[env.index] = joins
         self._terrains[(env.index, t)] = terrain
         self._record(pair, mapped.score)
         outcome = self.crossover_with([p for p in self.active if p is not pair], mapped.theta)
@@ -324,12 +325,12 @@ class EpoetSac(EPOET):
     # --- generation curves, artifacts, checkpoints ------------------------------------------
     def novel(self, pair: Pair) -> bool:
         """The environment copies that the joins pair with are not novel (not in ANNECS)."""
-        return not pair.sac_join
+        return pair.env.index not in self.join_of
 
     def lineage(self, pair: Pair) -> int:
         """The k-th join made the pair (0: the ES lineage), the paper's Figure 2b
         ePOET-SAC_gen<k> curves."""
-        return pair.sac_join
+        return self.join_of.get(pair.env.index, 0)
 
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
@@ -351,13 +352,18 @@ class EpoetSac(EPOET):
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "sac": self.learner.state_dict(),
                 "mix": self.mix.state_dict(),
-                "replaced": [dataclasses.asdict(a) for a in self.replaced]}
+                "replaced": [dataclasses.asdict(a) for a in self.replaced],
+                "join_of": dict(self.join_of)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
         self.learner.load_state_dict(state["sac"])
         self.mix.load_state_dict(state["mix"])
         self.replaced = [ReplacedAgent(**a) for a in state["replaced"]]
+        # checkpoints of format 2 kept the join number on each pair
+        self.join_of = state.get("join_of") or {
+            s["env"].index: s["sac_join"] for s in state["active"] + state["archived"]
+            if s.get("sac_join")}
 
 
 def make_epoet_sac(cfg: Config, evaluator: Evaluator, **poet: Any) -> EpoetSac:

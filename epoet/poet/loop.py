@@ -372,7 +372,7 @@ class EPOET(Reproduction):
     def state_dict(self) -> dict[str, Any]:
         def pair_state(p: Pair) -> dict[str, Any]:
             return {"env": p.env, "es": p.es.state_dict(), "scores": list(p.scores),
-                    "sac_join": p.sac_join, "best_score": p.best_score,
+                    "best_score": p.best_score,
                     "best_theta": p.best_theta}
         return {"iteration": self.iteration, "next_index": self.next_index,
                 "transfers": self.transfers, "env_steps": self.env_steps,
@@ -385,7 +385,7 @@ class EPOET(Reproduction):
         def restore(s: dict[str, Any]) -> Pair:
             es = self._new_es(s["es"]["theta"], 0)
             es.load_state_dict(s["es"])
-            return Pair(env=s["env"], es=es, scores=list(s["scores"]), sac_join=s["sac_join"],
+            return Pair(env=s["env"], es=es, scores=list(s["scores"]),
                         best_score=s["best_score"], best_theta=s["best_theta"])
         for name in ("iteration", "next_index", "transfers", "env_steps", "elapsed"):
             setattr(self, name, state[name])

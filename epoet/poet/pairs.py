@@ -36,7 +36,6 @@ class Pair:
     env: Environment
     es: OpenAIES
     scores: list[float] = field(default_factory=list)   # evaluation score per iteration
-    sac_join: int = 0           # ePOET-SAC: k if the k-th join of the SAC actor made this pair
     best_score: float = -np.inf  # the best evaluation score on this environment so far,
     best_theta: np.ndarray | None = None  # and the policy that scored it (EPOET.policy)
 

@@ -1,15 +1,14 @@
-"""`algo=epoet` and `algo=epoet_sac`: run the loop for the budget's iterations, tracked and
-resumable."""
+"""`algo=epoet` (and, with its loop, `algo=epoet_sac`): run the loop for the budget's iterations,
+tracked and resumable."""
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from epoet.core.checkpoint import save_run_state
 from epoet.config import Config
-from epoet.epoet_sac.config import EpoetSacConfig
-from epoet.rollout.policy import LAYER_SIZES
+from epoet.rollout.policy import policy_sizes
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import evaluator_for
 from epoet.core.lifecycle import raise_if_stopped, report_stop, stop_requested
@@ -18,27 +17,32 @@ from epoet.tracking import Tracker
 
 
 def layer_sizes(cfg: Config) -> tuple[int, ...]:
-    return (LAYER_SIZES[0], *cfg.algo.es.hidden, LAYER_SIZES[-1])
+    return policy_sizes(cfg.algo.es.hidden)
 
 
-def make_loop(cfg: Config, evaluator: Evaluator) -> EPOET:
-    """The configured algorithm's loop over the pool."""
+LoopFactory = Callable[..., EPOET]
+
+
+def make_epoet(cfg: Config, evaluator: Evaluator, **poet: Any) -> EPOET:
+    """The `algo=epoet` loop."""
+    return EPOET(cfg.algo, cfg.terrain, evaluator, **poet)
+
+
+def make_loop(cfg: Config, evaluator: Evaluator, factory: LoopFactory = make_epoet) -> EPOET:
+    """`factory`'s loop over the pool, with the budget's sizes and schedule."""
     budget = cfg.budget
-    common = {"seed": cfg.seed, "n_pairs": budget.n_pairs, "eval_episodes": budget.eval_episodes,
-              "score_scale": budget.score_scale, "layer_sizes": layer_sizes(cfg),
-              "transfer_interval": budget.transfer_interval,
-              "reproduce_interval": budget.reproduce_interval}
-    if isinstance(cfg.algo, EpoetSacConfig):
-        # Imported on demand: torch and TorchRL take seconds to import, which ePOET never needs.
-        from epoet.epoet_sac.loop import make_epoet_sac
-        return make_epoet_sac(cfg, evaluator, **common)
-    return EPOET(cfg.algo, cfg.terrain, evaluator, **common)
+    return factory(cfg, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
+                   eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
+                   layer_sizes=layer_sizes(cfg), transfer_interval=budget.transfer_interval,
+                   reproduce_interval=budget.reproduce_interval)
 
 
-def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
-    """Iterate until `budget.iterations`, checkpointing every `checkpoint_every` iterations."""
+def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None,
+          factory: LoopFactory = make_epoet) -> EPOET:
+    """Iterate until `budget.iterations`, checkpointing every `checkpoint_every` iterations
+    (epoet.epoet_sac.runner passes its loop as `factory`)."""
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
-        poet = make_loop(cfg, evaluator)
+        poet = make_loop(cfg, evaluator, factory)
         try:
             _iterate(poet, cfg, tracker, run_dir, resume)
         finally:
