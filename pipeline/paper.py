@@ -46,7 +46,7 @@ def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m analysis.paper", description=__doc__.split(
+    parser = argparse.ArgumentParser(prog="python -m pipeline.paper", description=__doc__.split(
         "\n")[0])
     parser.add_argument("--budget", default="laptop")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")

@@ -1,6 +1,6 @@
-"""The house's shape (docs/architecture.md): every module of epoet/ and analysis/ under 400
-lines, no import cycle, and no import from a lower wing to a higher one, so data flows one way:
-config -> run -> algorithm -> rollout -> envs/terrain, with tracking and core beside.
+"""The house's shape (docs/architecture.md): every module of epoet/, analysis/ and pipeline/
+under 400 lines, no import cycle, and no import from a lower wing to a higher one, so data
+flows one way: config -> run -> algorithm -> rollout -> envs/terrain, with tracking and core beside.
 
 Imports are read from the source (ast): module-level ones, those under `if`/`try`/`with`
 included, except `if TYPE_CHECKING:` blocks (annotations only). Imports inside functions are
@@ -30,6 +30,7 @@ WINGS: list[tuple[str, tuple[str, ...]]] = [
     ("eval", ("epoet.eval",)),
     ("commands", ("epoet.run", "epoet.sweep", "epoet.__main__", "epoet")),
     ("analysis", ("analysis",)),
+    ("pipeline", ("pipeline",)),
 ]
 
 
@@ -38,7 +39,8 @@ def _module(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-MODULES = {_module(p): p for d in ("epoet", "analysis") for p in sorted((ROOT / d).rglob("*.py"))}
+MODULES = {_module(p): p for d in ("epoet", "analysis", "pipeline")
+           for p in sorted((ROOT / d).rglob("*.py"))}
 
 
 def _wing(module: str) -> int:

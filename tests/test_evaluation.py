@@ -1,6 +1,6 @@
 """Evaluation, tables, figures and `make paper`, on a store filled by real smoke runs.
 
-One `python -m analysis.paper --budget smoke` call (every algorithm, one seed, a four-terrain
+One `python -m pipeline.paper --budget smoke` call (every algorithm, one seed, a four-terrain
 suite, one episode per terrain) fills a private store; the tests then check what it produced
 against the evaluation CSVs, and the bad inputs of each command.
 """
@@ -48,7 +48,7 @@ def paper(tmp_path_factory):
     uri = f"sqlite:///{tmp}/mlflow.db"
     suite = small_suite(tmp / "suite")
     proc = subprocess.run(
-        [sys.executable, "-m", "analysis.paper", "--budget", "smoke", "--seeds", "1",
+        [sys.executable, "-m", "pipeline.paper", "--budget", "smoke", "--seeds", "1",
          "--suite", str(suite), "--episodes", "1", "--out", str(tmp / "results")],
         capture_output=True, text=True, cwd=tmp,
         env={**os.environ, "MLFLOW_TRACKING_URI": uri})
