@@ -11,7 +11,7 @@ import time
 import mujoco
 import numpy as np
 
-from epoet.envs.hexapod_env import HexapodEnv
+from epoet.envs.hexapod_env import make_hexapod
 
 
 def steps_per_second(step, n: int) -> float:
@@ -27,7 +27,7 @@ def main() -> None:
     parser.add_argument("--terrain", default="cppn", choices=["bowl", "cppn"])
     args = parser.parse_args()
 
-    env = HexapodEnv(terrain=args.terrain)
+    env = make_hexapod(terrain=args.terrain)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, size=(args.steps, 18))

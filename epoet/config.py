@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib.util
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Optional
 
@@ -307,6 +307,35 @@ def _typed_keys(message: str, cfg: DictConfig) -> str:
     for key, source in _interpolated(OmegaConf.to_container(cfg, resolve=False)).items():
         message = re.sub(rf"(?<![\w.(]){re.escape(key)}(?![\w])", f"{source} ({key})", message)
     return message
+
+
+def task_configs(agent: Any = None, terrain: Any = None) -> tuple[AgentConfig, TerrainConfig]:
+    """The hexapod task's configs for code that builds an env outside a run (gym.make,
+    notebooks, tests): dataclasses as they are; dicts or DictConfigs as overrides of the paper
+    budget's agent and of the terrain file their `kind` names (or a kind's name), range-checked."""
+    if isinstance(agent, AgentConfig) and isinstance(terrain, TerrainConfig):
+        return agent, terrain
+    terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
+    kind = terrain.get("kind", "bowl")
+    base = compose(["budget=paper", f"terrain={kind}" if (CONF_DIR / "terrain" / f"{kind}.yaml")
+                    .exists() else "terrain=bowl"])
+    OmegaConf.resolve(base)  # agent.max_episode_steps interpolates the budget's episode length
+
+    def build(value: Any, node: DictConfig, schema: type) -> Any:
+        return value if isinstance(value, schema) else \
+            OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
+
+    return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
+
+
+def _plain(value: Any) -> dict:
+    if value is None:
+        return {}
+    if isinstance(value, DictConfig):
+        return OmegaConf.to_container(value, resolve=True)
+    if isinstance(value, TerrainConfig):  # a dataclass terrain with a dict agent
+        return asdict(value)
+    return dict(value)
 
 
 def load(overrides: Sequence[str] = ()) -> Config:

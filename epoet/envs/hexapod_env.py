@@ -1,49 +1,19 @@
 """`epoet/Hexapod-v0`: the hexapod terrain-walking task as a gymnasium.Env."""
 from __future__ import annotations
 
-from dataclasses import asdict
 from typing import Any
 
 import gymnasium as gym
 import mujoco
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
 
-from epoet.config import CONF_DIR, compose
+from epoet.config import task_configs
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, REWARD_TERMS, EpisodeState, HexapodTask
 from epoet.terrain import Terrain, make_terrain
-
-
-def _configs(agent: Any, terrain: Any) -> tuple[AgentConfig, TerrainConfig]:
-    """Dataclasses as they are; dicts or DictConfigs (as gym.make passes kwargs) as overrides of
-    the paper budget's agent and of the terrain file their `kind` names, range-checked."""
-    if isinstance(agent, AgentConfig) and isinstance(terrain, TerrainConfig):
-        return agent, terrain
-    terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
-    kind = terrain.get("kind", "bowl")
-    base = compose(["budget=paper", f"terrain={kind}" if (CONF_DIR / "terrain" / f"{kind}.yaml")
-                    .exists() else "terrain=bowl"])
-    OmegaConf.resolve(base)  # agent.max_episode_steps interpolates the budget's episode length
-
-    def build(value: Any, node: DictConfig, schema: type) -> Any:
-        return value if isinstance(value, schema) else \
-            OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
-
-    return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
-
-
-def _plain(value: Any) -> dict:
-    if value is None:
-        return {}
-    if isinstance(value, DictConfig):
-        return OmegaConf.to_container(value, resolve=True)
-    if isinstance(value, TerrainConfig):  # a dataclass terrain with a dict agent
-        return asdict(value)
-    return dict(value)
 
 
 class HexapodEnv(gym.Env):
@@ -57,9 +27,9 @@ class HexapodEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(self, agent: Any = None, terrain: Any = None, resample_terrain: bool = False,
+    def __init__(self, agent: AgentConfig, terrain: TerrainConfig, resample_terrain: bool = False,
                  render_mode: str | None = None, width: int = 320, height: int = 240) -> None:
-        self.agent_cfg, self.terrain_cfg = _configs(agent, terrain)
+        self.agent_cfg, self.terrain_cfg = agent, terrain
         self.model = build_model(self.agent_cfg, self.terrain_cfg)
         self.data = mujoco.MjData(self.model)
         self._step = stepper(self.model)
@@ -143,3 +113,9 @@ class HexapodEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+def make_hexapod(agent: Any = None, terrain: Any = None, **kwargs: Any) -> HexapodEnv:
+    """`gym.make("epoet/Hexapod-v0", agent=..., terrain=...)`: configs as dataclasses, or as
+    dicts of overrides of the YAML defaults (epoet.config.task_configs); `kwargs` go to the env."""
+    return HexapodEnv(*task_configs(agent, terrain), **kwargs)
