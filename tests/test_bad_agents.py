@@ -16,6 +16,7 @@ import torch
 from conftest import ES_SIZES, one_terrain_suite
 from test_render import one_error_line, render_cli
 
+from epoet.envs.spaces import ACT_DIM, OBS_DIM
 from epoet.rollout.policy import init_params, num_params
 from epoet.rl.policy_file import POLICY_FORMAT
 

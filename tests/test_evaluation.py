@@ -157,7 +157,7 @@ def one_line_error(capsys, call, *words: str) -> None:
 
 
 def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
-    from analysis import paper as paper_cli
+    from pipeline import paper as paper_cli
     from analysis import tables
     from epoet.eval import evaluate
 

@@ -171,11 +171,10 @@ def _pull(feed: object, call: int) -> Iterator[tuple[int, int]]:
 
 
 class RayEvaluator(Backend):
-    """Rollout actors on a Ray cluster; `workers` actors (default: one per CPU of the cluster)."""
+    """Rollout actors on a Ray cluster; `workers` actors (None: one per CPU of the cluster)."""
 
-    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | None = None,
-                 batch: int, layer_sizes: Sequence[int],
-                 address: str | None = None) -> None:
+    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | None,
+                 batch: int, layer_sizes: Sequence[int], address: str | None = None) -> None:
         if ray is None:
             raise RuntimeError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
         super().__init__(layer_sizes)
