@@ -16,9 +16,10 @@ $(STAMP): pyproject.toml constraints.txt
 	touch $(STAMP)
 
 # One test process per core; a file's tests share a process (module fixtures run once, and the Ray
-# tests, which stop every Ray process on the machine, never overlap one another).
+# tests, which stop every Ray process on the machine, never overlap one another); the longest
+# files first (tests/conftest.py LONGEST_FIRST).
 test: install
-	$(PY) -m pytest -q -n auto --dist loadfile --durations=10 tests
+	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=10 tests
 
 # The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
 train: install

@@ -27,7 +27,8 @@ from mlflow.entities import Run
 from analysis.store import (AnalysisError, connect, default_experiment, in_order, require_runs,
                             run_command, seed_of, select_runs)
 from epoet.config import compose, validate
-from epoet.eval.evaluate import RESULTS, evaluate_run
+from epoet.core.compute import default_workers
+from epoet.eval.evaluate import RESULTS, evaluate_run, evaluation_pool
 from epoet.eval.suite import LEVELS, load_suite
 from epoet.tracking import StoredRun
 
@@ -46,10 +47,12 @@ def ensure_evaluated(runs: Sequence[Run], uri: str, suite: str | None, fingerpri
     overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
         [f"processes={workers}"] if workers else []) + (
         [f"episodes={episodes}"] if episodes else [])
-    for run in missing:
-        cfg = validate(compose([f"run={run.info.run_id}", f"out={out / 'evaluations' / run.info.run_id}",
-                                *overrides], config_name="evaluate"))
-        evaluate_run(cfg)
+    configs = [validate(compose([f"run={run.info.run_id}",
+                                 f"out={out / 'evaluations' / run.info.run_id}", *overrides],
+                                config_name="evaluate")) for run in missing]
+    with evaluation_pool(workers or default_workers()) as pool:  # one pool for every run
+        for cfg in configs:
+            evaluate_run(cfg, pool=pool)
 
 
 def episodes_of(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:

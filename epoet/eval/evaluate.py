@@ -26,9 +26,9 @@ import json
 import multiprocessing as mp
 import os
 import sys
-from collections.abc import Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import ExitStack
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -147,9 +147,27 @@ def summarize(episodes: pd.DataFrame) -> dict[str, float]:
     return metrics
 
 
-def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
+@contextmanager
+def evaluation_pool(workers: int) -> Iterator[Executor | None]:
+    """Worker processes for evaluations; None for one worker (episodes run in this process).
+    One pool serves any number of evaluations (`make tables` runs every missing one through the
+    same pool), so its start-up (imports, torch) is paid once."""
+    if workers == 1:
+        yield None
+        return
+    ctx = mp.get_context("forkserver")
+    # The fork server imports this module (MuJoCo, the env, MLflow) once; each worker is then a
+    # cheap fork instead of ~5 s of imports per process.
+    ctx.set_forkserver_preload([__name__])
+    # Workers end with this process, however it ends (epoet.core.lifecycle).
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=end_with,
+                             initargs=(os.getpid(),)) as pool:
+        yield pool
+
+
+def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, pool: Executor | None,
              progress: bool = True) -> Evaluation:
-    """Every terrain's episodes, in parallel over `workers` processes (1: in this process)."""
+    """Every terrain's episodes, in parallel over `pool`'s processes (None: in this process)."""
     agent_cfg = suite.course.rules(run.agent_config(cfg.agent))
     terrain_cfg = terrain_config_for(suite.terrains)
     tasks = [Task(k, terrain, run.agent, agent_cfg, terrain_cfg,
@@ -157,23 +175,14 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, workers: int,
                   cfg.action_samples)
              for k, terrain in enumerate(suite.terrains)]
     results: dict[int, tuple[list, list, list]] = {}
-    with ExitStack() as stack:
-        if workers == 1:
-            done: Iterable = map(run_task, tasks)
-        else:
-            ctx = mp.get_context("forkserver")
-            # The fork server imports this module (MuJoCo, the env, MLflow) once; each
-            # worker is then a cheap fork instead of ~5 s of imports per process and call.
-            ctx.set_forkserver_preload([__name__])
-            # Workers end with this process, however it ends (epoet.core.lifecycle).
-            pool = stack.enter_context(ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=end_with, initargs=(os.getpid(),)))
-            done = (f.result() for f in as_completed([pool.submit(run_task, t) for t in tasks]))
-        with tqdm(total=len(tasks) * cfg.episodes, unit="episode", file=sys.stdout,
-                  desc=f"evaluate {run.label}", disable=not progress) as bar:
-            for index, rows, samples, broken in done:
-                results[index] = (rows, samples, broken)
-                bar.update(len(rows))
+    done: Iterable = (map(run_task, tasks) if pool is None else
+                      (f.result() for f in as_completed([pool.submit(run_task, t)
+                                                         for t in tasks])))
+    with tqdm(total=len(tasks) * cfg.episodes, unit="episode", file=sys.stdout,
+              desc=f"evaluate {run.label}", disable=not progress) as bar:
+        for index, rows, samples, broken in done:
+            results[index] = (rows, samples, broken)
+            bar.update(len(rows))
     broken = [note for k in sorted(results) for note in results[k][2]]
     if broken:  # one line, however many episodes
         print(f"warning: {run.label} acted non-finite (NaN or inf) in {len(broken)} episodes, "
@@ -207,21 +216,25 @@ def results_folder(cfg: EvaluateConfig, run: TrainedRun) -> Path:
     return Path(RESULTS) / "".join(c if c.isalnum() or c in "-_." else "_" for c in run.label)
 
 
-def evaluate_run(cfg: EvaluateConfig, progress: bool = True
+def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | None = None
                  ) -> tuple[Evaluation, Path, TrainedRun]:
     """Resolve, check, evaluate, write and log: the whole command, for `make tables` too;
-    returns the evaluation, its results folder and the agent's run."""
+    returns the evaluation, its results folder and the agent's run. Episodes run on `pool`
+    (`evaluation_pool`), or on a pool of `cfg.processes` opened for this evaluation."""
     run = resolve_run(cfg.run, cfg.tracking.uri)
     suite = load_suite(cfg.suite)
     folder = results_folder(cfg, run)
-    workers = cfg.processes or default_workers()
+    workers = cfg.processes or default_workers()  # `pool`'s, when given (one config made both)
     rules = suite.course.rules(run.agent_config(cfg.agent))
     print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
           f"episodes ({suite.folder}), {workers} processes; course "
           f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
           flush=True)
     scale = suite.course.scale(run.agent_config(cfg.agent))
-    result = evaluate(run, suite, cfg, workers, progress)
+    with ExitStack() as stack:
+        if pool is None:
+            pool = stack.enter_context(evaluation_pool(workers))
+        result = evaluate(run, suite, cfg, pool, progress)
     info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
             "suite": str(suite.folder), "suite_fingerprint": suite.fingerprint,
             "course_scale": scale, "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
