@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
@@ -19,7 +19,8 @@ from epoet.core.files import atomic_write
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import ACT_DIM, OBS_DIM
-from epoet.tracking import MlflowTracker, StoredRun, Tracker, flatten, parent_run_id
+if TYPE_CHECKING:
+    from epoet.tracking import MlflowTracker, StoredRun, Tracker
 
 AUTO = "auto"     # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
 DONE = "DONE"     # written into the run folder when a run finished (holds its MLflow run id)
@@ -30,11 +31,12 @@ DONE = "DONE"     # written into the run folder when a run finished (holds its M
 RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations",
              "budget.hours", "algo._target_")
 
-Runner = Callable[[Config, Tracker, Path, "dict[str, Any] | None"], Any]
+Runner = Callable[[Config, "Tracker", Path, "dict[str, Any] | None"], Any]
 
 
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
     """`key (old -> new)` for every setting that differs, except the RESUMABLE ones."""
+    from epoet.tracking import flatten
     old, new = flatten(saved), flatten(current)
     keys = sorted(k for k in old.keys() | new.keys()
                   if old.get(k) != new.get(k)
@@ -46,6 +48,7 @@ def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict
     """The run's MLflow params: the values it runs with (the worker count and store the defaults
     resolve to), without the settings it never reads (`Config.unused_keys`) and without `resume`
     (where a run continues, not a setting of it)."""
+    from epoet.tracking import flatten
     params = flatten({k: v for k, v in resolved.items() if k != "resume"})
     unused = cfg.unused_keys()
     params = {k: v for k, v in params.items()
@@ -92,6 +95,8 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         # the optional extra, on demand
         from epoet.rollout.backends.ray_cluster import check_address
         check_address(cfg.workers.address)
+    # Only now mlflow (~1.5 s to import): bad input above fails without waiting for it.
+    from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,

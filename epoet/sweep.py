@@ -8,13 +8,17 @@ from __future__ import annotations
 
 import atexit
 import os
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.tracking import PARENT_RUN_ENV, MlflowTracker, Run
+if TYPE_CHECKING:
+    from epoet.tracking import MlflowTracker, Run
+
+# Hydra instantiates this callback for single runs too, before the job: epoet.tracking (mlflow,
+# ~1.5 s to import) is imported when a multirun starts, so a bad override fails without it.
 
 
 class MlflowSweepCallback(Callback):
@@ -34,6 +38,7 @@ class MlflowSweepCallback(Callback):
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         overrides = list(config.hydra.overrides.task)
         params = sweep_params(overrides)
+        from epoet.tracking import PARENT_RUN_ENV, MlflowTracker
         tracker = MlflowTracker(self.tracking_uri, self.experiment)
         text = " ".join(overrides)
         name = f"sweep {text}" if text else f"sweep {config.hydra.job.name}"
@@ -65,6 +70,7 @@ class MlflowSweepCallback(Callback):
 
     def _close(self, status: str) -> None:
         """Close the parent once; called by `on_multirun_end` or, failing that, at exit."""
+        from epoet.tracking import PARENT_RUN_ENV
         atexit.unregister(self._close)
         os.environ.pop(PARENT_RUN_ENV, None)
         tracker, self._tracker = self._tracker, None

@@ -17,7 +17,7 @@ import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from omegaconf import OmegaConf
@@ -27,7 +27,10 @@ from epoet.envs.config import AgentConfig
 from epoet.rollout.agent_files import (ES_POLICIES, TORCH_POLICY, AgentError, bad_agent,
                                        read_es_policy, read_torch_policy)
 from epoet.rollout.policy import forward
-from epoet.tracking import StoredRun, TrackingError
+from epoet.tracking import TrackingError
+
+if TYPE_CHECKING:
+    from epoet.tracking import StoredRun
 
 Policy = Callable[[np.ndarray], np.ndarray]
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -124,6 +127,7 @@ def _download_dir() -> Path:
 
 
 def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
+    from epoet.tracking import StoredRun  # mlflow only for agents that live in the store
     stored = StoredRun.open(run_id, tracking_uri)
     folder = _download_dir()
     for artifact in (ES_POLICIES, TORCH_POLICY):
@@ -164,6 +168,7 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
     base = f"{algo}-s{seed}" if algo else folder.name
     label = base if source.kind == "torch" else f"{base} {name}"
     # The run the checkpoint continues, opened now so a missing store fails before any work.
+    from epoet.tracking import StoredRun
     stored = StoredRun.open(state["run_id"], tracking_uri) if state.get("run_id") else None
     return TrainedRun(source, label, stored, algo, seed, config, folder)
 

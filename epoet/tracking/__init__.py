@@ -7,26 +7,43 @@
 - inputs.py: metric keys, steps, values and artifact paths, checked before anything is sent
 - errors.py: `TrackingError`, one sentence
 
-Importers use `from epoet.tracking import X`: importing a submodule runs this file anyway.
+Importers use `from epoet.tracking import X`. Each name is imported from its module when first
+asked for (PEP 562), so `TrackingError` costs nothing while `MlflowTracker` brings mlflow (about
+1.5 s): a command that fails on bad input before it tracks anything never waits for mlflow.
 """
-from mlflow.entities import Run  # for type hints in modules that do not import mlflow
+from __future__ import annotations
 
-from epoet.tracking.errors import TrackingError
-from epoet.tracking.inputs import metric_key
-from epoet.tracking.provenance import PARENT_RUN_ENV, flatten, git_commit, parent_run_id
-from epoet.tracking.store import (
-    DEFAULT_TRACKING_URI,
-    PROJECT_ROOT,
-    open_store,
-    resolve_tracking_uri,
-    sqlite_path,
-    ui_hint,
-)
-from epoet.tracking.stored_run import StoredRun
-from epoet.tracking.writer import MlflowTracker, Tracker
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
-__all__ = [
-    "DEFAULT_TRACKING_URI", "PARENT_RUN_ENV", "PROJECT_ROOT", "MlflowTracker", "Run", "StoredRun",
-    "Tracker", "TrackingError", "flatten", "git_commit", "metric_key", "open_store",
-    "parent_run_id", "resolve_tracking_uri", "sqlite_path", "ui_hint",
-]
+if TYPE_CHECKING:
+    from mlflow.entities import Run
+
+    from epoet.tracking.errors import TrackingError
+    from epoet.tracking.inputs import metric_key
+    from epoet.tracking.provenance import PARENT_RUN_ENV, flatten, git_commit, parent_run_id
+    from epoet.tracking.store import (DEFAULT_TRACKING_URI, PROJECT_ROOT, open_store,
+                                      resolve_tracking_uri, sqlite_path, ui_hint)
+    from epoet.tracking.stored_run import StoredRun
+    from epoet.tracking.writer import MlflowTracker, Tracker
+
+_HOME = {"TrackingError": "epoet.tracking.errors", "metric_key": "epoet.tracking.inputs",
+         "PARENT_RUN_ENV": "epoet.tracking.provenance", "flatten": "epoet.tracking.provenance",
+         "git_commit": "epoet.tracking.provenance",
+         "parent_run_id": "epoet.tracking.provenance",
+         "DEFAULT_TRACKING_URI": "epoet.tracking.store", "PROJECT_ROOT": "epoet.tracking.store",
+         "open_store": "epoet.tracking.store", "resolve_tracking_uri": "epoet.tracking.store",
+         "sqlite_path": "epoet.tracking.store", "ui_hint": "epoet.tracking.store",
+         "StoredRun": "epoet.tracking.stored_run", "MlflowTracker": "epoet.tracking.writer",
+         "Tracker": "epoet.tracking.writer",
+         "Run": "mlflow.entities"}  # for type hints in modules that do not import mlflow
+
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(_HOME[name]), name)
+    globals()[name] = value  # once
+    return value
