@@ -12,7 +12,7 @@ Writes to `--out` (each figure with the CSV of exactly its plotted points):
 - `annecs.png`: ANNECS and the active / archived environments per iteration (ePOET family).
 - `tsne.png`: t-SNE of the sampled actions on three suite terrains (the first easy, medium and
   hard one), one panel per algorithm (Figure 5); needs the runs' suite evaluations
-  (`make tables` runs them).
+  (each training run ends with one; `make paper` evaluates its runs).
 - `suite_gallery.png`: the evaluation suite by level, as 3D surfaces (Figure 3).
 - `admitted_<run>.png`: the terrains a ePOET-family run admitted, in admission order (Figure 4).
 """
@@ -174,7 +174,8 @@ def tsne_table(client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str
             run = next((r for r in runs if r.data.tags["algo"] == algo
                         and "eval_suite" in r.data.tags), None)
             if run is None:
-                print(f"t-SNE: no {algo} run has a suite evaluation (make tables runs them)")
+                print(f"t-SNE: no {algo} run has a suite evaluation (python -m epoet.eval.evaluate "
+                      f"run=<run id> makes one)")
                 continue
             stored = StoredRun(client, run)
             folder = Path(tmp) / run.info.run_id

@@ -9,9 +9,9 @@
   runs per agent).
 
 Each table is written as Markdown, LaTeX and CSV under `--out` and printed. The numbers come
-from each run's `evaluation/episodes.csv` artifact; a FINISHED run without an evaluation on the
-suite (its `eval_suite` tag is not the suite's fingerprint) is evaluated first, and the command
-says so.
+from each run's `evaluation/episodes.csv` artifact. The tables only read the store: a FINISHED
+run without an evaluation on the suite (its `eval_suite` tag is not the suite's fingerprint) is
+an error that names the command evaluating it (pipeline/paper.py evaluates for `make paper`).
 """
 from __future__ import annotations
 
@@ -26,33 +26,25 @@ from mlflow.entities import Run
 
 from analysis.store import (AnalysisError, connect, default_experiment, in_order, require_runs,
                             run_command, seed_of, select_runs)
-from epoet.config import compose, validate
-from epoet.core.compute import default_workers
-from epoet.eval.evaluate import RESULTS, evaluate_run, evaluation_pool
+from epoet.eval.evaluate import RESULTS
 from epoet.eval.suite import LEVELS, load_suite
 from epoet.tracking import StoredRun
 
 EASY_MEDIUM = ("easy", "medium")
 
 
-def ensure_evaluated(runs: Sequence[Run], uri: str, suite: str | None, fingerprint: str,
-                     workers: int | None, out: Path, episodes: int | None = None) -> None:
-    """Evaluate (and log) every run that has no evaluation on this suite yet; local copies of
-    the results go to out/evaluations/<run id>."""
+def require_evaluations(runs: Sequence[Run], fingerprint: str, suite: str | None) -> None:
+    """Every run must have its evaluation on this suite (each training run ends with one;
+    `make paper` evaluates its runs); one sentence naming the runs and the command otherwise."""
     missing = [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
-    if not missing:
-        return
-    print(f"evaluating {len(missing)} run(s) that have no evaluation on this suite "
-          f"({fingerprint}): {', '.join(r.info.run_name for r in missing)}", flush=True)
-    overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
-        [f"processes={workers}"] if workers else []) + (
-        [f"episodes={episodes}"] if episodes else [])
-    configs = [validate(compose([f"run={run.info.run_id}",
-                                 f"out={out / 'evaluations' / run.info.run_id}", *overrides],
-                                config_name="evaluate")) for run in missing]
-    with evaluation_pool(workers or default_workers()) as pool:  # one pool for every run
-        for cfg in configs:
-            evaluate_run(cfg, pool=pool)
+    if missing:
+        names = ", ".join(f"{r.info.run_name} ({r.info.run_id})" for r in missing[:3])
+        more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+        suite_arg = f" suite={suite}" if suite else ""
+        raise AnalysisError(
+            f"{len(missing)} run(s) have no evaluation on suite {fingerprint}: {names}{more}; "
+            f"evaluate each with `python -m epoet.eval.evaluate run=<run id>{suite_arg}` "
+            f"(`make paper` evaluates every run of its experiment)")
 
 
 def episodes_of(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
@@ -161,13 +153,10 @@ def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1") -> list[Pa
 
 
 def make_tables(experiment: str, out: Path, suite: str | None = None,
-                run_ids: Sequence[str] = (), workers: int | None = None,
-                tracking_uri: str | None = None, episodes: int | None = None) -> list[Path]:
+                run_ids: Sequence[str] = (), tracking_uri: str | None = None) -> list[Path]:
     client, uri = connect(tracking_uri)
     runs = require_runs(select_runs(client, uri, experiment, run_ids), experiment, uri)
-    fingerprint = load_suite(suite).fingerprint
-    ensure_evaluated(runs, uri, suite, fingerprint, workers, out, episodes)
-    runs = [client.get_run(r.info.run_id) for r in runs]  # tags after evaluation
+    require_evaluations(runs, load_suite(suite).fingerprint, suite)
     return write_tables(episodes_of(client, runs), out, course_scale(runs))
 
 
@@ -175,7 +164,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.tables",
         description="Success-rate and return tables (paper Tables 1-2) from the evaluations in "
-                    "the MLflow store; runs without one are evaluated first.")
+                    "the MLflow store.")
     parser.add_argument("--experiment", default=default_experiment(),
                         help="MLflow experiment whose FINISHED runs are tabled (default: the "
                              "runs' default, tracking.experiment)")
@@ -184,18 +173,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
                         help="table these runs instead of the experiment's")
-    parser.add_argument("--processes", type=int, default=None,
-                        help="processes per evaluation (default: every core)")
-    parser.add_argument("--episodes", type=int, default=None,
-                        help="episodes per terrain of new evaluations (default: 5)")
     return parser.parse_args(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry; bad input gives one sentence on stderr and exit code 2."""
     args = parse_args(argv)
-    return run_command(lambda: make_tables(args.experiment, args.out, args.suite, args.run,
-                                           args.processes, episodes=args.episodes))
+    return run_command(lambda: make_tables(args.experiment, args.out, args.suite, args.run))
 
 
 if __name__ == "__main__":

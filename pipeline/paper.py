@@ -5,7 +5,8 @@
    (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again after an
    interruption skips the finished jobs and continues the interrupted ones from their
    checkpoints;
-2. evaluates every finished run on the suite that has no evaluation yet (analysis.tables);
+2. evaluates every finished run that has no evaluation on the suite yet (`evaluate_missing`,
+   one process pool for all of them; the training jobs skip their own evaluation);
 3. writes the tables to `results/paper-<budget>/` and the figures to
    `results/paper-<budget>/figures/`.
 """
@@ -18,10 +19,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from analysis.figures import write_figures
-from analysis.store import ALGOS, run_command
+from analysis.store import ALGOS, connect, require_runs, run_command, select_runs
 from analysis.tables import make_tables
-from epoet.config import CONF_DIR
+from epoet.config import CONF_DIR, compose, validate
 from epoet.core.compute import default_workers
+from epoet.eval.evaluate import evaluate_run, evaluation_pool
+from epoet.eval.suite import load_suite
 
 
 def parallel_overrides(jobs: int, cores: int) -> list[str]:
@@ -43,6 +46,29 @@ def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str
             "evaluate=false",
             f"hydra.sweep.dir={sweep_dir}", "hydra.sweep.subdir=${algo.name}_s${seed}",
             *overrides]
+
+
+def evaluate_missing(experiment: str, out: Path, suite: str | None, episodes: int | None
+                     ) -> None:
+    """Evaluate (and log) every FINISHED run of `experiment` that has no evaluation on the suite
+    yet, all through one process pool; local copies of the results go to
+    out/evaluations/<run id>."""
+    client, uri = connect()
+    runs = require_runs(select_runs(client, uri, experiment), experiment, uri)
+    fingerprint = load_suite(suite).fingerprint
+    missing = [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
+    if not missing:
+        return
+    print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on this suite "
+          f"({fingerprint}): {', '.join(r.info.run_name for r in missing)}", flush=True)
+    overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
+        [f"episodes={episodes}"] if episodes else [])
+    configs = [validate(compose([f"run={run.info.run_id}",
+                                 f"out={out / 'evaluations' / run.info.run_id}", *overrides],
+                                config_name="evaluate")) for run in missing]
+    with evaluation_pool(default_workers()) as pool:
+        for cfg in configs:
+            evaluate_run(cfg, pool=pool)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -92,7 +118,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
 
     def analyse() -> None:
-        make_tables(experiment, out, args.suite, episodes=args.episodes)
+        evaluate_missing(experiment, out, args.suite, args.episodes)
+        make_tables(experiment, out, args.suite)
         write_figures(experiment, out / "figures", args.suite)
 
     if code := run_command(analyse):

@@ -140,6 +140,26 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
         course_scale(runs)
 
 
+def test_tables_only_read_the_store_and_name_the_command_for_unevaluated_runs(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A finished run with no evaluation on the suite is one sentence naming the run and the
+    command, and nothing is evaluated, logged or written."""
+    from analysis.store import AnalysisError
+    from analysis.tables import make_tables
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    run_id = _tracked("ppo", 1, [(0, 1.0)])
+    before = mlflow.MlflowClient(uri).get_run(run_id)
+    with pytest.raises(AnalysisError) as err:
+        make_tables("epoet", tmp_path / "results")
+    message = str(err.value)
+    assert "1 run(s) have no evaluation" in message and run_id in message
+    assert "python -m epoet.eval.evaluate run=" in message and "\n" not in message
+    after = mlflow.MlflowClient(uri).get_run(run_id)
+    assert after.data.tags == before.data.tags and after.data.metrics == before.data.metrics
+    assert not (tmp_path / "results").exists()
+
+
 def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
     """JOBS=k: k jobs at a time through the joblib launcher, k x workers <= cores."""
     from pipeline.paper import main as paper_main

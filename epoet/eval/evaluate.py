@@ -150,7 +150,7 @@ def summarize(episodes: pd.DataFrame) -> dict[str, float]:
 @contextmanager
 def evaluation_pool(workers: int) -> Iterator[Executor | None]:
     """Worker processes for evaluations; None for one worker (episodes run in this process).
-    One pool serves any number of evaluations (`make tables` runs every missing one through the
+    One pool serves any number of evaluations (`make paper` runs every missing one through the
     same pool), so its start-up (imports, torch) is paid once."""
     if workers == 1:
         yield None
@@ -218,7 +218,7 @@ def results_folder(cfg: EvaluateConfig, run: TrainedRun) -> Path:
 
 def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | None = None
                  ) -> tuple[Evaluation, Path, TrainedRun]:
-    """Resolve, check, evaluate, write and log: the whole command, for `make tables` too;
+    """Resolve, check, evaluate, write and log: the whole command, for `make paper` too;
     returns the evaluation, its results folder and the agent's run. Episodes run on `pool`
     (`evaluation_pool`), or on a pool of `cfg.processes` opened for this evaluation."""
     run = resolve_run(cfg.run, cfg.tracking.uri)
