@@ -15,9 +15,14 @@ from torch import nn
 from torchrl.envs import EnvBase, ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
+from epoet.rl.config import RL_ACTIVATIONS
 from epoet.rl.env import OBS, policy_key
 
-ACTIVATIONS: dict[str, type[nn.Module]] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+# The schema's choices (epoet.rl.config.RL_ACTIVATIONS) as torch modules: nn.Tanh for "tanh",
+# nn.ReLU for "relu", ...
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    name: next(getattr(nn, attr) for attr in dir(nn) if attr.lower() == name)
+    for name in RL_ACTIVATIONS}
 
 
 def mlp(in_features: int, out_features: int, hidden: list[int], activation: str) -> MLP:
