@@ -19,6 +19,7 @@ from epoet.core.files import atomic_write
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import ACT_DIM, OBS_DIM
+
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
 

@@ -14,11 +14,10 @@ import numpy as np
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-if TYPE_CHECKING:
-    from epoet.tracking import MlflowTracker, Run
-
 # Hydra instantiates this callback for single runs too, before the job: epoet.tracking (mlflow,
 # ~1.5 s to import) is imported when a multirun starts, so a bad override fails without it.
+if TYPE_CHECKING:
+    from epoet.tracking import MlflowTracker, Run
 
 
 class MlflowSweepCallback(Callback):
