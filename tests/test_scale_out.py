@@ -67,7 +67,10 @@ def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> No
     es = Request(terrain, Mirrored.of(init_params(3, ES_SIZES), seeds, 0.05, seeds + 100), record=3)
     with make_evaluator(agent, terrain_cfg, 1, 4, ES_SIZES) as one:
         (expected,) = one.run([es])
+    sigterm = signal.getsignal(signal.SIGTERM)
     with RayEvaluator(agent, terrain_cfg, 2, 4, ES_SIZES) as on_ray:  # starts a local Ray
+        # ray.init's own SIGTERM handler (sys.exit) would skip a run's checkpoint on SIGTERM
+        assert signal.getsignal(signal.SIGTERM) == sigterm
         (episodes,) = on_ray.run([es])
         np.testing.assert_array_equal(episodes.returns, expected.returns)
         for key, value in expected.transitions.items():

@@ -21,9 +21,11 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 from collections.abc import Iterator, Sequence
 
 import numpy as np
@@ -180,6 +182,10 @@ class RayEvaluator(Backend):
         super().__init__(layer_sizes)
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
+            # ray.init replaces the SIGTERM handler with sys.exit, which would end a run on
+            # SIGTERM (SLURM's preemption) without its checkpoint: the run's handler
+            # (epoet.core.lifecycle.StopOnSignal) is put back.
+            sigterm = signal.getsignal(signal.SIGTERM)
             try:
                 # Local: as many CPUs as workers (or the machine's); a cluster brings its own.
                 ray.init(address=address, num_cpus=None if address else workers,
@@ -189,6 +195,9 @@ class RayEvaluator(Backend):
                     f"cannot join the Ray cluster at {address}: {exc} (a cluster started with "
                     f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)") \
                     from exc
+            finally:
+                if threading.current_thread() is threading.main_thread():
+                    signal.signal(signal.SIGTERM, sigterm)
         self.workers = int(workers or ray.cluster_resources().get("CPU", 1))
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
