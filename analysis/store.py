@@ -88,6 +88,11 @@ def select_runs(client: MlflowClient, uri: str, experiment: str, run_ids: Sequen
             return runs
 
 
+def unevaluated(runs: Sequence[Run], fingerprint: str) -> list[Run]:
+    """The runs with no evaluation on the suite of this fingerprint (their `eval_suite` tag)."""
+    return [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
+
+
 def require_runs(runs: list[Run], experiment: str, uri: str) -> list[Run]:
     """The runs, or AnalysisError saying what to run first."""
     if not runs:

@@ -25,7 +25,7 @@ from mlflow import MlflowClient
 from mlflow.entities import Run
 
 from analysis.store import (AnalysisError, connect, default_experiment, in_order, require_runs,
-                            run_command, seed_of, select_runs)
+                            run_command, seed_of, select_runs, unevaluated)
 from epoet.eval.evaluate import RESULTS
 from epoet.eval.suite import LEVELS, load_suite
 from epoet.tracking import StoredRun
@@ -36,8 +36,7 @@ EASY_MEDIUM = ("easy", "medium")
 def require_evaluations(runs: Sequence[Run], fingerprint: str, suite: str | None) -> None:
     """Every run must have its evaluation on this suite (each training run ends with one;
     `make paper` evaluates its runs); one sentence naming the runs and the command otherwise."""
-    missing = [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
-    if missing:
+    if missing := unevaluated(runs, fingerprint):
         names = ", ".join(f"{r.info.run_name} ({r.info.run_id})" for r in missing[:3])
         more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
         suite_arg = f" suite={suite}" if suite else ""

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from analysis.figures import write_figures
-from analysis.store import ALGOS, connect, require_runs, run_command, select_runs
+from analysis.store import ALGOS, connect, require_runs, run_command, select_runs, unevaluated
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
 from epoet.core.compute import default_workers
@@ -56,7 +56,7 @@ def evaluate_missing(experiment: str, out: Path, suite: str | None, episodes: in
     client, uri = connect()
     runs = require_runs(select_runs(client, uri, experiment), experiment, uri)
     fingerprint = load_suite(suite).fingerprint
-    missing = [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
+    missing = unevaluated(runs, fingerprint)
     if not missing:
         return
     print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on this suite "

@@ -28,7 +28,7 @@ import os
 import sys
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
-from contextlib import ExitStack, contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -231,9 +231,7 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | No
           f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
           flush=True)
     scale = suite.course.scale(run.agent_config(cfg.agent))
-    with ExitStack() as stack:
-        if pool is None:
-            pool = stack.enter_context(evaluation_pool(workers))
+    with nullcontext(pool) if pool is not None else evaluation_pool(workers) as pool:
         result = evaluate(run, suite, cfg, pool, progress)
     info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
             "suite": str(suite.folder), "suite_fingerprint": suite.fingerprint,
