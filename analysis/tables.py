@@ -42,8 +42,8 @@ def require_evaluations(runs: Sequence[Run], fingerprint: str, suite: str | None
         suite_arg = f" suite={suite}" if suite else ""
         raise AnalysisError(
             f"{len(missing)} run(s) have no evaluation on suite {fingerprint}: {names}{more}; "
-            f"evaluate each with `python -m epoet.eval.evaluate run=<run id>{suite_arg}` "
-            f"(`make paper` evaluates every run of its experiment)")
+            f"evaluate each with `python -m epoet.eval.evaluate run=<run id>{suite_arg}`, e.g. "
+            f"run={missing[0].info.run_id} (`make paper` evaluates the runs it trains)")
 
 
 def episodes_of(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
