@@ -238,6 +238,21 @@ class GalleryConfig:
         positive(self, "n")
 
 
+@dataclass
+class ReferenceConfig:
+    """`python -m epoet.eval.reference source=<checkout>`: convert the authors' published agents
+    and evaluation terrains into epoet's formats (epoet/eval/reference/convert.py)."""
+
+    KEY: ClassVar[str] = ""
+
+    source: Optional[str]            # a checkout of github.com/ml-tue/ePOET_3D
+    out: Optional[str]               # None: the shipped folder, epoet/reference
+    check: bool                      # convert and compare with `out`, write nothing
+
+    def __post_init__(self) -> None:
+        check(bool(self.source), "source is required: source=<a checkout of ml-tue/ePOET_3D>.")
+
+
 # --- composition and validation -------------------------------------------------------------------
 
 # conf/algo/<name>.yaml -> its schema
@@ -253,6 +268,7 @@ def register_configs() -> None:
     cs.store(name="suite_schema", node=SuiteConfig)
     cs.store(name="evaluate_schema", node=EvaluateConfig)
     cs.store(name="render_schema", node=RenderConfig)
+    cs.store(name="reference_schema", node=ReferenceConfig)
     cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)

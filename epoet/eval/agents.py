@@ -174,12 +174,18 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
 
 
 def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
-    """`run=<spec>`: a policy file, a run folder, an MLflow run id or its model URI
-    `runs:/<run id>/agent` (in that order).
+    """`run=<spec>`: a shipped reference agent `reference:<run>/<agent>`, a policy file, a run
+    folder, an MLflow run id or its model URI `runs:/<run id>/agent` (in that order).
 
     Its policy is checked here (AgentSource.check), so a bad agent file fails before any
     episode and before the store is opened for a run folder.
     """
+    if spec.startswith("reference:"):  # the authors' agents, shipped converted
+        from epoet.eval.reference import resolve
+        try:
+            return resolve(spec, tracking_uri)
+        except TrackingError as err:
+            raise AgentError(str(err)) from err
     path = Path(spec)
     if path.is_file():
         source = file_source(path)
@@ -194,5 +200,5 @@ def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
             return _from_store(model.group(1), tracking_uri)
     except TrackingError as err:
         raise AgentError(str(err)) from err
-    raise AgentError(f"run={spec} is neither a policy file, a run folder, an MLflow run id nor "
-                     f"a model URI runs:/<run id>/agent.")
+    raise AgentError(f"run={spec} is neither a reference:<run>/<agent>, a policy file, a run "
+                     f"folder, an MLflow run id nor a model URI runs:/<run id>/agent.")

@@ -1,0 +1,78 @@
+"""The authors' published agents and evaluation terrains (github.com/ml-tue/ePOET_3D,
+`trained_models/`), converted into epoet's formats and shipped in `epoet/reference/`.
+
+`reference:<run>/<agent>` (e.g. `reference:poet_hexA8/flat`, `reference:ppo/0`) names a shipped
+agent wherever a run is accepted. It runs with the paper budget's agent config (RK4, 2000-step
+training episodes: as the authors trained it) and the paper's score scale; its results go to an
+MLflow run of its own in the experiment `reference` (made on first use, with the agent as its
+MLflow model), so `make tables EXPERIMENT=reference` tables the authors' agents like any runs.
+`python -m epoet.eval.reference` (convert.py) regenerates the folder from a checkout.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from epoet.eval.agents import TrainedRun
+    from epoet.tracking import StoredRun
+
+FOLDER = Path(__file__).resolve().parent.parent.parent / "reference"
+MANIFEST = "manifest.json"
+PREFIX = "reference:"
+EXPERIMENT = "reference"
+
+
+@cache
+def manifest(folder: Path = FOLDER) -> dict[str, Any]:
+    """The shipped manifest: the source checkout and every converted agent's entry."""
+    return json.loads((folder / MANIFEST).read_text())
+
+
+def names() -> list[str]:
+    return list(manifest()["agents"])
+
+
+def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
+    """`reference:<run>/<agent>` as a TrainedRun; AgentError naming the shipped agents if
+    there is no such agent."""
+    from epoet.config import load
+    from epoet.eval.agents import AgentError, AgentSource, TrainedRun
+    name = spec.removeprefix(PREFIX)
+    entry = manifest()["agents"].get(name)
+    if entry is None:
+        raise AgentError(f"run={spec} names no shipped reference agent; there are "
+                         f"{', '.join(PREFIX + n for n in names())}.")
+    source = AgentSource(entry["kind"], FOLDER / entry["file"])
+    source.check()
+    paper = load(["budget=paper"])  # how the authors trained: RK4, 2000-step episodes
+    config = {"agent": dataclasses.asdict(paper.agent),
+              "budget": {"score_scale": paper.budget.score_scale}}
+    stored = _stored_run(name, entry, source.path, tracking_uri)
+    return TrainedRun(source, spec, stored, entry["algo"], name.split("/", 1)[1], config, None)
+
+
+def _stored_run(name: str, entry: dict[str, Any], path: Path,
+                tracking_uri: str | None) -> StoredRun:
+    """The agent's run in the experiment `reference`, made (with its MLflow model) on first
+    use."""
+    from epoet.envs.spaces import ACT_DIM, OBS_DIM
+    from epoet.tracking import MlflowTracker, StoredRun, open_store, resolve_tracking_uri
+    uri = resolve_tracking_uri(tracking_uri)
+    client = open_store(uri)
+    experiment = client.get_experiment_by_name(EXPERIMENT)
+    if experiment is not None:
+        found = client.search_runs([experiment.experiment_id], f"tags.reference = '{name}'",
+                                   max_results=1)
+        if found:
+            return StoredRun(client, found[0], uri)
+    provenance = {**manifest()["source"], **{k: v for k, v in entry.items() if k != "layout"}}
+    with MlflowTracker(uri, EXPERIMENT) as tracker:
+        run_id = tracker.start(f"{PREFIX}{name}", params=provenance,
+                               tags={"algo": entry["algo"], "seed": name.split("/", 1)[1],
+                                     "reference": name, "budget": "paper"})
+        tracker.log_agent(path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)
+    return StoredRun.open(run_id, uri)

@@ -1,0 +1,3 @@
+from epoet.eval.reference.convert import main
+
+main()
