@@ -26,13 +26,15 @@ train: install
 	$(PY) -m epoet
 
 # The paper's tables and figures from the runs in ./mlflow.db (EXPERIMENT: its experiment;
-# default: the runs' default, tracking.experiment).
+# default: the runs' default, tracking.experiment; SUITE: the suite whose evaluations they read,
+# a name (shipped, paper) or a folder; default: shipped).
 EXPERIMENT ?=
+SUITE ?=
 tables: install
-	$(PY) -m analysis.tables $(if $(EXPERIMENT),--experiment $(EXPERIMENT))
+	$(PY) -m analysis.tables $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE))
 
 figures: install
-	$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT))
+	$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE))
 
 # Every algorithm x seed at one budget, evaluated, tabled and plotted; resumable (README).
 BUDGET ?= laptop

@@ -1,6 +1,6 @@
 """The paper's figures from the MLflow store (`make figures`).
 
-    python -m analysis.figures [--experiment epoet] [--out results/figures] [--suite FOLDER]
+    python -m analysis.figures [--experiment epoet] [--out results/figures] [--suite NAME | FOLDER]
 
 Writes to `--out` (each figure with the CSV of exactly its plotted points):
 - `learning_curves.png`: every algorithm's `score` (ePOET: the best active pair's evaluation
@@ -11,8 +11,9 @@ Writes to `--out` (each figure with the CSV of exactly its plotted points):
   (Figure 2b).
 - `annecs.png`: ANNECS and the active / archived environments per iteration (ePOET family).
 - `tsne.png`: t-SNE of the sampled actions on three suite terrains (the first easy, medium and
-  hard one), one panel per algorithm (Figure 5); needs the runs' suite evaluations
-  (each training run ends with one; `make paper` evaluates its runs).
+  hard one), one panel per algorithm (Figure 5); needs the runs' evaluations on that suite
+  (`evaluation/<suite name>/` artifacts; each training run ends with one on the shipped suite;
+  `make paper` evaluates its runs).
 - `suite_gallery.png`: the evaluation suite by level, as 3D surfaces (Figure 3).
 - `admitted_<run>.png`: the terrains a ePOET-family run admitted, in admission order (Figure 4).
 """
@@ -37,8 +38,9 @@ from mlflow.entities import Run  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
 from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, default_experiment,  # noqa: E402
-                            history, in_order, require_runs, run_command, seed_of, select_runs)
-from epoet.eval.evaluate import RESULTS  # noqa: E402
+                            evaluation_on, history, in_order, require_runs, run_command, seed_of,
+                            select_runs)
+from epoet.eval.keys import suite_argument  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
 from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
 from epoet.tracking import StoredRun  # noqa: E402
@@ -166,21 +168,24 @@ def plot_environments(table: pd.DataFrame, out: Path) -> list[Path]:
 
 
 def tsne_table(client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str],
-               seed: int = 0) -> pd.DataFrame:
-    """2-D t-SNE of each algorithm's sampled actions on `terrains` (its first evaluated run)."""
+               suite: Suite, seed: int = 0) -> pd.DataFrame:
+    """2-D t-SNE of each algorithm's sampled actions on `terrains` (its first run evaluated on
+    `suite`)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="epoet-tsne-") as tmp:
         for algo in in_order(r.data.tags["algo"] for r in runs):
             run = next((r for r in runs if r.data.tags["algo"] == algo
-                        and "eval_suite" in r.data.tags), None)
+                        and evaluation_on(r, suite) is not None), None)
             if run is None:
-                print(f"t-SNE: no {algo} run has a suite evaluation (python -m epoet.eval.evaluate "
-                      f"run=<run id> makes one)")
+                print(f"t-SNE: no {algo} run has an evaluation on suite {suite.name} (python -m "
+                      f"epoet.eval.evaluate run=<run id> "
+                      f"suite={suite_argument(suite.name, suite.folder)} makes one)")
                 continue
             stored = StoredRun(client, run)
             folder = Path(tmp) / run.info.run_id
-            episodes = pd.read_csv(stored.download(f"{RESULTS}/episodes.csv", folder))
-            with np.load(stored.download(f"{RESULTS}/actions.npz", folder)) as data:
+            logged = evaluation_on(run, suite).artifacts
+            episodes = pd.read_csv(stored.download(f"{logged}/episodes.csv", folder))
+            with np.load(stored.download(f"{logged}/actions.npz", folder)) as data:
                 row, action = data["row"], data["action"]
             mask = np.isin(episodes.terrain.to_numpy()[row], terrains)
             if mask.sum() < 5:
@@ -260,7 +265,7 @@ def write_figures(experiment: str, out: Path, suite: str | None = None,
     loaded = load_suite(suite)
     picks = [next(t.name for t in loaded.terrains if t.level == level)
              for level in TSNE_LEVELS if any(t.level == level for t in loaded.terrains)]
-    tsne = tsne_table(client, runs, picks)
+    tsne = tsne_table(client, runs, picks, loaded)
     if not tsne.empty:
         written += plot_tsne(tsne, picks, out)
     written += suite_gallery(loaded, out)
@@ -275,7 +280,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--experiment", default=default_experiment(),
                         help="MLflow experiment (default: the runs' default, tracking.experiment)")
     parser.add_argument("--out", type=Path, default=Path("results/figures"))
-    parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
+    parser.add_argument("--suite", default=None,
+                        help="suite name (shipped, paper) or suite folder (default: shipped)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID")
     args = parser.parse_args(argv)
     return run_command(lambda: write_figures(args.experiment, args.out, args.suite, args.run))

@@ -16,7 +16,8 @@ from omegaconf import OmegaConf
 from epoet.config import CONF_DIR
 from epoet.eval.agents import AgentError
 from epoet.core.errors import first_line
-from epoet.eval.suite import SuiteError
+from epoet.eval.keys import Logged, logged_evaluation
+from epoet.eval.suite import Suite, SuiteError
 from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path
 
 ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")   # table and legend order
@@ -88,9 +89,16 @@ def select_runs(client: MlflowClient, uri: str, experiment: str, run_ids: Sequen
             return runs
 
 
-def unevaluated(runs: Sequence[Run], fingerprint: str) -> list[Run]:
-    """The runs with no evaluation on the suite of this fingerprint (their `eval_suite` tag)."""
-    return [r for r in runs if r.data.tags.get("eval_suite") != fingerprint]
+def evaluation_on(run: Run, suite: Suite) -> Logged | None:
+    """The run's evaluation on `suite`: its `eval_suite/<name>` tag is the suite's fingerprint
+    (or, for a run logged before evaluations were keyed by suite, its `eval_suite` tag:
+    `epoet.eval.keys`); None without one."""
+    return logged_evaluation(run.data.tags, suite.name, suite.fingerprint)
+
+
+def unevaluated(runs: Sequence[Run], suite: Suite) -> list[Run]:
+    """The runs with no evaluation on `suite` (`evaluation_on`)."""
+    return [r for r in runs if evaluation_on(r, suite) is None]
 
 
 def require_runs(runs: list[Run], experiment: str, uri: str) -> list[Run]:

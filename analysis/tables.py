@@ -1,6 +1,6 @@
 """The paper's Tables 1 and 2 from the evaluations in the MLflow store (`make tables`).
 
-    python -m analysis.tables [--experiment epoet] [--out results] [--suite FOLDER]
+    python -m analysis.tables [--experiment epoet] [--out results] [--suite NAME | FOLDER]
 
 - Table 1: success rate per difficulty level (and in total) per algorithm: each run's rate over
   its suite episodes, then mean +- sample std over the algorithm's runs (seeds).
@@ -8,10 +8,14 @@
   maximum return, pooling every episode of the algorithm's runs (the paper: 16 terrains x 5
   runs per agent).
 
-Each table is written as Markdown, LaTeX and CSV under `--out` and printed. The numbers come
-from each run's `evaluation/episodes.csv` artifact. The tables only read the store: a FINISHED
-run without an evaluation on the suite (its `eval_suite` tag is not the suite's fingerprint) is
-an error that names the command evaluating it (pipeline/paper.py evaluates for `make paper`).
+The tables are of one suite (`--suite`: "shipped", the default, "paper" or a suite folder; its
+name is in their titles), each written as Markdown, LaTeX and CSV under `--out`, named per suite
+(`table1_<suite name>.md`, ...), and printed. The numbers come from each run's
+`evaluation/<suite name>/episodes.csv` artifact (a run logged before evaluations were keyed by
+suite: `evaluation/episodes.csv`, when its `eval_suite` tag is the suite's fingerprint). The
+tables only read the store: a FINISHED run without an evaluation on the suite (its
+`eval_suite/<suite name>` tag is not the suite's fingerprint) is an error that names the command
+evaluating it (pipeline/paper.py evaluates for `make paper`).
 """
 from __future__ import annotations
 
@@ -24,34 +28,39 @@ import pandas as pd
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
-from analysis.store import (AnalysisError, connect, default_experiment, in_order, require_runs,
-                            run_command, seed_of, select_runs, unevaluated)
-from epoet.eval.evaluate import RESULTS
-from epoet.eval.suite import LEVELS, load_suite
+from analysis.store import (AnalysisError, connect, default_experiment, evaluation_on, in_order,
+                            require_runs, run_command, seed_of, select_runs, unevaluated)
+from epoet.eval.keys import SHIPPED_NAME
+from epoet.eval.suite import LEVELS, Suite, load_suite
 from epoet.tracking import StoredRun
 
 EASY_MEDIUM = ("easy", "medium")
 
 
-def require_evaluations(runs: Sequence[Run], fingerprint: str, suite: str | None) -> None:
-    """Every run must have its evaluation on this suite (each training run ends with one;
-    `make paper` evaluates its runs); one sentence naming the runs and the command otherwise."""
-    if missing := unevaluated(runs, fingerprint):
+def require_evaluations(runs: Sequence[Run], loaded: Suite, suite: str | None) -> None:
+    """Every run must have its evaluation on this suite (each training run ends with one on the
+    shipped suite; `make paper` evaluates its runs); one sentence naming the runs and the
+    command otherwise."""
+    if missing := unevaluated(runs, loaded):
         names = ", ".join(f"{r.info.run_name} ({r.info.run_id})" for r in missing[:3])
         more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
         suite_arg = f" suite={suite}" if suite else ""
         raise AnalysisError(
-            f"{len(missing)} run(s) have no evaluation on suite {fingerprint}: {names}{more}; "
+            f"{len(missing)} run(s) have no evaluation on suite {loaded.name} "
+            f"({loaded.fingerprint}): {names}{more}; "
             f"evaluate each with `python -m epoet.eval.evaluate run=<run id>{suite_arg}`, e.g. "
             f"run={missing[0].info.run_id} (`make paper` evaluates the runs it trains)")
 
 
-def episodes_of(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
-    """Every run's episodes.csv, with its algo, seed and run id."""
+def episodes_of(client: MlflowClient, runs: Sequence[Run], suite: Suite) -> pd.DataFrame:
+    """Every run's episodes.csv on `suite` (each run has its evaluation on it), with its algo,
+    seed and run id."""
     frames = []
     with tempfile.TemporaryDirectory(prefix="epoet-tables-") as tmp:
         for run in runs:
-            path = StoredRun(client, run).download(f"{RESULTS}/episodes.csv", Path(tmp) / run.info.run_id)
+            folder = evaluation_on(run, suite).artifacts
+            path = StoredRun(client, run).download(f"{folder}/episodes.csv",
+                                                   Path(tmp) / run.info.run_id)
             frame = pd.read_csv(path)
             frame.insert(0, "run_id", run.info.run_id)
             frame.insert(1, "algo", run.data.tags["algo"])
@@ -120,10 +129,11 @@ def to_markdown(frame: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def course_scale(runs: Sequence[Run]) -> str:
-    """The one course scale the runs were evaluated at (a budget's episodes set it: "solved"
-    on a fifth of the course is not "solved" on all of it, so scales are never mixed)."""
-    scales = {r.data.tags.get("eval_course_scale", "1") for r in runs}
+def course_scale(runs: Sequence[Run], suite: Suite) -> str:
+    """The one course scale the runs were evaluated at on `suite` (a budget's episodes set it:
+    "solved" on a fifth of the course is not "solved" on all of it, so scales are never
+    mixed)."""
+    scales = {evaluation_on(r, suite).course_scale for r in runs}
     if len(scales) > 1:
         raise AnalysisError(f"the runs were evaluated at different course scales "
                             f"({', '.join(sorted(scales))}): table one budget's runs at a time "
@@ -131,22 +141,25 @@ def course_scale(runs: Sequence[Run]) -> str:
     return scales.pop()
 
 
-def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1") -> list[Path]:
+def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1",
+                 suite: str = SHIPPED_NAME) -> list[Path]:
+    """Tables 1 and 2 of the episodes on the suite named `suite`, as out/table<k>_<suite>.*"""
     out.mkdir(parents=True, exist_ok=True)
     t1, t2 = table1(episodes), table2(episodes)
     shown1, shown2 = formatted(t1, t2)
     written = []
-    at = f" (course scale {scale})"
+    at = f" on suite {suite} (course scale {scale})"
     titles = {"table1": f"Table 1: success rate (%) by difficulty, mean ± std over runs{at}",
               "table2": f"Table 2: return over the easy and medium terrains{at}"}
     for name, raw, shown in (("table1", t1, shown1), ("table2", t2, shown2)):
-        raw.to_csv(out / f"{name}.csv", index=False)
+        stem = f"{name}_{suite}"
+        raw.to_csv(out / f"{stem}.csv", index=False)
         markdown = to_markdown(shown)
-        (out / f"{name}.md").write_text(f"{titles[name]}\n\n{markdown}\n")
-        (out / f"{name}.tex").write_text(shown.to_latex(index=False, caption=titles[name],
-                                                        label=f"tab:{name}"))
+        (out / f"{stem}.md").write_text(f"{titles[name]}\n\n{markdown}\n")
+        (out / f"{stem}.tex").write_text(shown.to_latex(index=False, caption=titles[name],
+                                                        label=f"tab:{stem}"))
         print(f"\n{titles[name]}\n{markdown}")
-        written += [out / f"{name}.{ext}" for ext in ("csv", "md", "tex")]
+        written += [out / f"{stem}.{ext}" for ext in ("csv", "md", "tex")]
     print(f"\nwrote {', '.join(str(p) for p in written)}")
     return written
 
@@ -155,8 +168,10 @@ def make_tables(experiment: str, out: Path, suite: str | None = None,
                 run_ids: Sequence[str] = (), tracking_uri: str | None = None) -> list[Path]:
     client, uri = connect(tracking_uri)
     runs = require_runs(select_runs(client, uri, experiment, run_ids), experiment, uri)
-    require_evaluations(runs, load_suite(suite).fingerprint, suite)
-    return write_tables(episodes_of(client, runs), out, course_scale(runs))
+    loaded = load_suite(suite)
+    require_evaluations(runs, loaded, suite)
+    return write_tables(episodes_of(client, runs, loaded), out, course_scale(runs, loaded),
+                        loaded.name)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -169,7 +184,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              "runs' default, tracking.experiment)")
     parser.add_argument("--out", type=Path, default=Path("results"),
                         help="folder for the Markdown, LaTeX and CSV files (default: results)")
-    parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
+    parser.add_argument("--suite", default=None,
+                        help="suite name (shipped, paper) or suite folder whose evaluations "
+                             "are tabled (default: shipped)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
                         help="table these runs instead of the experiment's")
     return parser.parse_args(argv)

@@ -126,11 +126,12 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
 def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> list[str]:
     """What a finished run says last: its headline numbers and, outside a sweep (whose parent
     prints a line per job), where its outputs are and the commands that look at them."""
+    from epoet.eval.keys import RESULTS, SHIPPED_NAME, suite_metric
     m = stored.metrics
     numbers = f"score {m['score']:.1f} (best {m['best_score']:.1f})" if "score" in m else ""
-    if "suite/success_rate" in m:
-        numbers += (f", solved {m['suite/success_rate']:.1%} of the suite (mean return "
-                    f"{m['suite/return_mean']:.1f})")
+    if (solved := suite_metric(m, SHIPPED_NAME, "success_rate")) is not None:
+        numbers += (f", solved {solved:.1%} of the {SHIPPED_NAME} suite (mean return "
+                    f"{suite_metric(m, SHIPPED_NAME, 'return_mean'):.1f})")
     seconds = m.get("elapsed", 0.0)
     took = f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
     head = (f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} done after "
@@ -140,7 +141,8 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
     from epoet.eval.suite import example_terrain
     return [head,
             f"  outputs:  {run_dir} (checkpoint, exported agent"
-            f"{', evaluation/' if cfg.evaluate else ''}); MLflow run {stored.run_id}",
+            f"{f', {RESULTS}/{SHIPPED_NAME}/' if cfg.evaluate else ''}); MLflow run "
+            f"{stored.run_id}",
             f"  runs:     {stored.ui_hint()}",
             f"  evaluate: python -m epoet.eval.evaluate run={run_dir}",
             f"  render:   python -m epoet.eval.render run={run_dir} terrain={example_terrain()}"]
@@ -162,14 +164,16 @@ class EvaluationError(RuntimeError):
 
 def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     """The run's exported agent (as `agent_choice` picked it) on the shipped suite,
-    `budget.eval_episodes` episodes per terrain, logged to its MLflow run: what
+    `budget.eval_episodes` episodes per terrain, logged to its MLflow run under the shipped
+    suite's name (`suite/shipped/...`, `evaluation/shipped/`): what
     `python -m epoet.eval.evaluate run=<run_dir>` does. Interrupted, the run is not DONE, and a
-    resume evaluates it again."""
+    resume evaluates it again (logging each metric once: `StoredRun.log_results`)."""
     from epoet.eval.agents import AgentError  # pandas, the suite, the env: only when evaluating
     from epoet.eval.evaluate import evaluate_run
+    from epoet.eval.keys import RESULTS, SHIPPED_NAME
     from epoet.eval.suite import SuiteError
     overrides = [f"run={run_dir}", f"episodes={cfg.budget.eval_episodes}",
-                 f"out={run_dir / 'evaluation'}"]
+                 f"suite={SHIPPED_NAME}", f"out={run_dir / RESULTS / SHIPPED_NAME}"]
     overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
     overrides += [f"processes={cfg.workers.num}"] if cfg.workers.num else []
     try:

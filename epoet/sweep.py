@@ -14,6 +14,8 @@ import numpy as np
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from epoet.eval.keys import SHIPPED_NAME, suite_metric
+
 # Hydra instantiates this callback for single runs too, before the job: epoet.tracking (mlflow,
 # ~1.5 s to import) is imported when a multirun starts, so a bad override fails without it.
 if TYPE_CHECKING:
@@ -95,7 +97,7 @@ def job_lines(children: list[Run]) -> list[str]:
         numbers = "".join(f" {label}={value:.1f}" for label, key in (("score", "score"),
                                                                       ("best", "best_score"))
                           if (value := run.data.metrics.get(key)) is not None)
-        if (success := run.data.metrics.get("suite/success_rate")) is not None:
+        if (success := suite_metric(run.data.metrics, SHIPPED_NAME, "success_rate")) is not None:
             numbers += f" solved={success:.0%}"
         lines.append(f"[sweep] {tags.get('algo', '?')} seed={tags.get('seed', '?')} "
                      f"{run.info.status}{numbers} run_id={run.info.run_id}")
@@ -104,7 +106,8 @@ def job_lines(children: list[Run]) -> list[str]:
 
 def sweep_summary(children: list[Run]) -> dict[str, float]:
     """Per algorithm over its finished jobs: the mean (and std) final `score` and suite success
-    rate, and how many finished, so the parent row reads as the sweep's result."""
+    rate (the shipped suite's, `epoet.eval.keys`), and how many finished, so the parent row
+    reads as the sweep's result."""
     groups: dict[str, list[Run]] = {}
     for run in children:
         if run.info.status == "FINISHED":
@@ -112,8 +115,10 @@ def sweep_summary(children: list[Run]) -> dict[str, float]:
     summary: dict[str, float] = {}
     for algo, runs in groups.items():
         summary[f"sweep/{algo}/finished"] = float(len(runs))
-        for key, name in (("score", "score"), ("suite/success_rate", "success_rate")):
-            values = [v for run in runs if (v := run.data.metrics.get(key)) is not None]
+        for name, found in (("score", [r.data.metrics.get("score") for r in runs]),
+                            ("success_rate", [suite_metric(r.data.metrics, SHIPPED_NAME,
+                                                           "success_rate") for r in runs])):
+            values = [v for v in found if v is not None]
             if values:
                 summary[f"sweep/{algo}/{name}_mean"] = float(np.mean(values))
                 if len(values) > 1:

@@ -5,8 +5,9 @@
    (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again after an
    interruption skips the finished jobs and continues the interrupted ones from their
    checkpoints;
-2. evaluates every finished run that has no evaluation on the suite yet (`evaluate_missing`,
-   one process pool for all of them; the training jobs skip their own evaluation);
+2. evaluates every finished run that has no evaluation on the suite (`--suite`: a name or a
+   folder; its `eval_suite/<name>` tag) yet (`evaluate_missing`, one process pool for all of
+   them; the training jobs skip their own evaluation);
 3. writes the tables to `results/paper-<budget>/` and the figures to
    `results/paper-<budget>/figures/`.
 """
@@ -52,19 +53,21 @@ def evaluate_missing(experiment: str, out: Path, suite: str | None, episodes: in
                      ) -> None:
     """Evaluate (and log) every FINISHED run of `experiment` that has no evaluation on the suite
     yet, all through one process pool; local copies of the results go to
-    out/evaluations/<run id>."""
+    out/evaluations/<run id>/<suite name>."""
     client, uri = connect()
     runs = require_runs(select_runs(client, uri, experiment), experiment, uri)
-    fingerprint = load_suite(suite).fingerprint
-    missing = unevaluated(runs, fingerprint)
+    loaded = load_suite(suite)
+    missing = unevaluated(runs, loaded)
     if not missing:
         return
-    print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on this suite "
-          f"({fingerprint}): {', '.join(r.info.run_name for r in missing)}", flush=True)
+    print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on suite "
+          f"{loaded.name} ({loaded.fingerprint}): {', '.join(r.info.run_name for r in missing)}",
+          flush=True)
     overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
         [f"episodes={episodes}"] if episodes else [])
     configs = [validate(compose([f"run={run.info.run_id}",
-                                 f"out={out / 'evaluations' / run.info.run_id}", *overrides],
+                                 f"out={out / 'evaluations' / run.info.run_id / loaded.name}",
+                                 *overrides],
                                 config_name="evaluate")) for run in missing]
     with evaluation_pool(default_workers()) as pool:
         for cfg in configs:
@@ -77,7 +80,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--budget", default="laptop")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
     parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
-    parser.add_argument("--suite", default=None, help="suite folder (default: the shipped one)")
+    parser.add_argument("--suite", default=None,
+                        help="suite name (shipped, paper) or suite folder (default: shipped)")
     parser.add_argument("--episodes", type=int, default=None,
                         help="evaluation episodes per terrain (default: 5)")
     parser.add_argument("--jobs", type=int, default=1,

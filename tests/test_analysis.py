@@ -128,16 +128,25 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
     """A laptop run's "solved" (a fifth of the course) is not a paper run's: never one table."""
     from analysis.store import AnalysisError
     from analysis.tables import course_scale
+    from epoet.eval.suite import load_suite
+    suite = load_suite()
     client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
     exp = client.create_experiment("scales")
     runs = []
-    for scale in ("0.2", "1", "0.2"):
+    for scale, other in (("0.2", "1"), ("1", "0.2"), ("0.2", "1")):
         run_id = client.create_run(exp).info.run_id
-        client.set_tag(run_id, "eval_course_scale", scale)
+        client.set_tag(run_id, "eval_suite/shipped", suite.fingerprint)
+        client.set_tag(run_id, "eval_course_scale/shipped", scale)
+        client.set_tag(run_id, "eval_course_scale/paper", other)  # another suite's: not read
         runs.append(client.get_run(run_id))
-    assert course_scale([runs[0], runs[2]]) == "0.2"
+    assert course_scale([runs[0], runs[2]], suite) == "0.2"
     with pytest.raises(AnalysisError, match=r"different course scales \(0.2, 1\)"):
-        course_scale(runs)
+        course_scale(runs, suite)
+    # a run logged before evaluations were keyed by suite: its unkeyed tags
+    legacy = client.create_run(exp).info.run_id
+    client.set_tag(legacy, "eval_suite", suite.fingerprint)
+    client.set_tag(legacy, "eval_course_scale", "0.2")
+    assert course_scale([runs[0], client.get_run(legacy)], suite) == "0.2"
 
 
 def test_tables_only_read_the_store_and_name_the_command_for_unevaluated_runs(

@@ -69,11 +69,17 @@ def test_every_algorithm_is_trained_evaluated_and_logged(paper):
     assert sorted(runs) == sorted(ALGOS)
     assert "evaluating 5 run(s) that have no evaluation" in stdout
     client = mlflow.MlflowClient(uri)
+    name = load_suite(suite).name
+    assert name == "suite"  # a folder's suite is named by its basename
     for algo, run in runs.items():
         metrics = run.data.metrics
-        for key in ("suite/success_rate", "suite/return_mean", "suite/forward_distance_mean",
-                    *(f"suite/success_rate_{level}" for level in LEVELS)):
-            assert key in metrics, (algo, key)
+        for stat in ("success_rate", "return_mean", "forward_distance_mean", "finish_rate",
+                     *(f"success_rate_{level}" for level in LEVELS)):
+            assert f"suite/{name}/{stat}" in metrics, (algo, stat)
+        assert not [k for k in metrics if k.startswith("suite/success")]  # never unkeyed
+        assert run.data.tags[f"eval_suite/{name}"] == load_suite(suite).fingerprint
+        assert "eval_suite" not in run.data.tags
+        assert run.data.tags[f"eval_episodes/{name}"] == "1"
         # the common axes and score, so MLflow charts can compare every algorithm
         for key in ("env_steps", "elapsed", "score"):
             assert key in metrics, (algo, key)
@@ -81,13 +87,14 @@ def test_every_algorithm_is_trained_evaluated_and_logged(paper):
                                                                      "elapsed"),
                                            key=lambda m: m.step)]
         assert elapsed == sorted(elapsed)
-        names = {a.path for a in client.list_artifacts(run.info.run_id, "evaluation")}
-        assert names == {"evaluation/episodes.csv", "evaluation/actions.npz",
-                         "evaluation/summary.json"}
-        csv = pd.read_csv(client.download_artifacts(run.info.run_id, "evaluation/episodes.csv"))
+        names = {a.path for a in client.list_artifacts(run.info.run_id, f"evaluation/{name}")}
+        assert names == {f"evaluation/{name}/episodes.csv", f"evaluation/{name}/actions.npz",
+                         f"evaluation/{name}/summary.json"}
+        csv = pd.read_csv(client.download_artifacts(run.info.run_id,
+                                                    f"evaluation/{name}/episodes.csv"))
         assert len(csv) == 4 and sorted(csv.level) == sorted(LEVELS)
-        assert metrics["suite/return_mean"] == pytest.approx(csv["return"].mean())
-        assert metrics["suite/forward_distance_mean"] == pytest.approx(
+        assert metrics[f"suite/{name}/return_mean"] == pytest.approx(csv["return"].mean())
+        assert metrics[f"suite/{name}/forward_distance_mean"] == pytest.approx(
             csv.forward_distance.mean())
         # the suite's episodes: 2.5 x the smoke budget's 50 steps
         assert (csv.length <= 125).all() and (csv.length > 0).all()
@@ -99,11 +106,12 @@ def test_tables_match_the_evaluation_csvs(paper):
     client = mlflow.MlflowClient(uri)
     frames = []
     for algo, run in finished_runs(uri).items():
-        csv = pd.read_csv(client.download_artifacts(run.info.run_id, "evaluation/episodes.csv"))
+        csv = pd.read_csv(client.download_artifacts(run.info.run_id,
+                                                    "evaluation/suite/episodes.csv"))
         frames.append(csv.assign(algo=algo, run_id=run.info.run_id))
     episodes = pd.concat(frames)
-    t1 = pd.read_csv(results / "table1.csv").set_index("algo")
-    t2 = pd.read_csv(results / "table2.csv").set_index("algo")
+    t1 = pd.read_csv(results / "table1_suite.csv").set_index("algo")  # the suite named "suite"
+    t2 = pd.read_csv(results / "table2_suite.csv").set_index("algo")
     for algo, rows in episodes.groupby("algo"):
         assert t1.loc[algo, "total_mean"] == pytest.approx(rows.solved.mean())
         for level in LEVELS:
@@ -113,8 +121,9 @@ def test_tables_match_the_evaluation_csvs(paper):
         assert t2.loc[algo, "return_mean"] == pytest.approx(easy.mean())
         assert t2.loc[algo, "return_max"] == pytest.approx(easy.max())
         assert t2.loc[algo, "episodes"] == 2
-    assert "| epoet_sac |" in (results / "table1.md").read_text()
-    assert "\\begin{tabular}" in (results / "table2.tex").read_text()
+    table1_md = (results / "table1_suite.md").read_text()
+    assert "| epoet_sac |" in table1_md and "on suite suite" in table1_md.splitlines()[0]
+    assert "\\begin{tabular}" in (results / "table2_suite.tex").read_text()
 
 
 def test_table_statistics_are_over_runs_and_pooled_episodes():
@@ -175,7 +184,8 @@ def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
     (broken / "heights.npz").unlink()
     one_line_error(capsys, lambda: evaluate.main([f"run={runs['epoet'].info.run_id}",
                                                   f"suite={broken}"]), "has no heights.npz")
-    one_line_error(capsys, lambda: evaluate.main(["run=nothing-here"]), "neither a policy file")
+    one_line_error(capsys, lambda: evaluate.main(["run=nothing-here"]),
+                   "a policy file, a run folder")
     one_line_error(capsys, lambda: evaluate.main(["episodes=0", "run=x"]), "episodes")
     empty = f"sqlite:///{tmp_path}/empty.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", empty)
@@ -216,12 +226,15 @@ def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
     run(compose([*smoke, "evaluate=true"]), tmp_path / "run")
     run_id = load_checkpoint(tmp_path / "run" / "checkpoint.pkl")["run_id"]
     record = mlflow.MlflowClient(mlflow_uri).get_run(run_id).data
-    assert "suite/success_rate" in record.metrics
-    assert record.tags["eval_episodes"] == "1" and record.tags["eval_course_scale"] == "0.025"
-    assert (tmp_path / "run" / "evaluation" / "episodes.csv").is_file()
+    assert "suite/shipped/success_rate" in record.metrics   # keyed by the shipped suite's name
+    assert record.tags["eval_suite/shipped"] == load_suite().fingerprint
+    assert record.tags["eval_episodes/shipped"] == "1"
+    assert record.tags["eval_course_scale/shipped"] == "0.025"
+    assert (tmp_path / "run" / "evaluation" / "shipped" / "episodes.csv").is_file()
     run(compose([*smoke, "evaluate=false"]), tmp_path / "plain")
     run_id = load_checkpoint(tmp_path / "plain" / "checkpoint.pkl")["run_id"]
-    assert "suite/success_rate" not in mlflow.MlflowClient(mlflow_uri).get_run(run_id).data.metrics
+    assert not [k for k in mlflow.MlflowClient(mlflow_uri).get_run(run_id).data.metrics
+                if k.startswith("suite/")]
 
 
 def test_every_agent_loads_as_an_mlflow_model_and_acts_as_the_product(paper, monkeypatch):

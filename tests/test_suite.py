@@ -14,8 +14,9 @@ from epoet.config import compose, load, validate
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
-from epoet.eval.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, generate,
-                                 level_of, load_suite, quantize, write_suite)
+from epoet.eval import suite as suite_module
+from epoet.eval.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, example_terrain,
+                                 generate, level_of, load_suite, quantize, write_suite)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -178,3 +179,41 @@ def test_check_command_reports_a_mismatch_in_one_line(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.startswith("error: suite") and "differs" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_suites_are_named_shipped_paper_or_by_their_folder(tmp_path, monkeypatch):
+    """A suite's name keys its evaluations in a run: "shipped" and "paper" for the named suites
+    (by name or by their folder), any other folder its basename in [A-Za-z0-9_.-], "dir-" before
+    a basename that is a named suite's name, so no folder passes for a named suite."""
+    assert suite_module.PAPER == ROOT / "epoet" / "reference" / "suite"
+    assert load_suite().name == load_suite("shipped").name == load_suite(SHIPPED).name == "shipped"
+    for basename, name in (("my suite", "my_suite"), ("paper", "dir-paper"),
+                           ("shipped", "dir-shipped")):
+        shutil.copytree(SHIPPED, tmp_path / basename)
+        assert load_suite(tmp_path / basename).name == name
+    # "paper" names the paper suite's folder; while it is missing, the usual one-line error
+    monkeypatch.setitem(suite_module.SUITES, "paper", tmp_path / "nowhere")
+    with pytest.raises(SuiteError, match="nowhere is not a suite folder: it has no suite.json"):
+        load_suite("paper")
+    monkeypatch.setitem(suite_module.SUITES, "paper", tmp_path / "my suite")
+    paper = load_suite("paper")
+    assert paper.name == "paper" and paper.folder == tmp_path / "my suite"
+    assert load_suite(tmp_path / "my suite").name == "paper"  # its folder, given by path
+
+
+def test_example_terrain_names_a_terrain_of_the_given_suite(tmp_path):
+    shipped = load_suite()
+    first_medium = next(t.name for t in shipped.terrains if t.level == "medium")
+    assert example_terrain() == example_terrain(suite=shipped) == first_medium
+    picks = [next(t for t in shipped.terrains if t.level == level)
+             for level in ("hard", "extreme")]
+    index = json.loads((SHIPPED / "suite.json").read_text())
+    index["terrains"] = [{**e, "name": f"x_{e['name']}"} for e in index["terrains"]
+                         if e["name"] in {t.name for t in picks}]
+    tmp_path.joinpath("suite.json").write_text(json.dumps(index))
+    with np.load(SHIPPED / "heights.npz") as heights:
+        np.savez(tmp_path / "heights.npz", **{f"x_{t.name}": heights[t.name] for t in picks})
+    other = load_suite(tmp_path)
+    assert sorted(t.level for t in other.terrains) == ["extreme", "hard"]
+    assert example_terrain(suite=other) == other.terrains[0].name   # no medium: its first
+    assert example_terrain("extreme", other) == f"x_{picks[1].name}"

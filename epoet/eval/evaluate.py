@@ -1,5 +1,5 @@
 """`python -m epoet.eval.evaluate run=<MLflow run id | run folder | policy file> [episodes=5]
-[suite=<folder>]`: a trained agent on the fixed evaluation suite (paper Section 4).
+[suite=<shipped | paper | folder>]`: a trained agent on an evaluation suite (paper Section 4).
 
 Every terrain of the suite is run `episodes` times (the paper: 32 x 5 = 160 episodes), each from
 a start keyed by (seed, terrain, episode), so two agents meet the same starts. The agent runs
@@ -8,17 +8,22 @@ suite's course: its start and finish line, and episodes `episode_ratio` x the ru
 episodes (the reference's 5000 steps for the paper's 2000). "Solved" means the paper's: the
 finish line reached with a return of at least `solve_score` x the run's budget score scale.
 
-Writes to the results folder (`out`, default `<run folder>/evaluation`, or
-`evaluation/<label>/` for an MLflow run or a policy file):
+Results are keyed by the suite's name (`epoet.eval.suite`: "shipped", the default, "paper", or a
+folder's name), so one run evaluated on several suites keeps each suite's results. Writes to the
+results folder (`out`, default `<run folder>/evaluation/<name>`, or `evaluation/<label>/<name>`
+for an MLflow run or a policy file):
 - `episodes.csv`: one row per episode (terrain, level, roughness, episode, start_seed, return,
   finished, solved, forward_distance, length, path_roughness);
 - `actions.npz`: `action_samples` evenly spaced actions of every episode (`row` = the CSV row,
   `step`, `action`), for the t-SNE figure;
-- `summary.json`: the metrics below.
-and, for an MLflow run, logs the three as artifacts under `evaluation/` and the metrics
-`suite/success_rate`, `suite/success_rate_<level>`, `suite/return_mean`,
-`suite/forward_distance_mean`, with the tags `eval_suite` (the suite's fingerprint) and
-`eval_episodes`.
+- `summary.json`: the metrics below, the suite's name (`suite_name`), folder and fingerprint.
+and, for an MLflow run, logs the three as artifacts under `evaluation/<name>/` and the metrics
+(step 0) `suite/<name>/success_rate`, `suite/<name>/success_rate_<level>`,
+`suite/<name>/return_mean`, `suite/<name>/forward_distance_mean`, `suite/<name>/finish_rate`,
+with the tags `eval_suite/<name>` (the suite's fingerprint), `eval_course_scale/<name>` and
+`eval_episodes/<name>` (`epoet.eval.keys`). A metric point the run already holds (same key,
+step and value: an evaluation interrupted after logging and run again on resume) is not logged
+twice.
 """
 from __future__ import annotations
 
@@ -49,13 +54,14 @@ from epoet.envs.hexapod_env import HexapodEnv
 from epoet.core.compute import default_workers
 from epoet.core.files import atomic_write
 from epoet.core.lifecycle import end_with
+from epoet.eval.keys import (EPISODES_TAG, RESULTS, SCALE_TAG, SHIPPED_NAME, SUITE_TAG,
+                             artifacts, metric, suite_argument, tag)
 from epoet.eval.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, example_terrain,
                                  load_suite, terrain_config_for)
 from epoet.tracking import TrackingError
 
 COLUMNS = ["terrain", "level", "roughness", "episode", "start_seed", "return", "finished", "solved",
            "forward_distance", "length", "path_roughness"]
-RESULTS = "evaluation"    # the artifact folder, and the default results folder name
 
 
 @dataclass(frozen=True)
@@ -131,19 +137,21 @@ def episode_seeds(seed: int, terrain: int, episodes: int) -> tuple[int, ...]:
 class Evaluation:
     episodes: pd.DataFrame
     actions: dict[str, np.ndarray]    # row, step, action
-    metrics: dict[str, float]
+    metrics: dict[str, float]         # keyed by the suite's name: suite/<name>/...
+    suite: Suite
 
 
-def summarize(episodes: pd.DataFrame) -> dict[str, float]:
-    """Success rate overall and per level (levels without terrains are left out), means."""
-    metrics = {"suite/success_rate": float(episodes.solved.mean()),
-               "suite/return_mean": float(episodes["return"].mean()),
-               "suite/forward_distance_mean": float(episodes.forward_distance.mean()),
-               "suite/finish_rate": float(episodes.finished.mean())}
+def summarize(episodes: pd.DataFrame, suite: str) -> dict[str, float]:
+    """Success rate overall and per level (levels without terrains are left out), means; keyed
+    by the suite's name."""
+    metrics = {metric(suite, "success_rate"): float(episodes.solved.mean()),
+               metric(suite, "return_mean"): float(episodes["return"].mean()),
+               metric(suite, "forward_distance_mean"): float(episodes.forward_distance.mean()),
+               metric(suite, "finish_rate"): float(episodes.finished.mean())}
     for level in LEVELS:
         rows = episodes[episodes.level == level]
         if len(rows):
-            metrics[f"suite/success_rate_{level}"] = float(rows.solved.mean())
+            metrics[metric(suite, f"success_rate_{level}")] = float(rows.solved.mean())
     return metrics
 
 
@@ -193,7 +201,7 @@ def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, pool: Executor 
     actions = {"row": np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)]),
                "step": np.concatenate([np.arange(len(s)) for s in samples]),
                "action": np.concatenate(samples).astype(np.float32)}
-    return Evaluation(episodes, actions, summarize(episodes))
+    return Evaluation(episodes, actions, summarize(episodes, suite.name), suite)
 
 
 def write_results(result: Evaluation, folder: Path, info: dict[str, Any]) -> dict[str, Path]:
@@ -208,12 +216,13 @@ def write_results(result: Evaluation, folder: Path, info: dict[str, Any]) -> dic
     return paths
 
 
-def results_folder(cfg: EvaluateConfig, run: TrainedRun) -> Path:
+def results_folder(cfg: EvaluateConfig, run: TrainedRun, suite: Suite) -> Path:
     if cfg.out:
         return Path(cfg.out)
     if run.folder is not None:
-        return run.folder / RESULTS
-    return Path(RESULTS) / "".join(c if c.isalnum() or c in "-_." else "_" for c in run.label)
+        return run.folder / RESULTS / suite.name
+    label = "".join(c if c.isalnum() or c in "-_." else "_" for c in run.label)
+    return Path(RESULTS) / label / suite.name
 
 
 def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | None = None
@@ -223,26 +232,27 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | No
     (`evaluation_pool`), or on a pool of `cfg.processes` opened for this evaluation."""
     run = resolve_run(cfg.run, cfg.tracking.uri)
     suite = load_suite(cfg.suite)
-    folder = results_folder(cfg, run)
+    folder = results_folder(cfg, run, suite)
     workers = cfg.processes or default_workers()  # `pool`'s, when given (one config made both)
     rules = suite.course.rules(run.agent_config(cfg.agent))
     print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
-          f"episodes ({suite.folder}), {workers} processes; course "
+          f"episodes of suite {suite.name} ({suite.folder}), {workers} processes; course "
           f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
           flush=True)
     scale = suite.course.scale(run.agent_config(cfg.agent))
     with nullcontext(pool) if pool is not None else evaluation_pool(workers) as pool:
         result = evaluate(run, suite, cfg, pool, progress)
     info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
-            "suite": str(suite.folder), "suite_fingerprint": suite.fingerprint,
+            "suite_name": suite.name, "suite": str(suite.folder),
+            "suite_fingerprint": suite.fingerprint,
             "course_scale": scale, "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
     paths = write_results(result, folder, info)
     if run.stored is not None:
         run.stored.log_results(result.metrics,
-                               tags={"eval_suite": suite.fingerprint,
-                                     "eval_course_scale": f"{scale:g}",
-                                     "eval_episodes": str(cfg.episodes)},
-                               artifacts={path: RESULTS for path in paths.values()})
+                               tags={tag(SUITE_TAG, suite.name): suite.fingerprint,
+                                     tag(SCALE_TAG, suite.name): f"{scale:g}",
+                                     tag(EPISODES_TAG, suite.name): str(cfg.episodes)},
+                               artifacts={path: artifacts(suite.name) for path in paths.values()})
     return result, folder, run
 
 
@@ -255,17 +265,20 @@ def main(argv: list[str] | None = None) -> None:
     except (ConfigError, AgentError, SuiteError, TrackingError, OSError, HydraException,
             OmegaConfBaseException) as err:
         fail(err)
-    m = result.metrics
-    levels = ", ".join(f"{level} {m[f'suite/success_rate_{level}']:.0%}" for level in LEVELS
-                       if f"suite/success_rate_{level}" in m)
-    print(f"success rate {m['suite/success_rate']:.1%} ({levels}); mean return "
-          f"{m['suite/return_mean']:.1f}; mean forward distance "
-          f"{m['suite/forward_distance_mean']:.2f} m")
+    m, suite = result.metrics, result.suite
+    levels = ", ".join(f"{level} {m[key]:.0%}" for level in LEVELS
+                       if (key := metric(suite.name, f"success_rate_{level}")) in m)
+    print(f"suite {suite.name}: success rate {m[metric(suite.name, 'success_rate')]:.1%} "
+          f"({levels}); mean return {m[metric(suite.name, 'return_mean')]:.1f}; mean forward "
+          f"distance {m[metric(suite.name, 'forward_distance_mean')]:.2f} m")
     print(f"  results:  {folder}/ (episodes.csv, actions.npz, summary.json)")
     if run.stored is not None:
-        print(f"  logged to MLflow run {run.run_id} under {RESULTS}/")
+        print(f"  logged to MLflow run {run.run_id} under {artifacts(suite.name)}/")
         print(f"  runs:     {run.stored.ui_hint()}")
-    print(f"  render:   python -m epoet.eval.render run={cfg.run} terrain={example_terrain()}")
+    where = ("" if suite.name == SHIPPED_NAME else
+             f" suite={suite_argument(suite.name, suite.folder)}")
+    print(f"  render:   python -m epoet.eval.render run={cfg.run} "
+          f"terrain={example_terrain(suite=suite)}{where}")
 
 
 if __name__ == "__main__":

@@ -26,6 +26,9 @@ Suite folder format (any folder in this format can be evaluated, `suite=<folder>
 - `heights.npz`: one (grid, grid) array per terrain name with heights in [0, 1] (uint16 as
   q / 65535, or float); height 1 stands for the terrain's max_height metres.
 - `genomes.npz` (optional): each terrain's pickled neat genome as uint8, for provenance.
+
+A suite's NAME keys its evaluations in a run (`epoet.eval.keys`): "shipped" (epoet/suite/),
+"paper" (epoet/reference/suite/), the two `SUITES`, or another folder's (`suite_name`).
 """
 from __future__ import annotations
 
@@ -35,6 +38,7 @@ import hashlib
 import json
 import math
 import pickle
+import re
 from dataclasses import dataclass
 from collections.abc import Sequence
 from pathlib import Path
@@ -53,6 +57,7 @@ from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
 from epoet.core.files import atomic_write
+from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain
@@ -60,6 +65,8 @@ from epoet.terrain.terrain import Terrain
 # 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
 SUITE_FORMAT = "epoet-suite/2"
 SHIPPED = Path(__file__).resolve().parent.parent / "suite"
+PAPER = Path(__file__).resolve().parent.parent / "reference" / "suite"
+SUITES = {SHIPPED_NAME: SHIPPED, PAPER_NAME: PAPER}   # the named suites
 LEVELS = ("easy", "medium", "hard", "extreme")
 LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)   # m^2 of patch variance between consecutive levels
 _QUANT = 65535
@@ -164,6 +171,7 @@ class Suite:
     folder: Path
     terrains: list[SuiteTerrain]
     course: Course
+    name: str                       # the key of its evaluations in a run (module docstring)
 
     def by_name(self, name: str) -> SuiteTerrain:
         for terrain in self.terrains:
@@ -295,15 +303,26 @@ def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> l
 
 # --- loading --------------------------------------------------------------------------------
 
-def example_terrain(level: str = "medium") -> str:
-    """A shipped suite terrain of `level`, for the render command other commands end with."""
-    entries = json.loads((SHIPPED / "suite.json").read_text())["terrains"]
+def example_terrain(level: str = "medium", suite: Suite | None = None) -> str:
+    """A terrain of `level` (else the first) of `suite` (None: the shipped one), for hints."""
+    entries = ([{"name": t.name, "level": t.level} for t in suite.terrains] if suite else
+               json.loads((SHIPPED / "suite.json").read_text())["terrains"])
     return next((e["name"] for e in entries if e.get("level") == level), entries[0]["name"])
 
 
+def suite_name(folder: Path) -> str:
+    """A named suite's folder: its name; another: its basename in [A-Za-z0-9_.-], "dir-" before a
+    named suite's name (`paper/` is no paper suite); `eval_suite/<name>` tells same names apart."""
+    named = {path.resolve(): name for name, path in SUITES.items()}
+    base = re.sub(r"[^A-Za-z0-9_.-]", "_", folder.resolve().name).strip(".") or "suite"
+    return named.get(folder.resolve()) or (f"dir-{base}" if base in SUITES else base)
+
+
 def load_suite(folder: str | Path | None = None) -> Suite:
-    """Read and check a suite folder (None: the shipped one); SuiteError names any problem."""
-    folder = SHIPPED if folder is None else Path(folder)
+    """Read and check a suite: a name of `SUITES` (None: shipped; a name wins over a folder of
+    that name: pass `./paper`) or a folder; SuiteError names any problem."""
+    key = SHIPPED_NAME if folder is None else str(folder)
+    folder, key = (SUITES[key], key) if key in SUITES else (Path(key), suite_name(Path(key)))
     if not (folder / "suite.json").is_file():
         raise SuiteError(f"{folder} is not a suite folder: it has no suite.json.")
     if not (folder / "heights.npz").is_file():
@@ -341,7 +360,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
         raise SuiteError(f"suite {folder} lists no terrains.")
     if len({t.name for t in terrains}) != len(terrains):
         raise SuiteError(f"suite {folder} lists a terrain name twice.")
-    return Suite(folder, terrains, course)
+    return Suite(folder, terrains, course, key)
 
 
 # --- command --------------------------------------------------------------------------------

@@ -63,13 +63,21 @@ class StoredRun:
         return ui_hint(self.tracking_uri, self.experiment_id)
 
     def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
-                    artifacts: Mapping[str, str | Path] = {}) -> None:
-        """Metrics (one batch), tags and artifacts {local path: artifact folder}."""
+                    artifacts: Mapping[str, str | Path] = {}, step: int = 0) -> None:
+        """Metrics at `step` (one batch), tags and artifacts {local path: artifact folder}.
+
+        Each result is logged once: a metric point the run already holds (same key, step and
+        value, e.g. an evaluation killed after logging and run again on resume) is skipped. A
+        different value at that step (another evaluation's) is logged, so the metric's last
+        value is always the latest evaluation's, the one whose artifacts the run keeps."""
         try:
             now = int(time.time() * 1000)
+            keyed = {metric_key(k): float(v) for k, v in metrics.items()}
+            held = {(key, m.value) for key in keyed
+                    for m in self.client.get_metric_history(self.run_id, key) if m.step == step}
             self.client.log_batch(
                 self.run_id,
-                metrics=[Metric(metric_key(k), float(v), now, 0) for k, v in metrics.items()],
+                metrics=[Metric(k, v, now, step) for k, v in keyed.items() if (k, v) not in held],
                 tags=[RunTag(k, str(v)) for k, v in tags.items()])
             for path, folder in artifacts.items():
                 self.client.log_artifact(self.run_id, str(existing_path(path)), str(folder))
