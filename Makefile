@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery tables figures paper suite bench bench-learning clean-venv
+.PHONY: install test train gallery tables figures paper reference suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -43,6 +43,10 @@ JOBS   ?= 1
 OVERRIDES ?=
 paper: install
 	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(OVERRIDES)
+
+# The authors' published agents (epoet/reference/) on the paper's suite, tabled (results/reference/).
+reference: install
+	$(PY) -m pipeline.reference
 
 # Check the shipped evaluation suite against a fresh regeneration (about a minute).
 suite: install
