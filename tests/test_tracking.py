@@ -25,6 +25,7 @@ from epoet.tracking import (
     parent_run_id,
     resolve_tracking_uri,
 )
+from epoet.tracking.writer import LOAD_METRIC
 
 
 @pytest.fixture(scope="module")
@@ -57,6 +58,17 @@ def test_metrics_are_buffered_and_sent_every_flush_every_points(store, tracker):
     history = _history(uri, run_id, "pair/0/return_mean")
     assert len(history) == 2500
     assert history[3] == (3, 1.5)
+
+
+def test_a_flush_records_the_machines_load_at_most_every_load_every_seconds(store, tracker):
+    uri, _ = store
+    run_id = tracker.start("load")
+    tracker.log_metrics(3, {"score": 1.0})
+    tracker.flush()
+    tracker.log_metrics(4, {"score": 2.0})
+    tracker.flush()  # within LOAD_EVERY of the first: no second point
+    load = _history(uri, run_id, LOAD_METRIC)
+    assert [step for step, _ in load] == [3] and load[0][1] >= 0.0
 
 
 def test_large_flush_is_split_into_mlflow_sized_batches(store, request):

@@ -6,6 +6,8 @@ Metrics are buffered and sent with `log_batch` because per-point `log_metric` on
 from __future__ import annotations
 
 import logging
+import math
+import os
 import re
 import tempfile
 import time
@@ -26,6 +28,9 @@ from epoet.tracking.errors import TrackingError, reason
 from epoet.tracking.inputs import existing_path, metric_key, metric_points
 from epoet.tracking.provenance import git_commit
 from epoet.tracking.store import open_store, resolve_tracking_uri, sqlite_path
+
+LOAD_METRIC = "system/load1"  # os.getloadavg()[0], logged with a step at most every LOAD_EVERY s
+LOAD_EVERY = 30.0
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +78,7 @@ class MlflowTracker:
         # resumes from an earlier checkpoint and recomputes them (identically); they are not
         # sent twice.
         self._logged: dict[str, int] = {}
+        self._last_load = -math.inf
 
     def __enter__(self) -> MlflowTracker:
         return self
@@ -220,6 +226,13 @@ class MlflowTracker:
         # TrackingError here.
         run_id = self._require_open()
         self._last_flush = time.monotonic()
+        if self._buffer and self._last_flush - self._last_load >= LOAD_EVERY:
+            # The machine's 1-minute load average beside the run's own numbers, at the latest
+            # buffered step: a run's speed (and what a wall-clock budget buys) depends on what
+            # else shared its cores.
+            self._last_load = self._last_flush
+            self._buffer.append(Metric(LOAD_METRIC, os.getloadavg()[0], self._buffer[-1].timestamp,
+                                       max(m.step for m in self._buffer)))
         try:
             self.client.log_batch(run_id, metrics=self._buffer)
         except MlflowException as exc:
