@@ -99,8 +99,12 @@ def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tm
 def test_an_unknown_suite_terrain_is_one_line(policy, suite, tmp_path):
     line = one_error_line(render_cli(f"run={policy}", "terrain=nope", f"suite={suite}",
                                      cwd=tmp_path))
-    # The GL check runs before the suite is read (the suite module imports mujoco).
-    assert "'nope'" in line or NO_GL in line
+    # The GL check runs before the suite is read (the suite module imports mujoco): without GL
+    # the terrain is never looked up, so there is nothing to check here.
+    if NO_GL in line:
+        pytest.skip(f"no offscreen OpenGL backend here: {line}")
+    # the suite it was given (not the shipped one), the name typed and the names it has
+    assert f"suite {suite} has no terrain 'nope' (it has bumps .. bumps)" in line
     assert not (tmp_path / "videos").exists()
 
 

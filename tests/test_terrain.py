@@ -203,8 +203,13 @@ def test_mixed_heightmap_is_in_unit_range_and_weight_one_is_bowl_only(cfg):
     bowl = random_bowl(np.random.default_rng(2), 40, 0.2)
     cppn = evaluate(terrain.genome, *cppn_inputs(cfg))
     np.testing.assert_array_equal(mix(bowl, cppn, 1.0), bowl)
-    np.testing.assert_allclose(mix(bowl, cppn, 0.3),
-                               normalize(0.3 * bowl + 0.7 * normalize(cppn)))
+    # Worked by hand (paper: w = 0.3): each part is normalised first (the bowl 0..4 to 0..1, the
+    # CPPN 10..30 to 0..1), w weighs the bowl, and the sum is normalised again:
+    # 0.3 * [0, .5, 1, .25] + 0.7 * [0, 1, .5, .25] = [0, .85, .65, .25], / .85.
+    bowl, cppn = np.array([0.0, 2.0, 4.0, 1.0]), np.array([10.0, 30.0, 20.0, 15.0])
+    np.testing.assert_allclose(mix(bowl, cppn, 0.3), [0.0, 1.0, 0.65 / 0.85, 0.25 / 0.85])
+    np.testing.assert_allclose(mix(bowl, cppn, 0.0), [0.0, 1.0, 0.5, 0.25])  # the CPPN alone
+    np.testing.assert_allclose(mix(bowl, cppn, 1.0), [0.0, 0.5, 1.0, 0.25])  # the bowl alone
 
 
 def test_a_constant_map_normalises_to_flat_ground():
