@@ -86,6 +86,12 @@ def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
     if _cache.get("key") != key:
         if "env" in _cache:
             _cache["env"].close()
+        if task.agent.kind == "torch":
+            # One thread per process: the pool already has a process per core, and a 256-wide
+            # actor's one-observation forward passes slowed ~100x when each process's threads
+            # fought over the cores.
+            import torch
+            torch.set_num_threads(1)
         _cache.update(key=key, env=HexapodEnv(task.agent_cfg, task.terrain_cfg),
                       policy=task.agent.load())
     return _cache["env"], _cache["policy"]
