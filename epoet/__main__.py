@@ -9,8 +9,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
-from epoet.core.cli import fail, run_hydra_app
-from epoet.config import CONF_DIR
+from epoet.core.cli import fail
+from epoet.config import CONF_DIR, run_hydra_app
 from epoet.core.schema import ConfigError
 from epoet.core.lifecycle import Stopped
 

@@ -11,18 +11,22 @@ which runs each `__post_init__` range check before any work starts; every failur
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Optional
+from typing import Any, Callable, ClassVar, Optional
 
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
+from epoet.core.cli import fail
 from epoet.core.schema import ConfigError, check, non_negative, positive
 from epoet.envs.config import AgentConfig
 from epoet.epoet_sac.config import EpoetSacConfig
@@ -279,6 +283,19 @@ def register_configs() -> None:
 
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
+
+
+def run_hydra_app(app: Callable[[], None]) -> None:
+    """Run a @hydra.main app with the schemas registered, so composition errors become one line
+    (`epoet.core.cli.fail`) instead of Hydra's report."""
+    register_configs()
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # make Hydra re-raise instead of printing its report
+    try:
+        app()
+    except (HydraException, OmegaConfBaseException) as err:
+        fail(err)
+    except OSError as err:  # e.g. an output folder that cannot be written (Hydra makes it)
+        fail(err)
 
 
 def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:

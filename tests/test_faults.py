@@ -17,6 +17,7 @@ import mlflow
 import numpy as np
 import pytest
 from conftest import ES_SIZES, without_evaluation
+from processes import processes_with_env
 import torch
 
 from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
@@ -25,8 +26,7 @@ from epoet.rollout.policy import init_params
 from epoet.rollout.engine import RolloutEngine
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Mirrored, Request
-from epoet.core.lifecycle import (StopOnSignal, Stopped, processes_with_env, raise_if_stopped,
-                             stop_requested)
+from epoet.core.lifecycle import StopOnSignal, Stopped, raise_if_stopped, stop_requested
 from epoet.terrain import Terrain
 from epoet.tracking import MlflowTracker
 

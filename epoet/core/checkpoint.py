@@ -11,19 +11,14 @@ Layout: a run folder (Hydra's job output directory) holds its checkpoint as `che
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 import pickle
 import struct
 import zlib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from epoet.core.files import atomic_write
-
-if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
-    from epoet.config import Config
-    from epoet.tracking import Tracker
 
 CHECKPOINT_NAME = "checkpoint.pkl"
 # 2: ePOET-SAC's joins, 'learner' for the RL state, compact replay, elapsed time
@@ -126,13 +121,3 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     if not isinstance(state, dict):
         raise CheckpointError(f"checkpoint {file_path} does not hold a dict.")
     return state
-
-
-def save_run_state(run_dir: Path, tracker: "Tracker", cfg: "Config",
-                   state: dict[str, Any]) -> Path:
-    """Checkpoint a runner's state with its config and the MLflow run id it continues."""
-    path = Path(run_dir) / CHECKPOINT_NAME
-    tracker.flush()  # metrics up to the checkpoint are in the store before it exists
-    save_checkpoint(path, {"run_id": tracker.run_id, "algo": cfg.algo.name,
-                           "config": dataclasses.asdict(cfg), **state})
-    return path

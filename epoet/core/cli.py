@@ -1,14 +1,13 @@
-"""Shared by the command-line entry points: bad input ends in one line on stderr, exit 2."""
+"""Shared by the command-line entry points: bad input ends in one line on stderr, exit 2
+(`epoet.config.run_hydra_app` runs a Hydra app this way)."""
 from __future__ import annotations
 
-import os
 import sys
-from typing import Callable, NoReturn
+from typing import NoReturn
 
 from hydra.errors import HydraException, MissingConfigException
 from omegaconf.errors import OmegaConfBaseException
 
-from epoet.config import register_configs
 from epoet.core.errors import first_line
 
 
@@ -24,15 +23,3 @@ def fail(err: BaseException) -> NoReturn:
         text += f" (available: {', '.join(options)})"
     print(f"error: {text}", file=sys.stderr)
     sys.exit(2)
-
-
-def run_hydra_app(app: Callable[[], None]) -> None:
-    """Run a @hydra.main app so composition errors become one line instead of Hydra's report."""
-    register_configs()
-    os.environ["HYDRA_FULL_ERROR"] = "1"  # make Hydra re-raise instead of printing its report
-    try:
-        app()
-    except (HydraException, OmegaConfBaseException) as err:
-        fail(err)
-    except OSError as err:  # e.g. an output folder that cannot be written (Hydra makes it)
-        fail(err)

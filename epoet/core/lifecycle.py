@@ -14,17 +14,11 @@ from __future__ import annotations
 
 import os
 import select
-from pathlib import Path
 import signal
 import sys
 import threading
 import time
 from types import FrameType, TracebackType
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from epoet.config import BudgetConfig
-    from epoet.tracking import Tracker
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -126,33 +120,3 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
-
-
-def processes_with_env(name: str, value: str) -> list[int]:
-    """Live processes whose environment has name=value: a run's whole process tree when the run
-    was started with a marker variable (how tests and bench/fault_soak.py count orphans)."""
-    marker = f"{name}={value}".encode()
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            environ = (entry / "environ").read_bytes()
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:  # gone meanwhile, or not ours to read
-            continue
-        if marker in environ.split(b"\0") and state != "Z":
-            found.append(int(entry.name))
-    return found
-
-
-def report_stop(tracker: Tracker, name: str, budget: BudgetConfig, out_of_time: bool,
-                count: int, unit: str, seconds: float) -> None:
-    """Tag why the run ended (`stop_reason`: hours, or the budget's `unit`, iterations or
-    frames) and say so when the wall clock ended it: a resume with a larger `budget.hours`
-    continues."""
-    tracker.set_tags({"stop_reason": "hours" if out_of_time else unit})
-    if out_of_time:
-        print(f"[{name}] stopped at the wall-clock budget (budget.hours={budget.hours:g}) after "
-              f"{count} {unit} and {seconds / 3600:.3g} h of training; resume with a larger "
-              f"budget.hours to continue", flush=True)

@@ -15,8 +15,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
-from epoet.core.cli import fail, run_hydra_app
-from epoet.config import CONF_DIR, GalleryConfig, validate
+from epoet.core.cli import fail
+from epoet.config import CONF_DIR, GalleryConfig, run_hydra_app, validate
 from epoet.core.schema import ConfigError
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain

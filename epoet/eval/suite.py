@@ -49,8 +49,8 @@ import numpy as np
 import hydra
 from omegaconf import DictConfig
 
-from epoet.core.cli import fail, run_hydra_app
-from epoet.config import CONF_DIR, SuiteConfig, load, validate
+from epoet.core.cli import fail
+from epoet.config import CONF_DIR, SuiteConfig, load, run_hydra_app, validate
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig

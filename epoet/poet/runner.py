@@ -6,12 +6,12 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from epoet.core.checkpoint import save_run_state
 from epoet.config import Config
 from epoet.rollout.policy import policy_sizes
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import evaluator_for
-from epoet.core.lifecycle import raise_if_stopped, report_stop, stop_requested
+from epoet.core.lifecycle import raise_if_stopped, stop_requested
+from epoet.run_state import report_stop, save_run_state
 from epoet.poet.loop import EPOET
 from epoet.tracking import Tracker
 

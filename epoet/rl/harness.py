@@ -43,10 +43,10 @@ from torchrl.envs.utils import set_exploration_type
 from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
-from epoet.core.checkpoint import save_run_state
 from epoet.config import Config
 from epoet.core.compute import default_workers
-from epoet.core.lifecycle import report_stop, stop_requested
+from epoet.core.lifecycle import stop_requested
+from epoet.run_state import report_stop, save_run_state
 from epoet.rl.env import RunningObsNorm, Seeds, episode_metrics, hexapod, make_env, obs_norm_of
 from epoet.rl.policy_file import POLICY_FILE, export_policy
 
