@@ -19,6 +19,7 @@ from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
+from epoet.poet.runner import layer_sizes, make_loop
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -285,15 +286,27 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
     _assert_same(one, two)
 
 
+# README "Budgets": what each budget runs with (thresholds x, transfer / reproduce every, S per
+# iteration, integrator); `paper`'s are the paper's.
+SCHEDULES = {"smoke": (0.025, 15, 75, 0.01, "implicitfast"),
+             "laptop": (0.125, 10, 20, 0.005, "implicitfast"),
+             "workstation": (1.0, 15, 75, 0.0, "implicitfast"),
+             "paper": (1.0, 15, 75, 0.01, "rk4")}
+
+
 @pytest.mark.parametrize("budget", sorted(p.stem for p in (ROOT / "conf" / "budget").glob("*.yaml")))
 def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budget: str) -> None:
-    """Small budgets may trade integrator, intervals and S schedule for time; `paper` may not."""
+    """Small budgets may trade integrator, intervals and S schedule for time; `paper` may not.
+    Each budget runs with its README row (a budget's own file missing or misnamed falls back to
+    the paper's RK4 and S schedule), and every smaller one trades something."""
     cfg = load([f"budget={budget}"])
     assert cfg.agent.max_episode_steps == cfg.budget.episode_steps
-    if budget == "paper":
-        assert cfg.agent.integrator == "rk4" and cfg.budget.score_scale == 1.0
-        assert cfg.budget.transfer_interval is None and cfg.budget.reproduce_interval is None
-        assert cfg.terrain.max_height_step == 0.01
+    loop = make_loop(cfg, SerialEvaluator(cfg.agent, cfg.terrain, 1, layer_sizes(cfg)))
+    runs_with = (cfg.budget.score_scale, loop.transfer_interval, loop.reproduce_interval,
+                 cfg.terrain.max_height_step, cfg.agent.integrator)
+    assert runs_with == SCHEDULES[budget]
+    assert (runs_with == SCHEDULES["paper"]) == (budget == "paper")
+    assert (cfg.budget.hours == 24.0) == (budget == "paper")
 
 
 @pytest.mark.parametrize("choice", ["best", "final"])
