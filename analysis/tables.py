@@ -1,21 +1,31 @@
-"""The paper's Tables 1 and 2 from the evaluations in the MLflow store (`make tables`).
+"""The paper's Tables 1 and 2, and statistics that can separate algorithms, from the evaluations
+in the MLflow store or in evaluation records (`make tables`).
 
     python -m analysis.tables [--experiment epoet] [--out results] [--suite NAME | FOLDER]
+    python -m analysis.tables --records docs/results/<name> [--out results] [--suite ...]
 
 - Table 1: success rate per difficulty level (and in total) per algorithm: each run's rate over
   its suite episodes, then mean +- sample std over the algorithm's runs (seeds).
 - Table 2: over the easy and medium terrains, the average +- std of the episode returns and the
   maximum return, pooling every episode of the algorithm's runs (the paper: 16 terrains x 5
   runs per agent).
+- IQM: per algorithm, the interquartile mean of the success rate and of the return over its
+  runs x terrains, with 95 % stratified-bootstrap intervals over runs and terrains; with one
+  run, over terrains only (the tables say so).
+- Probability of improvement: P(X > Y) for every pair of algorithms, with its 95 % interval.
+  `analysis/stats.py` says exactly what each of these numbers is.
 
 The tables are of one suite (`--suite`: "shipped", the default, "paper" or a suite folder; its
 name is in their titles), each written as Markdown, LaTeX and CSV under `--out`, named per suite
-(`table1_<suite name>.md`, ...), and printed. The numbers come from each run's
+(`table1_<suite name>.md`, ..., `iqm_<suite name>.{md,tex,csv,png}`,
+`poi_<suite name>.{md,tex,csv,png}`), and printed. The numbers come from each run's
 `evaluation/<suite name>/episodes.csv` artifact (a run logged before evaluations were keyed by
-suite: `evaluation/episodes.csv`, when its `eval_suite` tag is the suite's fingerprint). The
-tables only read the store: a FINISHED run without an evaluation on the suite (its
-`eval_suite/<suite name>` tag is not the suite's fingerprint) is an error that names the command
-evaluating it (pipeline/paper.py evaluates for `make paper`).
+suite: `evaluation/episodes.csv`, when its `eval_suite` tag is the suite's fingerprint), or,
+with `--records`, from the records' `<record>/<suite name>/episodes.csv` (`analysis.records`;
+records without an evaluation on the suite are named and left out). The tables only read the
+store: a FINISHED run without an evaluation on the suite (its `eval_suite/<suite name>` tag is
+not the suite's fingerprint) is an error that names the command evaluating it
+(pipeline/paper.py evaluates for `make paper`).
 """
 from __future__ import annotations
 
@@ -28,6 +38,8 @@ import pandas as pd
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
+from analysis.records import one_course_scale, record_episodes
+from analysis.stats import write_stats
 from analysis.store import (AnalysisError, connect, default_experiment, evaluation_on, in_order,
                             require_runs, run_command, seed_of, select_runs, unevaluated)
 from epoet.eval.keys import SHIPPED_NAME
@@ -133,12 +145,7 @@ def course_scale(runs: Sequence[Run], suite: Suite) -> str:
     """The one course scale the runs were evaluated at on `suite` (a budget's episodes set it:
     "solved" on a fifth of the course is not "solved" on all of it, so scales are never
     mixed)."""
-    scales = {evaluation_on(r, suite).course_scale for r in runs}
-    if len(scales) > 1:
-        raise AnalysisError(f"the runs were evaluated at different course scales "
-                            f"({', '.join(sorted(scales))}): table one budget's runs at a time "
-                            f"(one experiment per budget, or --run).")
-    return scales.pop()
+    return one_course_scale({r.info.run_id: evaluation_on(r, suite).course_scale for r in runs})
 
 
 def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1",
@@ -160,6 +167,7 @@ def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1",
                                                         label=f"tab:{stem}"))
         print(f"\n{titles[name]}\n{markdown}")
         written += [out / f"{stem}.{ext}" for ext in ("csv", "md", "tex")]
+    written += write_stats(episodes, out, suite, scale, to_markdown)
     print(f"\nwrote {', '.join(str(p) for p in written)}")
     return written
 
@@ -174,11 +182,21 @@ def make_tables(experiment: str, out: Path, suite: str | None = None,
                         loaded.name)
 
 
+def tables_from_records(records: Path, out: Path, suite: str | None = None) -> list[Path]:
+    """The same tables from evaluation records (`analysis.records`), without a store."""
+    loaded = load_suite(suite)
+    episodes, scale, left_out = record_episodes(records, loaded)
+    if left_out:
+        print(f"left out {len(left_out)} record(s) without an evaluation on suite "
+              f"{loaded.name}: {', '.join(left_out)}")
+    return write_tables(episodes, out, scale, loaded.name)
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.tables",
-        description="Success-rate and return tables (paper Tables 1-2) from the evaluations in "
-                    "the MLflow store.")
+        description="Success-rate and return tables (paper Tables 1-2), IQM and probability of "
+                    "improvement from the evaluations in the MLflow store or in records.")
     parser.add_argument("--experiment", default=default_experiment(),
                         help="MLflow experiment whose FINISHED runs are tabled (default: the "
                              "runs' default, tracking.experiment)")
@@ -189,12 +207,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              "are tabled (default: shipped)")
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
                         help="table these runs instead of the experiment's")
+    parser.add_argument("--records", type=Path, default=None, metavar="FOLDER",
+                        help="table the evaluation records in FOLDER (python -m "
+                             "pipeline.records writes them) instead of the store")
     return parser.parse_args(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry; bad input gives one sentence on stderr and exit code 2."""
     args = parse_args(argv)
+    if args.records is not None:
+        return run_command(lambda: tables_from_records(args.records, args.out, args.suite))
     return run_command(lambda: make_tables(args.experiment, args.out, args.suite, args.run))
 
 

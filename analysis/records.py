@@ -1,0 +1,91 @@
+"""Evaluation records: a run's evaluations as small files that outlive its MLflow store, and the
+episodes table that `analysis.tables --records` builds from them (no store needed).
+
+`python -m pipeline.records` writes them (docs/results/README.md has the format):
+
+    <records>/<record>/run.json                   the run: algo, seed, budget, command, commit,
+                                                  wall time, load, and its evaluations by suite
+    <records>/<record>/<suite name>/summary.json  the evaluation's summary (epoet.eval.evaluate)
+    <records>/<record>/<suite name>/episodes.csv  one row per episode (epoet.eval.evaluate)
+
+A record's `run.json` lists the suites it holds (`evaluations`, each with the suite's
+fingerprint and the course scale): only those are read, so a folder left over from an earlier
+export of another run is never mixed in.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from analysis.store import AnalysisError
+from epoet.eval.suite import Suite
+
+FORMAT = "epoet-record/1"
+RUN_FILE = "run.json"
+SUMMARY = "summary.json"
+EPISODES = "episodes.csv"
+
+
+def read_records(folder: Path) -> list[dict[str, Any]]:
+    """Every record's run.json under `folder` (each with its `record` folder name), oldest run
+    first; AnalysisError when there is none."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise AnalysisError(f"there is no records folder {folder}: export one with "
+                            f"`python -m pipeline.records --experiment <experiment> "
+                            f"--out {folder}`.")
+    records = []
+    for path in sorted(folder.glob(f"*/{RUN_FILE}")):
+        info = json.loads(path.read_text())
+        if info.get("format") != FORMAT:
+            raise AnalysisError(f"{path} is not an epoet record (format {info.get('format')!r}, "
+                                f"expected {FORMAT}).")
+        records.append({**info, "record": path.parent.name})
+    if not records:
+        raise AnalysisError(f"{folder} holds no records (<record>/{RUN_FILE}): export them "
+                            f"with `python -m pipeline.records --experiment <experiment> "
+                            f"--out {folder}`.")
+    return sorted(records, key=lambda r: (r.get("started") or "", r["record"]))
+
+
+def one_course_scale(scales: dict[str, str]) -> str:
+    """The one course scale of the evaluations ({label: scale}); AnalysisError when they differ
+    ("solved" on a fifth of the course is not "solved" on all of it, so scales never mix)."""
+    found = set(scales.values())
+    if len(found) > 1:
+        raise AnalysisError(f"the runs were evaluated at different course scales "
+                            f"({', '.join(sorted(found))}): table one budget's runs at a time "
+                            f"(one experiment per budget, or --run).")
+    return found.pop()
+
+
+def record_episodes(folder: Path, suite: Suite) -> tuple[pd.DataFrame, str, list[str]]:
+    """The episodes on `suite` of every record under `folder` that holds an evaluation on it
+    (columns run_id, algo, seed, then episodes.csv's), the course scale, and the records left
+    out for having none. AnalysisError if no record has one, or one has an evaluation under
+    the suite's name on other terrains (another fingerprint)."""
+    frames, scales, left_out = [], {}, []
+    for info in read_records(folder):
+        evaluation = info.get("evaluations", {}).get(suite.name)
+        if evaluation is None:
+            left_out.append(info["record"])
+            continue
+        if evaluation["fingerprint"] != suite.fingerprint:
+            raise AnalysisError(
+                f"record {info['record']} was evaluated on other terrains under the name "
+                f"{suite.name} (fingerprint {evaluation['fingerprint']}, this suite "
+                f"{suite.fingerprint}): its numbers are not this suite's.")
+        frame = pd.read_csv(Path(folder) / info["record"] / suite.name / EPISODES)
+        frame.insert(0, "run_id", info["run_id"])
+        frame.insert(1, "algo", info["algo"])
+        frame.insert(2, "seed", str(info["seed"]))
+        frames.append(frame)
+        scales[info["record"]] = str(evaluation["course_scale"])
+    if not frames:
+        raise AnalysisError(f"no record in {folder} has an evaluation on suite {suite.name} "
+                            f"({suite.fingerprint}): evaluate the runs on it and export the "
+                            f"records again (`make paper` does both).")
+    return pd.concat(frames, ignore_index=True), one_course_scale(scales), left_out

@@ -1,0 +1,339 @@
+"""Statistics that can separate algorithms with few runs (Agarwal et al. 2021, `rliable`), beside
+the paper-style mean ± std of Tables 1-2 (`analysis.tables`, which writes both).
+
+Per suite, from the episodes of every run (`analysis.tables.episodes_of` or the records):
+
+- **Score matrix** of an algorithm: shape (runs, terrains); entry [r, t] is run r's mean over
+  its episodes on terrain t: the fraction solved (success) or the mean episode return (return).
+  Terrains are in the suite's order, the same columns for every algorithm.
+- **IQM** (interquartile mean): the mean of the middle 50 % of the matrix's entries (25 % cut at
+  each end, over runs and terrains together: `rliable.metrics.aggregate_iqm`). Less swayed by
+  a few outlying terrains or seeds than the mean, less wasteful than the median.
+- **95 % interval of the IQM**: percentile stratified bootstrap
+  (`rliable.library.get_interval_estimates`, `task_bootstrap=True`): each resample draws the
+  terrains with replacement and, within each drawn terrain, the algorithm's runs with
+  replacement; the interval is the 2.5 and 97.5 percentiles of the IQM over `REPS` resamples.
+  It answers "what IQM would another set of seeds on another draw of similar terrains give?".
+  With one run the run draw changes nothing: the interval comes from the terrains only (how
+  the score varies over the suite's terrains, not over training seeds); the output says so.
+- **Probability of improvement** P(X > Y) of algorithm X over Y: for each terrain the
+  probability that a random run of X scores above a random run of Y (ties count one half: the
+  Mann-Whitney U statistic over nx x ny run pairs), averaged over the terrains
+  (`rliable.metrics.probability_of_improvement`). 0.5: no difference; 1: X's every run beats Y's
+  every run on every terrain. Its 95 % interval: the same stratified bootstrap, each
+  algorithm's runs drawn independently within each terrain (rliable's
+  `StratifiedIndependentBootstrap`) and one draw of terrains shared by X and Y (the pair is
+  compared terrain by terrain; rliable's pair bootstrap leaves the terrain draw out, so it is
+  added here, as `task_bootstrap=True` adds it for one algorithm). Pairs are listed with X after
+  Y in table order (ppo, sac, vmpo, epoet, epoet_sac), so each reads as the paper's claim
+  (ePOET-SAC > ePOET, ePOET > SAC, SAC > PPO); P(Y > X) = 1 - P(X > Y).
+
+Every bootstrap uses a fixed seed (`SEED`), so the intervals are the same on every call. The
+point estimates come from rliable's own functions; inside the bootstrap the probability of
+improvement uses `poi`, the same number vectorised (rliable's calls scipy once per terrain,
+~25 ms per resample; tests/test_stats.py checks the two agree).
+"""
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # figures are files; never need a display
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from analysis.store import ALGO_COLOURS, in_order  # noqa: E402
+
+REPS = 2000          # bootstrap resamples per interval
+SEED = 0             # the bootstraps' seed: reproducible intervals
+CONFIDENCE = 0.95
+METRICS = {"success": "solved", "return": "return"}   # score -> episodes.csv column
+LABELS = {"success": "success rate (%)", "return": "return"}
+
+
+def _import_rliable():
+    """rliable's library and metrics modules.
+
+    rliable 1.2 needs arch < 8, and arch 7's package import decorates one of its model classes
+    with pandas' private `deprecate_kwarg(old, new)`, which pandas 3 made
+    `deprecate_kwarg(warning class, old, new)`: the import fails with a TypeError. For the
+    import only, that decorator accepts the old call (as a FutureWarning); pandas is restored
+    afterwards. (arch's bootstrap, the part rliable uses, does not touch it.)"""
+    import pandas.util._decorators as decorators
+    original = decorators.deprecate_kwarg
+
+    def old_call(klass, *args, **kwargs):
+        if isinstance(klass, str):
+            return original(FutureWarning, klass, *args, **kwargs)
+        return original(klass, *args, **kwargs)
+
+    decorators.deprecate_kwarg = old_call
+    try:
+        from rliable import library, metrics
+    finally:
+        decorators.deprecate_kwarg = original
+    return library, metrics
+
+
+rly, rly_metrics = _import_rliable()
+
+
+@contextmanager
+def seeded(seed: int) -> Iterator[None]:
+    """rliable's stratified bootstraps draw from numpy's global generator: seed it for the call
+    and give it back its state afterwards."""
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
+def terrain_order(episodes: pd.DataFrame) -> list[str]:
+    """The suite's terrains in the order the evaluations list them."""
+    return list(dict.fromkeys(episodes.terrain))
+
+
+def score_matrices(episodes: pd.DataFrame, score: str) -> dict[str, np.ndarray]:
+    """Per algorithm (table order) its (runs, terrains) matrix: each run's mean over its
+    episodes on each terrain of the `score` ("success" or "return")."""
+    column, terrains = METRICS[score], terrain_order(episodes)
+    matrices = {}
+    for algo in in_order(episodes.algo):
+        mine = episodes[episodes.algo == algo]
+        table = (mine.assign(value=mine[column].astype(float))
+                 .groupby(["run_id", "terrain"], sort=False).value.mean().unstack("terrain"))
+        table = table.reindex(index=list(dict.fromkeys(mine.run_id)), columns=terrains)
+        if table.isna().any().any():
+            missing = table.columns[table.isna().any()].tolist()
+            raise ValueError(f"{algo} has runs without episodes on terrains {missing[:3]}: "
+                             f"every run must be evaluated on the same suite")
+        matrices[algo] = table.to_numpy()
+    return matrices
+
+
+def iqm(scores: np.ndarray) -> np.ndarray:
+    return np.array([rly_metrics.aggregate_iqm(scores)])
+
+
+def poi(x: np.ndarray, y: np.ndarray) -> float:
+    """rliable's probability of improvement, vectorised: per terrain, over every (run of x, run
+    of y) pair, P(x > y) + P(x = y) / 2; the mean over terrains."""
+    pairs = x[:, None, :], y[None, :, :]
+    per_terrain = (pairs[0] > pairs[1]).mean(axis=(0, 1)) + \
+        0.5 * (pairs[0] == pairs[1]).mean(axis=(0, 1))
+    return float(per_terrain.mean())
+
+
+def _poi_array(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.array([poi(x, y)])
+
+
+def resampled(runs: Sequence[int], names: Sequence[str] = ()) -> str:
+    """What an interval is over, given the run counts of the algorithms it compares (`names`:
+    theirs, for a pair)."""
+    if max(runs) == 1:
+        return "terrains only (1 run)" if len(runs) == 1 else "terrains only (1 run each)"
+    single = [name for name, n in zip(names, runs) if n == 1]
+    return f"runs and terrains ({single[0]}: 1 run)" if single else "runs and terrains"
+
+
+def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.DataFrame:
+    """algo, score, runs, terrains, iqm, ci_low, ci_high, resampled, reps, seed: per algorithm
+    and score, the IQM of its score matrix with its 95 % stratified-bootstrap interval."""
+    rows = []
+    for score in METRICS:
+        matrices = score_matrices(episodes, score)
+        with seeded(seed):
+            points, intervals = rly.get_interval_estimates(
+                matrices, iqm, task_bootstrap=True, reps=reps,
+                confidence_interval_size=CONFIDENCE)
+        for algo, matrix in matrices.items():
+            rows.append({"algo": algo, "score": score, "runs": matrix.shape[0],
+                         "terrains": matrix.shape[1], "iqm": float(points[algo][0]),
+                         "ci_low": float(intervals[algo][0][0]),
+                         "ci_high": float(intervals[algo][1][0]),
+                         "resampled": resampled([matrix.shape[0]]), "reps": reps,
+                         "seed": seed})
+    return pd.DataFrame(rows)
+
+
+def _pair_bootstrap():
+    """rliable's independent-samples stratified bootstrap with a terrain draw shared by both
+    algorithms (see the module docstring)."""
+
+    class TerrainsAndRuns(rly.StratifiedIndependentBootstrap):
+        def update_indices(self):
+            positional, keywords = super().update_indices()
+            terrains = self._args_shapes[0][1]
+            shared = np.random.choice(terrains, (1, terrains), replace=True)
+            return [(runs, shared) for runs, *_ in positional], keywords
+
+    return TerrainsAndRuns
+
+
+def poi_interval(x: np.ndarray, y: np.ndarray, reps: int = REPS, seed: int = SEED
+                 ) -> tuple[float, float, float]:
+    """P(X > Y) (rliable's) and its 95 % interval over runs and terrains."""
+    point = float(rly_metrics.probability_of_improvement(x, y))
+    with seeded(seed):
+        low, high = _pair_bootstrap()(x, y).conf_int(_poi_array, reps=reps, size=CONFIDENCE,
+                                                     method="percentile")
+    return point, float(low[0]), float(high[0])
+
+
+def poi_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.DataFrame:
+    """x, y, score, poi, ci_low, ci_high, runs_x, runs_y, resampled, reps, seed: P(X > Y) for
+    every pair of algorithms, X after Y in table order."""
+    rows = []
+    for score in METRICS:
+        matrices = score_matrices(episodes, score)
+        for y, x in itertools.combinations(matrices, 2):
+            point, low, high = poi_interval(matrices[x], matrices[y], reps, seed)
+            runs = (matrices[x].shape[0], matrices[y].shape[0])
+            rows.append({"x": x, "y": y, "score": score, "poi": point, "ci_low": low,
+                         "ci_high": high, "runs_x": runs[0], "runs_y": runs[1],
+                         "resampled": resampled(runs, (x, y)), "reps": reps, "seed": seed})
+    return pd.DataFrame(rows, columns=["x", "y", "score", "poi", "ci_low", "ci_high", "runs_x",
+                                       "runs_y", "resampled", "reps", "seed"])
+
+
+def _interval(value: float, low: float, high: float, scale: float, digits: int) -> str:
+    return f"{value * scale:.{digits}f} [{low * scale:.{digits}f}, {high * scale:.{digits}f}]"
+
+
+def shown_iqm(table: pd.DataFrame) -> pd.DataFrame:
+    """One row per algorithm: runs, success IQM (%) and return IQM, each with its interval."""
+    rows = []
+    for algo in in_order(table.algo):
+        mine = table[table.algo == algo].set_index("score")
+        row = {"algorithm": algo, "runs": int(mine.runs.iloc[0])}
+        for score, scale, digits in (("success", 100, 1), ("return", 1, 1)):
+            r = mine.loc[score]
+            row[f"{LABELS[score]} IQM [95 % CI]"] = _interval(r.iqm, r.ci_low, r.ci_high, scale,
+                                                              digits)
+        row["interval over"] = mine.resampled.iloc[0]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def shown_poi(table: pd.DataFrame) -> pd.DataFrame:
+    """One row per pair: P(X > Y) of the success rate and of the return, with intervals."""
+    rows = []
+    for (x, y), pair in table.groupby(["x", "y"], sort=False):
+        pair = pair.set_index("score")
+        row = {"X": x, "Y": y, "runs": f"{pair.runs_x.iloc[0]} vs {pair.runs_y.iloc[0]}"}
+        for score in METRICS:
+            r = pair.loc[score]
+            row[f"P(X > Y), {score} [95 % CI]"] = _interval(r.poi, r.ci_low, r.ci_high, 1, 2)
+        row["interval over"] = pair.resampled.iloc[0]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def notes(iqm_rows: pd.DataFrame, reps: int, seed: int) -> list[str]:
+    """What the numbers are, and where one run leaves the intervals to the terrains alone."""
+    terrains = int(iqm_rows.terrains.max()) if len(iqm_rows) else 0
+    lines = [f"IQM: interquartile mean over runs x {terrains} terrains (each entry a run's mean "
+             f"over its episodes on one terrain); 95 % CI: percentile stratified bootstrap over "
+             f"runs (within each terrain) and terrains, {reps} resamples, seed {seed} "
+             f"(rliable, Agarwal et al. 2021; analysis/stats.py)."]
+    single = in_order(iqm_rows[iqm_rows.runs == 1].algo)
+    if single:
+        lines.append(f"One run only ({', '.join(single)}): its intervals come from the terrains "
+                     f"only (how the score varies over this suite's terrains), not from seeds.")
+    return lines
+
+
+def _plot(table: pd.DataFrame, labels: list[str], value: str, colours: list[str], ax,
+          scale: float, reference: float | None = None) -> None:
+    y = np.arange(len(labels))[::-1]
+    values = table[value].to_numpy() * scale
+    low, high = table.ci_low.to_numpy() * scale, table.ci_high.to_numpy() * scale
+    ax.errorbar(values, y, xerr=[values - low, high - values], fmt="none", ecolor=colours,
+                elinewidth=6, alpha=0.5)
+    ax.scatter(values, y, color=colours, zorder=3, marker="|", s=200, linewidths=2)
+    if reference is not None:
+        ax.axvline(reference, color="grey", linestyle="--", linewidth=1)
+    ax.set_yticks(y, labels)
+    ax.grid(axis="x", alpha=0.3)
+
+
+def plot_iqm(table: pd.DataFrame, title: str, path: Path) -> Path:
+    """Per score, each algorithm's IQM with its 95 % interval as a bar."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 0.6 * table.algo.nunique() + 1.6))
+    for ax, score in zip(axes, METRICS):
+        rows = table[table.score == score]
+        algos = list(rows.algo)
+        _plot(rows, [f"{a} ({r})" for a, r in zip(algos, rows.runs)], "iqm",
+              [ALGO_COLOURS.get(a, "black") for a in algos], ax,
+              100 if score == "success" else 1)
+        ax.set_xlabel(f"IQM of the {LABELS[score]}")
+    fig.suptitle(title, fontsize="medium")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_poi(table: pd.DataFrame, title: str, path: Path) -> Path:
+    """Per score, P(X > Y) of each pair with its 95 % interval; 0.5 marked."""
+    pairs = table[["x", "y"]].drop_duplicates()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 0.5 * len(pairs) + 1.6))
+    for ax, score in zip(axes, METRICS):
+        rows = table[table.score == score]
+        _plot(rows, [f"{x} > {y}" for x, y in zip(rows.x, rows.y)], "poi",
+              [ALGO_COLOURS.get(x, "black") for x in rows.x], ax, 1, reference=0.5)
+        ax.set_xlim(-0.02, 1.02)
+        ax.set_xlabel(f"P(X > Y), {LABELS[score].removesuffix(' (%)')}")
+    fig.suptitle(title, fontsize="medium")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def latex_text(text: str) -> str:
+    """Plain text (no backslashes, tildes or carets) for a LaTeX caption."""
+    for char in "&%$#_{}":
+        text = text.replace(char, f"\\{char}")
+    return text
+
+
+def write_stats(episodes: pd.DataFrame, out: Path, suite: str, scale: str,
+                to_markdown: Callable[[pd.DataFrame], str], reps: int = REPS,
+                seed: int = SEED) -> list[Path]:
+    """out/iqm_<suite>.{csv,md,tex,png} and out/poi_<suite>.{csv,md,tex,png} (no PoI files for
+    one algorithm); prints the Markdown."""
+    out.mkdir(parents=True, exist_ok=True)
+    at = f" on suite {suite} (course scale {scale})"
+    iqm_rows = iqm_table(episodes, reps, seed)
+    said = notes(iqm_rows, reps, seed)
+    outputs = [("iqm", iqm_rows, shown_iqm(iqm_rows),
+                f"IQM of the success rate and of the return, 95 % CI{at}", plot_iqm)]
+    if iqm_rows.algo.nunique() > 1:
+        poi_rows = poi_table(episodes, reps, seed)
+        outputs.append(("poi", poi_rows, shown_poi(poi_rows),
+                        f"Probability of improvement P(X > Y), 95 % CI{at}", plot_poi))
+    written = []
+    for name, raw, shown, title, plot in outputs:
+        stem = out / f"{name}_{suite}"
+        raw.to_csv(stem.with_suffix(".csv"), index=False)
+        markdown = to_markdown(shown)
+        text = "\n".join(said)
+        stem.with_suffix(".md").write_text(f"{title}\n\n{markdown}\n\n{text}\n")
+        latex = shown.to_latex(index=False, escape=True, caption=latex_text(f"{title}. {text}"),
+                               label=f"tab:{name}_{suite}")
+        stem.with_suffix(".tex").write_text(latex.replace(" > ", " $>$ "))
+        plot(raw, title, stem.with_suffix(".png"))
+        print(f"\n{title}\n{markdown}")
+        written += [stem.with_suffix(ext) for ext in (".csv", ".md", ".tex", ".png")]
+    print("\n".join(said))
+    return written
