@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import mlflow
+import numpy as np
 import pytest
 
 from epoet.core.checkpoint import load_checkpoint
@@ -28,6 +29,22 @@ def _stop_reason(uri: str, run_id: str) -> str:
     return mlflow.MlflowClient(uri).get_run(run_id).data.tags["stop_reason"]
 
 
+def _history(uri: str, run_id: str, key: str) -> dict[int, float]:
+    return {m.step: m.value for m in mlflow.MlflowClient(uri).get_metric_history(run_id, key)}
+
+
+def _assert_summed_over_the_resume(uri: str, run_id: str, step_time: str, total: float) -> None:
+    """`elapsed` at each logged step is the sum of every step's own time (`step_time`) up to it,
+    before the resume and after it (a sum that restarted at 0 on resume breaks this at the first
+    step after it), and the checkpoint's total is the last sum."""
+    times = _history(uri, run_id, step_time)
+    elapsed = _history(uri, run_id, "elapsed")
+    steps = sorted(times)
+    np.testing.assert_allclose([elapsed[s] for s in steps], np.cumsum([times[s] for s in steps]),
+                               rtol=1e-9)
+    assert total == pytest.approx(elapsed[steps[-1]], rel=1e-9)
+
+
 def test_epoet_stops_at_the_wall_clock_budget_and_a_resume_goes_on(
         compose, mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     folder = tmp_path / "run"
@@ -42,6 +59,9 @@ def test_epoet_stops_at_the_wall_clock_budget_and_a_resume_goes_on(
     assert second["run_id"] == first["run_id"] and second["poet"]["iteration"] == 4
     assert second["poet"]["elapsed"] > first["poet"]["elapsed"]   # summed over the resume
     assert _stop_reason(mlflow_uri, first["run_id"]) == "iterations"
+    assert len(_history(mlflow_uri, first["run_id"], "time/iteration")) == 4
+    _assert_summed_over_the_resume(mlflow_uri, first["run_id"], "time/iteration",
+                                   second["poet"]["elapsed"])
 
 
 def test_a_baseline_stops_at_a_batch_boundary_and_a_resume_goes_on(
@@ -57,6 +77,9 @@ def test_a_baseline_stops_at_a_batch_boundary_and_a_resume_goes_on(
     assert second["loop"]["frames"] == 240
     assert second["loop"]["wall_time"] > first["loop"]["wall_time"]
     assert _stop_reason(mlflow_uri, first["run_id"]) == "frames"
+    assert sorted(_history(mlflow_uri, first["run_id"], "time/batch")) == [60, 120, 180, 240]
+    _assert_summed_over_the_resume(mlflow_uri, first["run_id"], "time/batch",
+                                   second["loop"]["wall_time"])
 
 
 def test_the_paper_budget_is_24_hours_with_the_references_baseline_frames() -> None:
