@@ -176,3 +176,32 @@ def test_the_evaluate_command_runs_a_reference_agent_on_the_paper_suite(mlflow_u
     assert "success rate" in done.stdout
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["episodes_per_terrain"] == 1 and summary["label"] == "reference:poet_hexA8/flat"
+
+
+def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
+    """The converted twin Q networks (our observation and action order) value the converted
+    actor's action above random ones on the states it walks through; a wrong action or
+    observation order would scramble that."""
+    import torch
+    from torch import nn
+
+    from epoet.rl.sac_loss import TwinQ
+    entry = manifest()["agents"]["sac/42"]
+    spec = torch.load(FOLDER / entry["critics"], weights_only=True)
+    critics = TwinQ(53 + 18, spec["hidden"], nn.ReLU)
+    critics.load_state_dict(spec["state_dict"])
+    actor = _shipped("sac/42").load()
+    env = gym.make(ENV_ID, agent={"integrator": "rk4", "max_episode_steps": 300},
+                   terrain={"max_height": 0.1})
+    obs, _ = env.reset(seed=0)
+    states = []
+    for _ in range(300):
+        states.append(obs)
+        obs, *_ = env.step(actor(obs))
+    states = torch.as_tensor(np.array(states[50::10]), dtype=torch.float32)
+    with torch.no_grad():
+        chosen = critics(states, torch.as_tensor(actor(states.numpy()))).min(0).values
+        rng = torch.Generator().manual_seed(0)
+        noise = torch.rand((20, *chosen.shape, 18), generator=rng) * 2 - 1
+        random = torch.stack([critics(states, a).min(0).values for a in noise]).mean(0)
+    assert (chosen > random).float().mean() >= 0.9, (chosen - random)

@@ -34,7 +34,8 @@ from epoet.core.cli import fail
 from epoet.core.files import atomic_write
 from epoet.core.schema import ConfigError
 from epoet.eval.reference import FOLDER, MANIFEST
-from epoet.eval.reference.layout import LAYOUT, es_theta, fold_input, fold_output_rows
+from epoet.eval.reference.layout import (LAYOUT, es_theta, fold_critic_input, fold_input,
+                                         fold_output_rows)
 from epoet.eval.reference.pickles import (ReferenceFileError, read_genome, read_normaliser,
                                           to_neat)
 from epoet.eval.reference.terrain import EVAL_HEIGHT, render
@@ -49,6 +50,9 @@ ES_RUNS = {"poet_hexA8": ("poet/poet_hexA8", "epoet"),
            "poet_twin22": ("poet_sac/poet_twin22", "epoet_sac")}
 # run -> (activation, has an observation normaliser); the files are model/model_pf_best.pth
 TORCH_RUNS = {"ppo/0": ("tanh", True), "sac/42": ("relu", False), "vmpo/42": ("tanh", True)}
+CRITIC_RUNS = ("sac/42",)       # their twin Q networks too (model_qf1_best.pth, model_qf2_best.pth)
+CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.rl.sac_loss), plus provenance
+_LAYERS = ("base.seq_fcs.0", "base.seq_fcs.2", "seq_append_fcs.0")
 ES_HIDDEN = (40, 40)
 GENOMES = f"{MODELS}/cppngenomes/cppngenomes_b"
 NORM_EPS = 1e-4                     # their normaliser divides by sqrt(var) + 1e-4
@@ -131,10 +135,8 @@ def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any])
         try:
             weights = {k: v.double().numpy() for k, v in
                        torch.load(path, map_location="cpu", weights_only=True).items()}
-            first, second, last = (weights[f"{k}.weight"] for k in
-                                   ("base.seq_fcs.0", "base.seq_fcs.2", "seq_append_fcs.0"))
-            biases = [weights[f"{k}.bias"] for k in
-                      ("base.seq_fcs.0", "base.seq_fcs.2", "seq_append_fcs.0")]
+            first, second, last = (weights[f"{k}.weight"] for k in _LAYERS)
+            biases = [weights[f"{k}.bias"] for k in _LAYERS]
         except Exception as err:  # torch raises many types; a missing layer is a KeyError
             raise ReferenceFileError(f"{path} is not the authors' policy state dict "
                                      f"({type(err).__name__}: {err}).") from None
@@ -166,6 +168,37 @@ def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any])
         torch.save(spec, buffer)
         files[entry["file"]] = buffer.getvalue()
         agents[name] = entry
+        if name in CRITIC_RUNS:
+            entry["critics"] = f"agents/{name}.critics.pt"
+            files[entry["critics"]] = _critics(folder / "model", activation)
+
+
+def _critics(folder: Path, activation: str) -> bytes:
+    """Their two Q networks (obs, action -> Q) as one TwinQ state dict in epoet's layout."""
+    import torch
+    layers: list[list[tuple[np.ndarray, np.ndarray]]] = []
+    for q in ("qf1", "qf2"):
+        path = folder / f"model_{q}_best.pth"
+        try:
+            sd = {k: v.double().numpy() for k, v in
+                  torch.load(path, map_location="cpu", weights_only=True).items()}
+            net = [(sd[f"{k}.weight"], sd[f"{k}.bias"]) for k in _LAYERS]
+        except Exception as err:  # torch raises many types; a missing layer is a KeyError
+            raise ReferenceFileError(f"{path} is not the authors' Q network state dict "
+                                     f"({type(err).__name__}: {err}).") from None
+        net[0] = fold_critic_input(*net[0])
+        layers.append(net)
+    state = {}
+    for i in range(len(_LAYERS)):  # TwinQ: weights (2, in, out), biases (2, 1, out)
+        state[f"weights.{i}"] = torch.from_numpy(np.stack(
+            [net[i][0].T for net in layers]).astype(np.float32))
+        state[f"biases.{i}"] = torch.from_numpy(np.stack(
+            [net[i][1][None, :] for net in layers]).astype(np.float32))
+    buffer = io.BytesIO()
+    torch.save({"format": CRITICS_FORMAT, "activation": activation,
+                "hidden": [int(layers[0][0][0].shape[0]), int(layers[0][1][0].shape[0])],
+                "state_dict": state}, buffer)
+    return buffer.getvalue()
 
 
 def convert_suite(source: Path, files: dict[str, bytes]) -> dict[str, Any]:

@@ -65,6 +65,14 @@ def fold_input(weight: np.ndarray, bias: np.ndarray, contact_value: np.ndarray |
     return np.concatenate([obs, weight[:, OBS_DIM:OBS_DIM + extra_inputs]], axis=1), folded_bias
 
 
+def fold_critic_input(weight: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A Q network's first layer (inputs: the reference's observation, then its action)
+    re-ordered to take epoet's observation and action."""
+    folded, folded_bias = fold_input(weight, bias, extra_inputs=ACT_DIM)
+    folded[:, OBS_DIM:] = folded[:, OBS_DIM:][:, action_source()]
+    return folded, folded_bias
+
+
 def fold_output_rows(weight: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A last layer (torch's layout) whose rows are groups of ACT_DIM actions in the reference's
     order (a mean, and for SAC a log-std after it), re-ordered to epoet's."""
