@@ -58,11 +58,6 @@ def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
     assert len(set(episodes.lengths.tolist())) > 1  # the refill path was exercised
 
 
-def test_ray_actors_step_as_many_robots_as_local_workers():
-    # the value lives once, in conf/workers/local.yaml; ray.yaml inherits it
-    assert load(["workers=ray"]).workers.batch == load([]).workers.batch
-
-
 def test_results_do_not_depend_on_batch_size(terrain):
     params, seeds = population(6, seed=4)
     runs = [RolloutEngine(AGENT, TERRAIN_CFG, b, ES_SIZES).run(terrain, params, seeds, record=True)

@@ -22,7 +22,7 @@ from conftest import ES_SIZES, without_evaluation
 
 from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
-from epoet.rollout.policy import init_params
+from epoet.rollout.policy import init_params, policy_sizes
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import Terrain
@@ -36,6 +36,15 @@ def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedP
     return subprocess.run([sys.executable, "-m", "epoet", *without_evaluation(args)],
                           cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=400)
+
+
+def _no_run_in(store: Path) -> bool:
+    """No run in any experiment of the store (runs go to `epoet`, not MLflow's Default), or no
+    store at all."""
+    if not store.exists():
+        return True
+    client = mlflow.MlflowClient(f"sqlite:///{store}")
+    return not client.search_runs([e.experiment_id for e in client.search_experiments()])
 
 
 def _pool(run_dir: Path) -> list[dict]:
@@ -83,6 +92,25 @@ def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> No
         np.testing.assert_array_equal(episodes.returns, expected.returns)
 
 
+def test_ray_actors_step_as_many_robots_as_local_workers() -> None:
+    """Each rollout actor's engine has the slots (`workers.batch`) a local pool worker's has:
+    conf/workers/local.yaml owns the value, ray.yaml inherits it, and the actors are built with
+    it. (Here, not in test_rollout.py: the Ray tests must not overlap one another.)"""
+    import ray
+
+    from epoet.rollout.evaluators import evaluator_for
+
+    local, on_ray = (load([*SMOKE, "workers.num=2", *extra]) for extra in ([], ["workers=ray"]))
+    sizes = policy_sizes(local.algo.es.hidden)
+    with evaluator_for(local.workers, local.agent, local.terrain, sizes) as pool:
+        given = pool.batch  # what each pool worker's engine is built with
+    with evaluator_for(on_ray.workers, on_ray.agent, on_ray.terrain, sizes) as actors:
+        batches = ray.get([actor.__ray_call__.remote(lambda self: self.engine.batch)
+                           for actor in actors._actors])
+    assert given == load([]).workers.batch > 1
+    assert batches == [given, given]
+
+
 @pytest.fixture
 def ray_cluster(tmp_path: Path):
     """A real Ray head node on this machine, as `ray start --head` starts one for users."""
@@ -114,8 +142,7 @@ def test_an_unreachable_ray_cluster_is_one_line_before_any_run(tmp_path: Path) -
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [out.stderr.strip()]
     assert "no Ray cluster answers at workers.address=127.0.0.1:9" in out.stderr
-    assert not (tmp_path / "mlflow.db").exists() or not mlflow.MlflowClient(
-        f"sqlite:///{tmp_path}/mlflow.db").search_runs(["0"])
+    assert _no_run_in(tmp_path / "mlflow.db")
 
 
 def test_a_joblib_sweep_runs_two_jobs_in_parallel_into_one_store(tmp_path: Path) -> None:
@@ -207,8 +234,7 @@ def test_an_address_where_something_else_listens_is_one_line_in_seconds(not_ray:
     assert "ray start --head" in lines[0] and "workers.address=null" in lines[0]
     assert "Traceback" not in out.stderr + out.stdout
     assert elapsed < BOUND_SECONDS, f"{elapsed:.1f} s to fail"
-    assert not (tmp_path / "mlflow.db").exists() or not mlflow.MlflowClient(  # before any run
-        f"sqlite:///{tmp_path}/mlflow.db").search_runs(["0"])
+    assert _no_run_in(tmp_path / "mlflow.db")  # it failed before any run
     assert _ray_processes() <= before  # no Ray process left behind
 
 
