@@ -78,8 +78,8 @@ def main() -> None:
         evaluator = Counting(pool, cfg.agent.settle_steps)
         poet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                      eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                     layer_sizes=sizes, transfer_interval=budget.transfer_interval,
-                     reproduce_interval=1)
+                     layer_sizes=sizes)
+        poet.reproduce_interval = poet.later_reproduce_interval = 1  # until the pool is full
         while len(poet.active) < args.pairs:
             poet.iterate()
         poet.reproduce_interval = 10**9  # the pool stays as it is while timed

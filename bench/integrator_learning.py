@@ -27,7 +27,7 @@ def sweep(store: Path, iterations: int, seeds: str) -> None:
     store.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{store / 'mlflow.db'}"}
     subprocess.run([sys.executable, "-m", "epoet", "-m", "budget=laptop",
-                    f"budget.iterations={iterations}", "budget.reproduce_interval=100000",
+                    f"budget.iterations={iterations}", "algo.adjust_interval=100000",
                     "agent.integrator=rk4,implicitfast", f"seed={seeds}",
                     f"hydra.sweep.dir={store / 'multirun'}"], env=env, check=True)
 

@@ -42,7 +42,7 @@ class Walk(NamedTuple):
 def root_pair_config(seed: int, overrides: list[str]) -> Config:
     """The workstation budget without reproduction: the root pair alone, as a workstation run
     before its first round."""
-    return load(["budget=workstation", "budget.reproduce_interval=1000000", f"seed={seed}",
+    return load(["budget=workstation", "algo.adjust_interval=100000", f"seed={seed}",
                  *overrides])
 
 

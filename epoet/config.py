@@ -36,40 +36,59 @@ from epoet.terrain.config import TerrainConfig
 
 @dataclass
 class BudgetConfig:
-    """How much compute, never which algorithm. Paper values are the `paper` budget.
+    """How much compute, never which algorithm: what every run reads. Paper values are the
+    `paper` budget.
 
     Score thresholds (minimal criterion, reproduction, solved) are set for 2000-step episodes
-    and multiplied by `score_scale` (the paper budget: 1). A small budget may also set ePOET's
-    transfer and reproduction intervals; null keeps the algorithm's (the paper's).
+    and multiplied by `score_scale` (the paper budget: 1). The integrator and the height
+    schedule are the budget's too; conf/config.yaml hands them to the agent and the terrain, as
+    it does the episode length. What an algorithm counts its compute in is its family's
+    (`PoetBudgetConfig`, `BaselineBudgetConfig`): the algorithm's YAML picks that schema, and
+    conf/algo_budget/<algo>_<budget>.yaml sets its values.
     """
 
     KEY: ClassVar[str] = "budget"
 
     name: str
-    iterations: int                  # ES iterations (ePOET / ePOET-SAC)
-    n_pairs: int                     # mirrored pairs per ES step (2 episodes each)
     episode_steps: int
     eval_episodes: int
-    frames: int                      # environment frames for the RL baselines
-    eval_every: int                  # RL baselines: frames between deterministic evaluations
     score_scale: float
-    transfer_interval: Optional[int]     # null: the algorithm's
-    reproduce_interval: Optional[int]    # null: the algorithm's
-    sac_frames_per_iteration: Optional[int]  # ePOET-SAC; null: the algorithm's
+    integrator: str                  # agent.integrator follows it
+    max_height_step: float           # +S per iteration (terrain.max_height_step follows it)
     hours: Optional[float]           # wall-clock stop: hours of training over resumes; null: none
 
     def __post_init__(self) -> None:
-        positive(self, "iterations", "n_pairs", "episode_steps", "eval_episodes", "frames",
-                 "eval_every", "score_scale")
+        positive(self, "episode_steps", "eval_episodes", "score_scale")
         check(self.hours is None or self.hours > 0,
               f"budget.hours must be > 0 or null, got {self.hours}.")
-        for name in ("transfer_interval", "reproduce_interval", "sac_frames_per_iteration"):
-            value = getattr(self, name)
-            check(value is None or value > 0, f"budget.{name} must be > 0 or null, got {value}.")
 
     def time_is_up(self, seconds: float) -> bool:
         """Whether `seconds` of training (summed over resumes) have used up `hours`."""
         return self.hours is not None and seconds >= self.hours * 3600.0
+
+
+@dataclass
+class PoetBudgetConfig(BudgetConfig):
+    """The compute of ePOET and ePOET-SAC: iterations of the loop and ES pairs per step."""
+
+    iterations: int
+    n_pairs: int                     # mirrored pairs per ES step (2 episodes each)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive(self, "iterations", "n_pairs")
+
+
+@dataclass
+class BaselineBudgetConfig(BudgetConfig):
+    """The compute of the RL baselines: environment frames."""
+
+    frames: int
+    eval_every: int                  # frames between deterministic evaluations
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive(self, "frames", "eval_every")
 
 
 @dataclass
@@ -117,7 +136,7 @@ class Config:
     algo: Any                        # one of ALGO_SCHEMAS (its YAML names its schema and runner)
     agent: AgentConfig
     terrain: TerrainConfig
-    budget: BudgetConfig
+    budget: BudgetConfig             # the algorithm's YAML picks its family's (its compute's unit)
     workers: WorkersConfig
     tracking: TrackingConfig
     seed: int
@@ -140,7 +159,7 @@ class Config:
 
     def unused_keys(self) -> tuple[str, ...]:
         """Dotted keys (and key prefixes) of settings this run never reads, so its MLflow params
-        hold only what shaped it: ES budgets are iterations, the baselines' are frames."""
+        hold only what shaped it (a bowl terrain's CPPN settings, the baselines' ES workers)."""
         return (*self.terrain.unused_keys(), *self.algo.unused_keys())
 
 
@@ -151,7 +170,7 @@ class SuiteConfig:
     """`python -m epoet.eval.suite`: the fixed evaluation suite (docs/reference.md "Evaluation").
 
     Rounds of mutated CPPN children with a rising S; round r aims its children at level r
-    (terrain/suite.py)."""
+    (epoet/eval/suite.py)."""
 
     KEY: ClassVar[str] = ""
 
@@ -276,6 +295,8 @@ def register_configs() -> None:
     cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
+    cs.store(group="budget", name="poet_budget_schema", node=PoetBudgetConfig)
+    cs.store(group="budget", name="baseline_budget_schema", node=BaselineBudgetConfig)
     cs.store(group="workers", name="workers_schema", node=WorkersConfig)
     cs.store(group="tracking", name="tracking_schema", node=TrackingConfig)
     for name, schema in ALGO_SCHEMAS.items():

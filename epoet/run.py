@@ -35,10 +35,44 @@ RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterat
 Runner = Callable[[Config, "Tracker", Path, "dict[str, Any] | None"], Any]
 
 
+def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's config in today's layout, with the values its run ran with.
+
+    Checkpoints written before budgets owned their integrator and height schedule and before the
+    algorithm x budget values moved to conf/algo_budget/ kept every algorithm's budget keys, the
+    integrator and S schedule only in `agent` and `terrain`, ePOET's intervals as budget
+    overrides of the algorithm's (null: the algorithm's) and ePOET-SAC's Train_SAC frames as
+    `budget.sac_frames_per_iteration` (null: `algo.frames_per_iteration`)."""
+    budget, algo = dict(saved["budget"]), dict(saved["algo"])
+    if "integrator" in budget:  # today's layout
+        return saved
+    budget["integrator"] = saved["agent"]["integrator"]
+    budget["max_height_step"] = saved["terrain"]["max_height_step"]
+    transfer, reproduce = budget.pop("transfer_interval"), budget.pop("reproduce_interval")
+    sac_frames = budget.pop("sac_frames_per_iteration")
+    if "iterations_before_transfer" in algo:  # ePOET, ePOET-SAC: their budget is iterations
+        for key in ("frames", "eval_every"):
+            del budget[key]
+        every = transfer or algo["iterations_before_transfer"]
+        first = reproduce or algo["adjust_interval"] * algo["iterations_before_transfer"]
+        later = algo.pop("later_reproduce_interval") or first
+        # in transfer intervals; an interval that is not a multiple shows as a changed setting
+        algo.update(iterations_before_transfer=every,
+                    adjust_interval=first // every if first % every == 0 else first / every,
+                    later_adjust_interval=later // every if later % every == 0 else later / every)
+        if "frames_per_iteration" in algo:
+            algo["frames_per_iteration"] = sac_frames or algo["frames_per_iteration"]
+    else:  # the baselines: frames
+        for key in ("iterations", "n_pairs"):
+            del budget[key]
+    return {**saved, "budget": budget, "algo": algo}
+
+
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
-    """`key (old -> new)` for every setting that differs, except the RESUMABLE ones."""
+    """`key (old -> new)` for every setting that differs, except the RESUMABLE ones (`saved`:
+    a checkpoint's config, in any layout `saved_config` reads)."""
     from epoet.tracking import flatten
-    old, new = flatten(saved), flatten(current)
+    old, new = flatten(saved_config(saved)), flatten(current)
     keys = sorted(k for k in old.keys() | new.keys()
                   if old.get(k) != new.get(k)
                   and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE))

@@ -1,10 +1,16 @@
-"""Checkpoints: exact round trip, atomic replacement, and one-sentence errors for bad files."""
+"""Checkpoints: exact round trip, atomic replacement, one-sentence errors for bad files, and the
+configs of older checkpoints read in today's layout."""
 from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from epoet.config import load
 from epoet.core.checkpoint import (
     CHECKPOINT_NAME,
     CheckpointError,
@@ -12,6 +18,7 @@ from epoet.core.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from epoet.run import config_changes
 
 
 class _Unpicklable:
@@ -105,3 +112,21 @@ def test_damaged_files_raise_checkpoint_error(tmp_path, damage, message):
 def test_state_must_be_a_dict(tmp_path):
     with pytest.raises(CheckpointError, match="state must be a dict"):
         save_checkpoint(tmp_path / CHECKPOINT_NAME, [1, 2])  # type: ignore[arg-type]
+
+
+# Configs as checkpoints stored them before the budgets owned their integrator and S schedule and
+# the algorithm x budget values lived in conf/algo_budget/ (written by that code, commit 28f1848),
+# each with today's overrides for the same run.
+BEFORE_ALGO_BUDGET = Path(__file__).with_name("configs_before_algo_budget.json")
+TODAY = {"algo=epoet budget=smoke algo.later_reproduce_interval=15":
+         ["algo=epoet", "budget=smoke", "algo.later_adjust_interval=1"]}
+
+
+@pytest.mark.parametrize("overrides", sorted(json.loads(BEFORE_ALGO_BUDGET.read_text())))
+def test_a_checkpoint_from_before_the_algo_budget_files_resumes(overrides: str) -> None:
+    """Its config reads as today's for the same run (laptop's intervals, ePOET-SAC's frames,
+    the baselines' paper frames), so `resume` does not refuse it; another setting still shows."""
+    saved = json.loads(BEFORE_ALGO_BUDGET.read_text())[overrides]
+    today = TODAY.get(overrides, overrides.split())
+    assert config_changes(saved, dataclasses.asdict(load(today))) == []
+    assert config_changes(saved, dataclasses.asdict(load(today + ["seed=7"]))) == ["seed (0 -> 7)"]

@@ -20,9 +20,11 @@ from epoet.poet.runner import layer_sizes, make_loop
 from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.run import run
 
-# Small everything; transfer every iteration, so joins come at t mod 4 = 2 (2, 6, ...).
+# Small everything; transfer every iteration, so joins come at t mod 4 = 2 (2, 6, ...), and
+# reproduce at the paper's 75.
 SMOKE = ["algo=epoet_sac", "budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40",
-         "budget.transfer_interval=1", "budget.sac_frames_per_iteration=60",
+         "algo.iterations_before_transfer=1", "algo.adjust_interval=75",
+         "algo.frames_per_iteration=60",
          "algo.updates_per_frame=0.5", "algo.sac.hidden=[32,32]", "algo.sac.batch_size=32",
          "algo.sac.init_random_frames=60", "algo.distill.states=256", "algo.distill.epochs=3",
          "algo.distill.batch=64", "checkpoint_every=1", "workers.num=1"]
@@ -52,7 +54,7 @@ def test_es_transitions_from_the_worker_processes_reach_the_replay_buffer() -> N
 
 
 def test_the_join_follows_algorithm_1() -> None:
-    paper, evaluator = _loop(["budget.transfer_interval=null"])
+    paper, evaluator = _loop(["algo.iterations_before_transfer=15"])
     with evaluator:
         assert [t for t in range(200) if paper.join_due(t)] == [58, 118, 178]
     paper.close()

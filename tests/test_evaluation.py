@@ -301,8 +301,8 @@ def test_params_are_the_values_the_run_used_and_only_those_it_reads(paper) -> No
     assert "budget.iterations" not in sac and "budget.frames" in sac
     assert "terrain.cppn.activation_options" in epoet and "terrain.mutation.max_tries" in epoet
     assert "budget.iterations" in epoet and "budget.frames" not in epoet
-    assert "budget.sac_frames_per_iteration" not in epoet
-    assert "budget.sac_frames_per_iteration" in runs["epoet_sac"]
+    assert "algo.frames_per_iteration" not in epoet
+    assert "algo.frames_per_iteration" in runs["epoet_sac"]
 
 
 def test_the_sweep_parent_reads_as_the_sweep(paper) -> None:

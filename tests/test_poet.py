@@ -230,11 +230,11 @@ def test_the_transfer_bar_is_the_best_of_the_last_evaluations(terrain_cfg: Terra
     assert poet.transfer() == 0
 
 
-@pytest.mark.parametrize("later, due", [(None, [75, 150, 225]), (15, [75, 90, 105, 120])])
+@pytest.mark.parametrize("later, due", [(5, [75, 150, 225]), (1, [75, 90, 105, 120])])
 def test_reproduction_schedule(terrain_cfg: TerrainConfig, later, due) -> None:
     """The paper reproduces every 75 iterations; the reference at 75 and then every 15."""
-    poet = make_poet(terrain_cfg, later_reproduce_interval=later)
-    assert [t for t in range(1, 121 if later else 226) if poet.reproduce_due(t)] == due
+    poet = make_poet(terrain_cfg, later_adjust_interval=later)
+    assert [t for t in range(1, 121 if later == 1 else 226) if poet.reproduce_due(t)] == due
 
 
 def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
@@ -274,9 +274,9 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
     def final_state(workers: int) -> dict:
         agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
         with make_evaluator(agent, terrain_cfg, workers, batch=3, layer_sizes=SIZES) as ev:
-            poet = EPOET(replace(PAPER.algo, num_children=2, **OPEN), terrain_cfg, ev, seed=5,
-                         n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES,
-                         transfer_interval=1, reproduce_interval=1)
+            every = dict(iterations_before_transfer=1, adjust_interval=1, later_adjust_interval=1)
+            poet = EPOET(replace(PAPER.algo, num_children=2, **every, **OPEN), terrain_cfg, ev,
+                         seed=5, n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES)
             for _ in range(3):
                 poet.iterate()
             return poet.state_dict()

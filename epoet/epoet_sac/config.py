@@ -36,17 +36,14 @@ class EpoetSacConfig(PoetConfig):
 
     sac: SacLearnerConfig
     distill: DistillConfig
-    frames_per_iteration: int        # SAC's own environment steps per ePOET iteration (Train_SAC)
+    frames_per_iteration: int        # SAC's own environment steps per ePOET iteration (Train_SAC;
+                                     # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
     updates_per_frame: float         # gradient updates per SAC frame (paper: 1)
     es_episodes_per_pair: int        # ES-step episodes per active pair recorded into the replay
     sac_terrain: str                 # pool: a sampled active environment; bowl: the reference's
     mapping: str                     # the join's SAC actor -> ES mapping: distill | random
     join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
     pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
-
-    def unused_keys(self) -> list[str]:
-        """As ePOET's, but Train_SAC's frames per iteration are read."""
-        return ["budget.frames", "budget.eval_every"]
 
     def __post_init__(self) -> None:
         super().__post_init__()

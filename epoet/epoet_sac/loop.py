@@ -369,7 +369,6 @@ class EpoetSac(EPOET):
 def make_epoet_sac(cfg: Config, evaluator: Evaluator, **poet: Any) -> EpoetSac:
     """The `algo=epoet_sac` loop: torch threads as the workers (they take turns), SAC's env."""
     set_threads(cfg)
-    frames = cfg.budget.sac_frames_per_iteration or cfg.algo.frames_per_iteration
     sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
     return EpoetSac(cfg.algo, cfg.terrain, evaluator, sac_env=sac_env,
-                    frames_per_iteration=frames, **poet)
+                    frames_per_iteration=cfg.algo.frames_per_iteration, **poet)

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Optional
+from typing import Any, ClassVar
 
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
@@ -10,16 +10,17 @@ from epoet.es.config import EsConfig
 
 @dataclass
 class PoetConfig:
-    """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig)."""
+    """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig).
+    Its compute (iterations, ES pairs) is the budget's (`PoetBudgetConfig`)."""
 
     KEY: ClassVar[str] = "algo"
 
     _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
     es: EsConfig
-    iterations_before_transfer: int
+    iterations_before_transfer: int  # the transfer interval
     adjust_interval: int             # reproduction every adjust_interval transfer intervals
-    later_reproduce_interval: Optional[int]  # after the first reproduction (null: the same)
+    later_adjust_interval: int       # after the first reproduction, every this many
     transfer_bar_window: int         # a transfer must beat the best of this many evaluations
     proposal_step: str               # sgd | adam: the fine-tuning step of transfer and admission
     max_num_envs: int
@@ -31,11 +32,9 @@ class PoetConfig:
     novelty_k: int
 
     def __post_init__(self) -> None:
-        positive(self, "iterations_before_transfer", "adjust_interval", "max_num_envs",
-                 "num_children", "max_admitted", "novelty_k", "transfer_bar_window")
-        check(self.later_reproduce_interval is None or self.later_reproduce_interval > 0,
-              f"algo.later_reproduce_interval must be > 0 or null, got "
-              f"{self.later_reproduce_interval}.")
+        positive(self, "iterations_before_transfer", "adjust_interval", "later_adjust_interval",
+                 "max_num_envs", "num_children", "max_admitted", "novelty_k",
+                 "transfer_bar_window")
         check(self.proposal_step in ("sgd", "adam"),
               f"algo.proposal_step must be 'sgd' or 'adam', got {self.proposal_step!r}.")
         check(self.mc_lower < self.mc_upper,
@@ -48,5 +47,5 @@ class PoetConfig:
               f"(got terrain={cfg.terrain.kind}).")
 
     def unused_keys(self) -> list[str]:
-        """Settings of the budget an ES run never reads: its budget is iterations."""
-        return ["budget.frames", "budget.eval_every", "budget.sac_frames_per_iteration"]
+        """Settings of the run an ES run never reads: none."""
+        return []

@@ -45,8 +45,7 @@ class EPOET(Reproduction):
 
     def __init__(self, algo: PoetConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
                  seed: int, n_pairs: int, eval_episodes: int, score_scale: float,
-                 layer_sizes: tuple[int, ...], transfer_interval: int | None = None,
-                 reproduce_interval: int | None = None) -> None:
+                 layer_sizes: tuple[int, ...]) -> None:
         self.cfg = algo
         self.terrain_cfg = terrain
         self.evaluator = evaluator
@@ -56,11 +55,9 @@ class EPOET(Reproduction):
         self.layer_sizes = layer_sizes
         self.thresholds = Thresholds(algo.mc_lower * score_scale, algo.mc_upper * score_scale,
                                      algo.repro_threshold * score_scale)
-        # The paper's schedule unless the budget sets its own (README: Budgets).
-        self.transfer_interval = transfer_interval or algo.iterations_before_transfer
-        self.reproduce_interval = (reproduce_interval
-                                   or algo.adjust_interval * algo.iterations_before_transfer)
-        self.later_reproduce_interval = algo.later_reproduce_interval or self.reproduce_interval
+        self.transfer_interval = algo.iterations_before_transfer
+        self.reproduce_interval = algo.adjust_interval * algo.iterations_before_transfer
+        self.later_reproduce_interval = algo.later_adjust_interval * algo.iterations_before_transfer
         self.iteration = 0
         self.active: list[Pair] = []
         self.archived: list[Pair] = []

@@ -33,8 +33,7 @@ def make_loop(cfg: Config, evaluator: Evaluator, factory: LoopFactory = make_epo
     budget = cfg.budget
     return factory(cfg, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                    eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                   layer_sizes=layer_sizes(cfg), transfer_interval=budget.transfer_interval,
-                   reproduce_interval=budget.reproduce_interval)
+                   layer_sizes=layer_sizes(cfg))
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None,

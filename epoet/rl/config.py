@@ -8,9 +8,10 @@ from epoet.core.schema import check, config_key, non_negative, positive
 
 
 # --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, docs/reference.md) -----------------
-# Sizes are per collector batch of `frames_per_batch` frames; budget.frames is the total. A budget
-# smaller than one batch shrinks the batch and keeps the ratios (epochs per batch, SAC updates and
-# random frames per collected frame): see `BatchPlan` in epoet/rl/.
+# Sizes are per collector batch of `frames_per_batch` frames; budget.frames is the total
+# (`BaselineBudgetConfig`). A budget smaller than one batch shrinks the batch and keeps the ratios
+# (epochs per batch, SAC updates and random frames per collected frame): see `BatchPlan` in
+# epoet/rl/.
 
 RL_ACTIVATIONS = ("tanh", "relu", "elu")
 
@@ -37,10 +38,8 @@ class BaselineConfig:
               f"has none (it collects in-process): use workers=local.")
 
     def unused_keys(self) -> list[str]:
-        """Settings an RL run never reads: its budget is frames, and it has no ES workers."""
-        return ["budget.iterations", "budget.n_pairs", "budget.transfer_interval",
-                "budget.reproduce_interval", "workers.batch", "workers.address",
-                "budget.sac_frames_per_iteration"]
+        """Settings an RL run never reads: it has no ES workers."""
+        return ["workers.batch", "workers.address"]
 
 
 @dataclass
