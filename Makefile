@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery tables figures paper reference suite bench bench-learning clean-venv
+.PHONY: install test train gallery tables figures paper reference records suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -27,26 +27,36 @@ train: install
 
 # The paper's tables and figures from the runs in ./mlflow.db (EXPERIMENT: its experiment;
 # default: the runs' default, tracking.experiment; SUITE: the suite whose evaluations they read,
-# a name (shipped, paper) or a folder; default: shipped).
+# a name (shipped, paper) or a folder; default: shipped). RECORDS=docs/results/<name>: the tables
+# from those evaluation records instead of the store (python -m pipeline.records writes them).
 EXPERIMENT ?=
 SUITE ?=
+RECORDS ?=
 tables: install
-	$(PY) -m analysis.tables $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE))
+	$(PY) -m analysis.tables $(if $(RECORDS),--records $(RECORDS),$(if $(EXPERIMENT),--experiment $(EXPERIMENT))) $(if $(SUITE),--suite $(SUITE))
 
 figures: install
 	$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE))
 
-# Every algorithm x seed at one budget, evaluated, tabled and plotted; resumable (README).
+# Every algorithm x seed at one budget, evaluated on each of SUITES (default: shipped,paper),
+# tabled and plotted; resumable (README). RECORDS=docs/results/<name> also exports the runs'
+# evaluation records there.
 BUDGET ?= laptop
 SEEDS  ?= 1,2,3
 JOBS   ?= 1
+SUITES ?=
 OVERRIDES ?=
 paper: install
-	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(OVERRIDES)
+	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(if $(SUITES),--suites $(SUITES)) $(if $(RECORDS),--records $(RECORDS)) $(OVERRIDES)
 
-# The authors' published agents (epoet/reference/) on the paper's suite, tabled (results/reference/).
+# The evaluated runs of EXPERIMENT as evaluation records in RECORDS (docs/results/README.md).
+records: install
+	$(PY) -m pipeline.records --experiment $(EXPERIMENT) --out $(RECORDS)
+
+# The authors' published agents (epoet/reference/) on the paper's suite, tabled (results/reference/);
+# RECORDS=docs/results/reference also exports their evaluation records.
 reference: install
-	$(PY) -m pipeline.reference
+	$(PY) -m pipeline.reference $(if $(RECORDS),--records $(RECORDS))
 
 # Check the shipped evaluation suite against a fresh regeneration (about a minute).
 suite: install

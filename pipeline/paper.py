@@ -5,11 +5,15 @@
    (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again after an
    interruption skips the finished jobs and continues the interrupted ones from their
    checkpoints;
-2. evaluates every finished run that has no evaluation on the suite (`--suite`: a name or a
-   folder; its `eval_suite/<name>` tag) yet (`evaluate_missing`, one process pool for all of
-   them; the training jobs skip their own evaluation);
-3. writes the tables to `results/paper-<budget>/` and the figures to
-   `results/paper-<budget>/figures/`.
+2. evaluates every finished run that has no evaluation yet on each suite of `--suites` (names
+   or folders, default `shipped,paper`; a run's `eval_suite/<name>` tag) (`evaluate_missing`,
+   one process pool for all of them; the training jobs skip their own evaluation), tagging
+   each evaluation with the commit that made it (`eval_commit/<name>`);
+3. writes, per suite, Tables 1-2 and the IQM and probability-of-improvement tables and figures
+   (`analysis.tables`, `analysis.stats`) to `results/paper-<budget>/`, and the figures to
+   `results/paper-<budget>/figures/` (the t-SNE and the suite gallery of the first suite);
+4. with `--records <folder>`, exports every evaluated run as evaluation records there
+   (`pipeline.records`), so the tables can be rebuilt without the store.
 """
 from __future__ import annotations
 
@@ -25,7 +29,11 @@ from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
 from epoet.core.compute import default_workers
 from epoet.eval.evaluate import evaluate_run, evaluation_pool
+from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import load_suite
+from pipeline.records import COMMIT_TAG, export
+
+SUITES = f"{SHIPPED_NAME},{PAPER_NAME}"
 
 
 def parallel_overrides(jobs: int, cores: int) -> list[str]:
@@ -49,29 +57,37 @@ def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str
             *overrides]
 
 
-def evaluate_missing(experiment: str, out: Path, suite: str | None, episodes: int | None
-                     ) -> None:
-    """Evaluate (and log) every FINISHED run of `experiment` that has no evaluation on the suite
-    yet, all through one process pool; local copies of the results go to
-    out/evaluations/<run id>/<suite name>."""
+def evaluate_missing(experiment: str, out: Path, suites: Sequence[str | None],
+                     episodes: int | None) -> None:
+    """Evaluate (and log) every FINISHED run of `experiment` that has no evaluation yet on each
+    of `suites` (None: the shipped suite), all through one process pool; local copies of the
+    results go to out/evaluations/<run id>/<suite name>. Each evaluation is tagged with the
+    commit that made it (`eval_commit/<suite name>`)."""
+    from epoet.tracking import git_commit
     client, uri = connect()
     runs = require_runs(select_runs(client, uri, experiment), experiment, uri)
-    loaded = load_suite(suite)
-    missing = unevaluated(runs, loaded)
-    if not missing:
+    configs = []
+    for suite in suites:
+        loaded = load_suite(suite)
+        missing = unevaluated(runs, loaded)
+        if not missing:
+            continue
+        print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on suite "
+              f"{loaded.name} ({loaded.fingerprint}): "
+              f"{', '.join(r.info.run_name for r in missing)}", flush=True)
+        overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
+            [f"episodes={episodes}"] if episodes else [])
+        configs += [(loaded.name, validate(compose(
+            [f"run={run.info.run_id}",
+             f"out={out / 'evaluations' / run.info.run_id / loaded.name}", *overrides],
+            config_name="evaluate"))) for run in missing]
+    if not configs:
         return
-    print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on suite "
-          f"{loaded.name} ({loaded.fingerprint}): {', '.join(r.info.run_name for r in missing)}",
-          flush=True)
-    overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
-        [f"episodes={episodes}"] if episodes else [])
-    configs = [validate(compose([f"run={run.info.run_id}",
-                                 f"out={out / 'evaluations' / run.info.run_id / loaded.name}",
-                                 *overrides],
-                                config_name="evaluate")) for run in missing]
+    commit = git_commit()
     with evaluation_pool(default_workers()) as pool:
-        for cfg in configs:
-            evaluate_run(cfg, pool=pool)
+        for name, cfg in configs:
+            _, _, run = evaluate_run(cfg, pool=pool)
+            client.set_tag(run.run_id, f"{COMMIT_TAG}/{name}", commit)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -80,8 +96,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--budget", default="laptop")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
     parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
-    parser.add_argument("--suite", default=None,
-                        help="suite name (shipped, paper) or suite folder (default: shipped)")
+    parser.add_argument("--suites", "--suite", default=SUITES,
+                        help="comma-separated suite names (shipped, paper) or folders that every "
+                             f"run is evaluated and tabled on (default: {SUITES})")
     parser.add_argument("--episodes", type=int, default=None,
                         help="evaluation episodes per terrain (default: 5)")
     parser.add_argument("--jobs", type=int, default=1,
@@ -89,6 +106,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                              "(default 1)")
     parser.add_argument("--out", type=Path, default=None,
                         help="results folder (default: results/paper-<budget>)")
+    parser.add_argument("--records", type=Path, default=None, metavar="FOLDER",
+                        help="also export every evaluated run as evaluation records into "
+                             "FOLDER (python -m pipeline.records), e.g. docs/results/<name>")
     parser.add_argument("overrides", nargs="*",
                         help="Hydra overrides for every training job, e.g. budget.hours=0.4")
     return parser.parse_args(argv)
@@ -102,6 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if args.budget not in budgets else [])
     problems += [f"unknown algorithm {a!r} (available: {', '.join(ALGOS)})"
                  for a in algos if a not in ALGOS]
+    suites = [s for s in args.suites.split(",") if s]
+    if not suites:
+        problems.append(f"--suites names no suite, got {args.suites!r}")
     if not all(s.strip().isdigit() for s in args.seeds.split(",")):
         problems.append(f"seeds must be comma-separated integers, got {args.seeds!r}")
     if not 1 <= args.jobs <= default_workers():
@@ -122,13 +145,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
 
     def analyse() -> None:
-        evaluate_missing(experiment, out, args.suite, args.episodes)
-        make_tables(experiment, out, args.suite)
-        write_figures(experiment, out / "figures", args.suite)
+        evaluate_missing(experiment, out, suites, args.episodes)
+        for suite in suites:
+            make_tables(experiment, out, suite)
+        write_figures(experiment, out / "figures", suites[0])
+        if args.records is not None:
+            export(experiment, args.records)
 
     if code := run_command(analyse):
         return code
-    print(f"[paper] tables in {out}/, figures in {out / 'figures'}/")
+    print(f"[paper] tables in {out}/, figures in {out / 'figures'}/"
+          + (f", records in {args.records}/" if args.records is not None else ""))
     return 0
 
 

@@ -6,7 +6,11 @@ authors' published agents (epoet/reference/) on the paper's suite, tabled like r
 2. writes Tables 1-2 to `results/reference/<suite>/`, an algorithm's row over its agents (an
    ePOET run's niche agents are its "runs": the reference's evaluate_model.py counts every
    niche agent on every terrain, so its success rate is the mean over niche agents);
-3. writes `agents.{md,csv}` beside them: one row per agent, the same columns.
+3. writes `agents.{md,csv}` beside them: one row per agent, the same columns;
+4. with `--records <folder>`, exports every agent's run as an evaluation record there
+   (`pipeline.records`: `<folder>/<algo>_<agent>/`, e.g. `epoet_flat`, `epoet_sac_sac_58`,
+   `ppo_0`), so `python -m analysis.tables --records <folder> --suite paper` rebuilds the
+   tables without the store.
 The paper reports neither VMPO nor which niche makes an algorithm's row; both are shown.
 """
 from __future__ import annotations
@@ -25,6 +29,7 @@ from epoet.eval.agents import resolve_run
 from epoet.eval.evaluate import evaluate_run, evaluation_pool
 from epoet.eval.reference import EXPERIMENT, PREFIX, names
 from epoet.eval.suite import LEVELS, load_suite
+from pipeline.records import export
 
 
 def evaluate_reference(out: Path, suite: str, episodes: int) -> list[str]:
@@ -67,6 +72,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--suite", default="paper", help="suite name or folder (default: paper)")
     parser.add_argument("--episodes", type=int, default=5, help="episodes per terrain (5)")
     parser.add_argument("--out", type=Path, default=Path("results") / "reference")
+    parser.add_argument("--records", type=Path, default=None, metavar="FOLDER",
+                        help="also export every agent's run as an evaluation record into "
+                             "FOLDER, e.g. docs/results/reference")
     args = parser.parse_args(argv)
 
     def run() -> None:
@@ -82,6 +90,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                        f"rate (%) by level, return over the easy and medium "
                                        f"terrains\n\n{to_markdown(shown)}\n")
         print(f"\n{to_markdown(shown)}\n\nwrote {out / 'agents.md'}")
+        if args.records is not None:
+            export(EXPERIMENT, args.records, run_ids=run_ids)
 
     return run_command(run)
 

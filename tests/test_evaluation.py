@@ -49,7 +49,8 @@ def paper(tmp_path_factory):
     suite = small_suite(tmp / "suite")
     proc = subprocess.run(
         [sys.executable, "-m", "pipeline.paper", "--budget", "smoke", "--seeds", "1",
-         "--suite", str(suite), "--episodes", "1", "--out", str(tmp / "results")],
+         "--suite", str(suite), "--episodes", "1", "--out", str(tmp / "results"),
+         "--records", str(tmp / "records")],
         capture_output=True, text=True, cwd=tmp,
         env={**os.environ, "MLFLOW_TRACKING_URI": uri})
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -321,3 +322,39 @@ def test_the_sweep_parent_reads_as_the_sweep(paper) -> None:
         assert parent.data.metrics[f"sweep/{algo}/score_mean"] == run.data.metrics["score"]
         line = next(li for li in stdout.splitlines() if li.startswith(f"[sweep] {algo} seed=1"))
         assert "FINISHED" in line and run.info.run_id in line
+
+def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(paper, tmp_path):
+    """The IQM and probability-of-improvement tables and figures beside Tables 1-2, and the
+    evaluation records (`--records`) rebuild every table without the store."""
+    from analysis.tables import tables_from_records
+    uri, results, stdout, suite = paper
+    for stem in ("iqm_suite", "poi_suite"):
+        for ext in ("csv", "md", "tex", "png"):
+            assert (results / f"{stem}.{ext}").stat().st_size > 0, (stem, ext)
+    iqm = pd.read_csv(results / "iqm_suite.csv")
+    assert sorted(iqm.algo.unique()) == sorted(ALGOS) and set(iqm.score) == {"success", "return"}
+    assert (iqm.ci_low <= iqm.iqm).all() and (iqm.iqm <= iqm.ci_high).all()
+    assert set(iqm.resampled) == {"terrains only (1 run)"}   # one seed: said in the output
+    assert "intervals come from the terrains only" in (results / "iqm_suite.md").read_text()
+    poi = pd.read_csv(results / "poi_suite.csv")
+    assert len(poi) == 2 * 10   # every pair of the five algorithms, success and return
+    assert ((poi.ci_low <= poi.poi) & (poi.poi <= poi.ci_high)).all()
+
+    records = results.parent / "records"
+    runs = finished_runs(uri)
+    assert sorted(p.name for p in records.iterdir()) == sorted(f"{a}_s1" for a in ALGOS)
+    for algo, run in runs.items():
+        info = json.loads((records / f"{algo}_s1" / "run.json").read_text())
+        assert info["run_id"] == run.info.run_id and info["experiment"] == "paper-smoke"
+        # a sweep job: the command is its job folder's Hydra overrides
+        assert info["command_source"] == "overrides", info
+        assert f"algo={algo}" in info["command"] and "budget=smoke" in info["command"]
+        assert info["sweep"]["command"].startswith("python -m epoet -m ")
+        evaluation = info["evaluations"]["suite"]
+        assert evaluation["commit"] == run.data.tags["eval_commit/suite"]  # make paper's
+        assert evaluation["episodes_per_terrain"] == 1
+    rebuilt = tmp_path / "rebuilt"
+    tables_from_records(records, rebuilt, str(suite))
+    for name in ("table1_suite.csv", "table2_suite.csv", "iqm_suite.csv", "poi_suite.csv",
+                 "table1_suite.md", "iqm_suite.md"):
+        assert (rebuilt / name).read_bytes() == (results / name).read_bytes(), name
