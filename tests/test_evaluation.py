@@ -6,9 +6,11 @@ against the evaluation CSVs, and the bad inputs of each command.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +19,7 @@ import mlflow
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import ES_SIZES
 
 from analysis.store import ALGOS
 from analysis.tables import table1, table2
@@ -99,7 +102,8 @@ def test_every_algorithm_is_trained_evaluated_and_logged(paper):
             csv.forward_distance.mean())
         # the suite's episodes: 2.5 x the smoke budget's 50 steps
         assert (csv.length <= 125).all() and (csv.length > 0).all()
-        assert not csv.solved.any() or (csv["return"][csv.solved] >= 2000 * 0.025).all()
+        # solved: finished with the paper's 2000 x the smoke budget's score scale
+        assert (csv.solved == (csv.finished & (csv["return"] >= 2000 * 0.025))).all()
 
 
 def test_tables_match_the_evaluation_csvs(paper):
@@ -201,20 +205,101 @@ def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
         a: r.data.metrics for a, r in runs.items()}
 
 
+def flat_course(folder: Path) -> Path:
+    """A suite of one flat terrain whose course is 2 m, walked in at most 500 steps by an agent
+    of the paper's 2000-step episodes."""
+    folder.mkdir()
+    np.savez(folder / "heights.npz", flat=np.zeros((40, 40)))
+    (folder / "suite.json").write_text(json.dumps({
+        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
+        "course": {"start_x": -6.0, "finish_x": -4.0, "half_width": 0.35,
+                   "episode_steps": 2000, "episode_ratio": 0.25},
+        "terrains": [{"name": "flat", "max_height": 0.01}]}))
+    return folder
+
+
+def test_an_episode_is_solved_when_it_finishes_with_the_scaled_return(mlflow_uri, tmp_path):
+    """"Solved" is the paper's: the finish line reached with a return of at least solve_score x
+    the run's score scale. The authors' ePOET agent, in a run folder whose budget scales scores
+    by 0.5, finishes the flat 2 m course every time (returns of about 800-900, the finish bonus
+    of 500 included); an agent that stands still never finishes."""
+    from epoet.config import compose, load, validate
+    from epoet.core.checkpoint import save_checkpoint
+    from epoet.eval.evaluate import evaluate_run
+    from epoet.eval.reference import FOLDER
+    from epoet.rollout.policy import init_params
+
+    suite = flat_course(tmp_path / "suite")
+    walker = tmp_path / "walker"
+    (walker / "policies").mkdir(parents=True)
+    shutil.copy(FOLDER / "agents" / "poet_hexA8" / "flat.npz", walker / "policies" / "env0.npz")
+    config = load(["budget=paper", "budget.score_scale=0.5"])  # the paper's agent: RK4
+    save_checkpoint(walker / "checkpoint.pkl",
+                    {"algo": "epoet", "config": dataclasses.asdict(config)})
+    standing = tmp_path / "standing.npz"
+    np.savez(standing, theta=np.zeros_like(init_params(0, ES_SIZES)),
+             layer_sizes=np.array(ES_SIZES))
+
+    def episodes(run: Path, solve_score: float) -> pd.DataFrame:
+        result, _, _ = evaluate_run(validate(compose(
+            [f"run={run}", f"suite={suite}", "episodes=3", "processes=1",
+             f"solve_score={solve_score}", f"out={tmp_path / 'out'}"],
+            config_name="evaluate")), progress=False)
+        assert result.metrics["suite/suite/success_rate"] == result.episodes.solved.mean()
+        return result.episodes
+
+    low = episodes(walker, 1400.0)               # the bar: 0.5 x 1400 = 700
+    assert low.finished.all() and (low["return"] > 700).all() and low.solved.all()
+    high = episodes(walker, 2000.0)              # the bar: 1000, above every return
+    assert high.finished.all() and (high["return"] < 1000).all() and not high.solved.any()
+    still = episodes(standing, -1e9)             # every return clears the bar; none finishes
+    assert not still.finished.any() and not still.solved.any()
+
+
 def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compose, mlflow_uri,
-                                                                         tmp_path):
+                                                                         tmp_path, monkeypatch):
+    from epoet.core.checkpoint import load_checkpoint
+    from epoet.core.lifecycle import Stopped
     from epoet.run import DONE, run
+    from epoet.tracking.writer import MlflowTracker
     overrides = ["algo=epoet", "budget=smoke", "workers.num=1", "resume=auto"]
-    folder = tmp_path / "job"
-    first = run(compose(overrides), folder)
-    assert first is not None and (folder / DONE).is_file()
-    assert run(compose(overrides), folder) is None          # finished: skipped
-    (folder / DONE).unlink()                                  # as if killed after its checkpoint
-    again = run(compose(overrides), folder)                   # resumes: nothing left to train
-    assert again.iteration == first.iteration
+    finished, interrupted = tmp_path / "finished", tmp_path / "interrupted"
+    first = run(compose(overrides), finished)
+    assert first is not None and (finished / DONE).is_file()
+    assert run(compose(overrides), finished) is None        # finished: skipped
+
+    # The other job gets a Ctrl-C in its first iteration (when that iteration's metrics are
+    # logged): it stops at the iteration's end with a checkpoint, as `make paper` interrupted.
+    log_metrics, trained = MlflowTracker.log_metrics, []
+
+    def log_and_interrupt(self, step, metrics):
+        log_metrics(self, step, metrics)
+        trained.append(step)
+        if trained == [0]:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(MlflowTracker, "log_metrics", log_and_interrupt)
+    with pytest.raises(Stopped):
+        run(compose(overrides), interrupted)
+    stopped = load_checkpoint(interrupted)
+    assert stopped["poet"]["iteration"] == 1 < first.iteration  # work left to do
+    assert not (interrupted / DONE).exists()
+
+    again = run(compose(overrides), interrupted)             # continues from iteration 1
+    assert again is not None and again.iteration == first.iteration
+    assert trained == list(range(first.iteration))            # iterations 1.. trained once
+    assert (interrupted / DONE).is_file()
+    done, straight = load_checkpoint(interrupted), load_checkpoint(finished)
+    assert done["run_id"] == stopped["run_id"]               # the resume continued its run
+    assert done["poet"]["env_steps"] == straight["poet"]["env_steps"]  # as if never stopped
+    assert len(done["poet"]["active"]) == len(straight["poet"]["active"])
+    for a, b in zip(done["poet"]["active"], straight["poet"]["active"]):
+        np.testing.assert_array_equal(a["es"]["theta"], b["es"]["theta"])
     client = mlflow.MlflowClient(mlflow_uri)
     runs = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
-    assert len(runs) == 1                                     # the resume continued the run
+    assert len(runs) == 2 and {r.info.status for r in runs} == {"FINISHED"}
+    steps = client.get_metric_history(stopped["run_id"], "best_score")
+    assert sorted(m.step for m in steps) == list(range(first.iteration))  # each once
 
 
 def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
