@@ -335,5 +335,5 @@ def write_stats(episodes: pd.DataFrame, out: Path, suite: str, scale: str,
         plot(raw, title, stem.with_suffix(".png"))
         print(f"\n{title}\n{markdown}")
         written += [stem.with_suffix(ext) for ext in (".csv", ".md", ".tex", ".png")]
-    print("\n".join(said))
+    print("\n" + "\n".join(said))
     return written

@@ -41,6 +41,7 @@ from typing import Any
 import yaml
 from mlflow import MlflowClient
 from mlflow.entities import Run
+from mlflow.exceptions import MlflowException
 from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_PARENT_RUN_ID
 
 from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
@@ -98,14 +99,23 @@ def iso(ms: int | None) -> str | None:
     return datetime.fromtimestamp(ms / 1000, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def job_folder(client: MlflowClient, run: Run) -> Path | None:
-    """The Hydra job folder of a sweep's run: under its parent's `sweep_dir`, the folder whose
-    DONE file holds the run id; None when it cannot be found (not a sweep job, or the folder is
-    gone)."""
+def parent_tags(client: MlflowClient, run: Run) -> dict[str, str] | None:
+    """The tags of the run's sweep parent; None for a run outside a sweep (or a parent gone
+    from the store)."""
     parent = run.data.tags.get(MLFLOW_PARENT_RUN_ID)
     if parent is None:
         return None
-    sweep_dir = client.get_run(parent).data.tags.get("sweep_dir")
+    try:
+        return dict(client.get_run(parent).data.tags)
+    except MlflowException:
+        return None
+
+
+def job_folder(run: Run, sweep: dict[str, str] | None) -> Path | None:
+    """The Hydra job folder of a sweep's run: under its parent's `sweep_dir`, the folder whose
+    DONE file holds the run id; None when it cannot be found (not a sweep job, or the folder is
+    gone)."""
+    sweep_dir = (sweep or {}).get("sweep_dir")
     if not sweep_dir or not Path(sweep_dir).is_dir():
         return None
     for done in sorted(Path(sweep_dir).glob(f"*/{DONE}")):
@@ -142,12 +152,11 @@ def command_of(client: MlflowClient, run: Run) -> dict[str, Any]:
                 "reference": f"reference:{tags['reference']}",
                 "provenance": dict(sorted(run.data.params.items()))}
     found: dict[str, Any] = {}
-    if (parent := tags.get(MLFLOW_PARENT_RUN_ID)) is not None:
-        sweep = client.get_run(parent).data.tags
-        found["sweep"] = {"run_id": parent, "dir": sweep.get("sweep_dir"),
+    if (sweep := parent_tags(client, run)) is not None:
+        found["sweep"] = {"run_id": tags[MLFLOW_PARENT_RUN_ID], "dir": sweep.get("sweep_dir"),
                           "command": shlex.join(["python", "-m", "epoet", "-m",
                                                  *shlex.split(sweep.get("sweep_overrides", ""))])}
-    folder = job_folder(client, run)
+    folder = job_folder(run, sweep)
     overrides = folder / ".hydra" / "overrides.yaml" if folder is not None else None
     if overrides is not None and overrides.is_file():
         listed = yaml.safe_load(overrides.read_text()) or []
