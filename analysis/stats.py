@@ -38,6 +38,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from functools import cache
 from pathlib import Path
 
 import matplotlib
@@ -57,8 +58,9 @@ METRICS = {"success": "solved", "return": "return"}   # score -> episodes.csv co
 LABELS = {"success": "success rate (%)", "return": "return"}
 
 
-def _import_rliable():
-    """rliable's library and metrics modules.
+@cache
+def rliable():
+    """rliable's library and metrics modules, imported on first use (about a second).
 
     rliable 1.2 needs arch < 8, and arch 7's package import decorates one of its model classes
     with pandas' private `deprecate_kwarg(old, new)`, which pandas 3 made
@@ -80,8 +82,6 @@ def _import_rliable():
         decorators.deprecate_kwarg = original
     return library, metrics
 
-
-rly, rly_metrics = _import_rliable()
 
 
 @contextmanager
@@ -120,7 +120,7 @@ def score_matrices(episodes: pd.DataFrame, score: str) -> dict[str, np.ndarray]:
 
 
 def iqm(scores: np.ndarray) -> np.ndarray:
-    return np.array([rly_metrics.aggregate_iqm(scores)])
+    return np.array([rliable()[1].aggregate_iqm(scores)])
 
 
 def poi(x: np.ndarray, y: np.ndarray) -> float:
@@ -152,7 +152,7 @@ def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.
     for score in METRICS:
         matrices = score_matrices(episodes, score)
         with seeded(seed):
-            points, intervals = rly.get_interval_estimates(
+            points, intervals = rliable()[0].get_interval_estimates(
                 matrices, iqm, task_bootstrap=True, reps=reps,
                 confidence_interval_size=CONFIDENCE)
         for algo, matrix in matrices.items():
@@ -169,7 +169,7 @@ def _pair_bootstrap():
     """rliable's independent-samples stratified bootstrap with a terrain draw shared by both
     algorithms (see the module docstring)."""
 
-    class TerrainsAndRuns(rly.StratifiedIndependentBootstrap):
+    class TerrainsAndRuns(rliable()[0].StratifiedIndependentBootstrap):
         def update_indices(self):
             positional, keywords = super().update_indices()
             terrains = self._args_shapes[0][1]
@@ -182,7 +182,7 @@ def _pair_bootstrap():
 def poi_interval(x: np.ndarray, y: np.ndarray, reps: int = REPS, seed: int = SEED
                  ) -> tuple[float, float, float]:
     """P(X > Y) (rliable's) and its 95 % interval over runs and terrains."""
-    point = float(rly_metrics.probability_of_improvement(x, y))
+    point = float(rliable()[1].probability_of_improvement(x, y))
     with seeded(seed):
         low, high = _pair_bootstrap()(x, y).conf_int(_poi_array, reps=reps, size=CONFIDENCE,
                                                      method="percentile")

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.stats import (iqm_table, poi, poi_interval, poi_table, rly_metrics, score_matrices,
+from analysis.stats import (iqm_table, poi, poi_interval, poi_table, rliable, score_matrices,
                             write_stats)
 from analysis.tables import to_markdown
 
@@ -77,7 +77,7 @@ def test_probability_of_improvement_by_hand_and_as_rliable_computes_it():
     for runs_x, runs_y in ((3, 3), (2, 3), (1, 1), (1, 4)):
         a = rng.integers(0, 4, (runs_x, 6)).astype(float)
         b = rng.integers(0, 4, (runs_y, 6)).astype(float)
-        assert poi(a, b) == pytest.approx(rly_metrics.probability_of_improvement(a, b))
+        assert poi(a, b) == pytest.approx(rliable()[1].probability_of_improvement(a, b))
 
 
 def test_pairs_read_as_the_papers_claims_and_one_run_is_said(tmp_path):
