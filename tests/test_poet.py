@@ -11,6 +11,7 @@ import mlflow
 import numpy as np
 import pytest
 from conftest import without_evaluation
+from pool_state import assert_same_state
 
 from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
@@ -149,29 +150,25 @@ def _state(run_dir: Path) -> dict:
 
 
 def _assert_same(a: dict, b: dict) -> None:
-    assert a["iteration"] == b["iteration"] and a["env_steps"] == b["env_steps"]
-    assert len(a["active"]) == len(b["active"]) and len(a["archived"]) == len(b["archived"])
-    for pa, pb in zip(a["active"] + a["archived"], b["active"] + b["archived"]):
-        assert pa["scores"] == pb["scores"]
-        for key, value in pa["es"].items():
-            if isinstance(value, np.ndarray):
-                np.testing.assert_array_equal(value, pb["es"][key])
-            else:
-                assert value == pb["es"][key], key
+    assert_same_state(a, b)  # every entry, the pairs' bests and the env genomes included
 
 
 def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
                                                 tmp_path: Path) -> None:
-    # Small intervals so reproduction (t=2, 4) and transfers happen on both sides of the cut.
+    # Small intervals so reproduction (t=2, 4) and transfers happen on both sides of the cut
+    # (seed 1: a transfer at t=2, 3 and 4).
     algo = ["algo.iterations_before_transfer=1", "algo.adjust_interval=2", "algo.num_children=2",
             "algo.repro_threshold=-100000", "algo.mc_lower=-100000", "algo.mc_upper=100000",
-            "checkpoint_every=1"]
+            "checkpoint_every=1", "seed=1"]
     run(compose(SMOKE + algo + ["budget.iterations=5"]), tmp_path / "straight")
     run(compose(SMOKE + algo + ["budget.iterations=3"]), tmp_path / "killed")
     run(compose(SMOKE + algo + ["budget.iterations=5", f"resume={tmp_path / 'killed'}"]),
         tmp_path / "resumed")
     straight, resumed = _state(tmp_path / "straight"), _state(tmp_path / "resumed")
     assert len(straight["active"]) > 1, "reproduction should have happened"
+    assert straight["transfers"] > 0, "transfers should have happened"
+    assert any(p["best_score"] > p["scores"][-1] for p in straight["active"]), \
+        "some pair's best evaluation should not be its last"
     _assert_same(straight, resumed)
     runs = {r.info.run_id: r for r in _runs(mlflow_uri)}
     assert len(runs) == 2  # the resumed run continued the killed one
@@ -313,16 +310,26 @@ def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budg
 def test_a_run_exports_each_pairs_best_or_final_agent(compose, mlflow_uri: str, tmp_path: Path,
                                                       choice: str) -> None:
     """Each pair keeps the parameters of its best evaluation (the reference's best.json per
-    niche); `agent_choice` picks which the run exports, and both are in the file."""
+    niche); `agent_choice` picks which the run exports, and both are in the file. The run is
+    stopped and resumed after every iteration, so each checkpoint shows the parameters that
+    iteration evaluated (an iteration's ES step comes before its evaluation) and their score."""
     folder = tmp_path / "run"
-    run(compose(SMOKE + ["budget.iterations=4", f"agent_choice={choice}"]), folder)
-    pair = load_checkpoint(folder / "checkpoint.pkl")["poet"]["active"][0]
-    assert pair["best_score"] == max(pair["scores"])
+    evaluated: list[tuple[np.ndarray, float]] = []
+    for iterations in range(1, 5):
+        resume = [f"resume={folder}"] if evaluated else []
+        run(compose(SMOKE + [f"budget.iterations={iterations}", f"agent_choice={choice}",
+                             *resume]), folder)
+        (pair,) = load_checkpoint(folder / "checkpoint.pkl")["poet"]["active"]  # no child yet
+        evaluated.append((pair["es"]["theta"].copy(), pair["scores"][-1]))
+    scores = [score for _, score in evaluated]
+    assert pair["scores"] == scores
+    best = int(np.argmax(scores))
+    assert 0 < best < 3, f"seed 0: the best evaluation is neither the first nor the last {scores}"
     with np.load(folder / "policies" / "env0.npz") as saved:
-        np.testing.assert_array_equal(saved["final_theta"], pair["es"]["theta"])
-        np.testing.assert_array_equal(saved["best_theta"], pair["best_theta"])
+        np.testing.assert_array_equal(saved["best_theta"], evaluated[best][0])
+        assert float(saved["best_score"]) == scores[best]
+        np.testing.assert_array_equal(saved["final_theta"], evaluated[-1][0])
+        assert float(saved["final_score"]) == scores[-1]
         assert str(saved["choice"]) == choice
         np.testing.assert_array_equal(saved["theta"], saved[f"{choice}_theta"])
         assert float(saved["score"]) == float(saved[f"{choice}_score"])
-    if pair["scores"][-1] < pair["best_score"]:  # this seed's last evaluation was not its best
-        assert not np.array_equal(pair["best_theta"], pair["es"]["theta"])
