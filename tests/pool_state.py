@@ -8,6 +8,7 @@ from typing import Any
 import neat
 import numpy as np
 import torch
+from tensordict import TensorDictBase
 
 from epoet.terrain.cppn import fingerprint
 
@@ -33,6 +34,9 @@ def _assert_same(a: Any, b: Any, where: str) -> None:
         assert type(a) is type(b) and len(a) == len(b), f"{where}: lengths {len(a)}, {len(b)}"
         for i, (x, y) in enumerate(zip(a, b)):
             _assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, TensorDictBase):  # ePOET-SAC's replay storage
+        assert isinstance(b, TensorDictBase) and a.batch_size == b.batch_size, where
+        _assert_same(a.to_dict(), b.to_dict(), where)
     elif isinstance(a, torch.Tensor):
         assert isinstance(b, torch.Tensor), where
         np.testing.assert_array_equal(a.numpy(), b.numpy(), err_msg=where)
