@@ -48,13 +48,14 @@ def bare_rate(poet: EPOET, cfg: Config, samples: int) -> float:
     mirrored pairs around each pool agent with its current sigma, on its current terrain."""
     engine = RolloutEngine(cfg.agent, cfg.terrain, cfg.workers.batch, layer_sizes(cfg))
     steps, seconds = 0, 0.0
-    for pair in poet.active:
+    for pair in poet.pool.active:
+        terrain = poet.service.terrain(pair.env, poet.iteration)
         noise = np.arange(samples) + 1000 * pair.env.index
         params = mirrored_population(pair.theta, noise, pair.es.sigma)
         seeds = np.tile(noise, 2)
-        recorded = engine.run(poet.terrain(pair.env), params, seeds, record=True)
+        recorded = engine.run(terrain, params, seeds, record=True)
         t = recorded.transitions
-        seconds += raw_seconds(cfg.agent, cfg.terrain, poet.terrain(pair.env), seeds,
+        seconds += raw_seconds(cfg.agent, cfg.terrain, terrain, seeds,
                                t["action"], t["episode"])
         steps += int(recorded.lengths.sum()) + len(seeds) * cfg.agent.settle_steps
     return steps / seconds
@@ -80,8 +81,8 @@ def main() -> None:
                      eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
                      layer_sizes=sizes)
         poet.reproduce_interval = poet.later_reproduce_interval = 1  # until the pool is full
-        while len(poet.active) < args.pairs:
-            poet.iterate()
+        while len(poet.pool.active) < args.pairs:
+            poet.run_iteration()
         poet.reproduce_interval = 10**9  # the pool stays as it is while timed
         # Interleaved: each timed iteration is followed by a bare pass, so load from elsewhere
         # on this noisy machine weighs on both sides alike.
@@ -89,11 +90,11 @@ def main() -> None:
         for _ in range(args.iterations):
             evaluator.physics_steps = 0
             start = time.perf_counter()
-            transfers += "transfers" in poet.iterate()
+            transfers += "transfers" in poet.run_iteration()
             rates.append(evaluator.physics_steps / (time.perf_counter() - start))
             raws.append(bare_rate(poet, cfg, args.samples))
             ratios.append(rates[-1] / (raws[-1] * cores))
-    print(f"pairs: {len(poet.active)}, timed iterations: {args.iterations} "
+    print(f"pairs: {len(poet.pool.active)}, timed iterations: {args.iterations} "
           f"({transfers} with transfers), workers: {cores}, integrator: {cfg.agent.integrator}")
     print(f"iterations: {np.median(rates):,.0f} physics steps/s (median; "
           f"{min(rates):,.0f}..{max(rates):,.0f})")

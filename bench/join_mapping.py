@@ -19,8 +19,8 @@ import numpy as np
 from epoet.core.checkpoint import find_checkpoint, load_checkpoint
 from epoet.config import load
 from epoet.rollout.evaluators import make_evaluator
-from epoet.epoet_sac.loop import make_epoet_sac
-from epoet.poet.runner import layer_sizes, make_loop
+from epoet.epoet_sac.loop import EpoetSac
+from epoet.poet.runner import layer_sizes
 
 SEEDS = 3
 
@@ -30,12 +30,12 @@ def main(run_dir: str, overrides: list[str]) -> None:
     cfg = load(["algo=epoet_sac", *overrides])
     with make_evaluator(cfg.agent, cfg.terrain, "local", cfg.workers.batch,
                         layer_sizes(cfg)) as evaluator:
-        poet = make_loop(cfg, evaluator, make_epoet_sac)
+        poet = EpoetSac.from_config(cfg, evaluator)
         poet.load_state_dict(state)
         t = poet.iteration - 1
         gaps: dict[str, list[float]] = {"distill": [], "random": []}
-        for pair in poet.active:
-            terrain = poet.terrain(pair.env, t)
+        for pair in poet.pool.active:
+            terrain = poet.service.terrain(pair.env, t)
             for mapping in gaps:
                 runs = [poet.map_and_score(t + k, terrain, mapping, pair.env.index)
                         for k in range(SEEDS)]

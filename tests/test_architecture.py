@@ -3,10 +3,10 @@ under 400 lines, no import cycle, and no import from a lower wing to a higher on
 flows one way: config -> run -> algorithm -> rollout -> envs/terrain, with tracking and core beside
 and `core` the ground floor, importing nothing else of the package.
 
-Imports are read from the source (ast): module-level ones, those under `if`/`try`/`with` included.
-Those under `if TYPE_CHECKING:` count for the wing rule (a type-only import of a higher wing still
-says the lower one leans on it), not yet for cycles. Imports inside functions are deferred on
-purpose (optional extras, heavy imports) and count for the wing rule, not for cycles.
+Imports are read from the source (ast): module-level ones, those under `if`/`try`/`with` included,
+and those under `if TYPE_CHECKING:` too (a type-only circle or upward import still says that one
+module leans on another). Imports inside functions are deferred on purpose (optional extras,
+heavy imports) and count for the wing rule, not for cycles.
 """
 from __future__ import annotations
 
@@ -57,18 +57,15 @@ def _wing(module: str) -> int:
     return best[1]
 
 
-def _imports(path: Path, *, deferred: bool, typed: bool = True) -> set[str]:
-    """The project modules `path` imports: at module level (type-only ones included unless not
-    `typed`), or also inside functions."""
+def _imports(path: Path, *, deferred: bool) -> set[str]:
+    """The project modules `path` imports: at module level (type-only ones included), or also
+    inside functions."""
     found: set[str] = set()
 
     def visit(node: ast.AST) -> None:
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test) and not typed:
-            children: list[ast.AST] = list(node.orelse)
-        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and not deferred:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and not deferred:
             return
-        else:
-            children = list(ast.iter_child_nodes(node))
+        children = list(ast.iter_child_nodes(node))
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names if a.name in MODULES)
         elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
@@ -89,7 +86,7 @@ def test_no_module_is_over_400_lines(module: str) -> None:
 
 
 def test_no_import_cycle() -> None:
-    graph = {m: _imports(p, deferred=False, typed=False) for m, p in MODULES.items()}
+    graph = {m: _imports(p, deferred=False) for m, p in MODULES.items()}
     done: set[str] = set()
 
     def walk(module: str, path: list[str]) -> None:
@@ -121,12 +118,15 @@ def test_no_wing_imports_a_higher_one() -> None:
 
 
 def test_the_rules_see_what_they_check() -> None:
-    """Deferred and TYPE_CHECKING imports count for the wing rule only; and the
+    """Deferred imports count for the wing rule only, TYPE_CHECKING imports for both; and the
     wings order the modules as the data flows."""
     evaluators = MODULES["epoet.rollout.evaluators"]  # Ray's backend is imported on demand
     assert "epoet.rollout.backends.ray_cluster" not in _imports(evaluators, deferred=False)
     assert "epoet.rollout.backends.ray_cluster" in _imports(evaluators, deferred=True)
     assert "epoet.tracking" in _imports(MODULES["epoet.run_state"], deferred=False)  # type-only
+    # the steps of the loop do not call back into it (no mixin, no `self: EPOET`)
+    for step in ("epoet.poet.reproduction", "epoet.poet.transfer", "epoet.poet.service"):
+        assert "epoet.poet.loop" not in _imports(MODULES[step], deferred=True), step
     assert _wing("epoet.core.schema") == 0 < _wing("epoet.poet.config")
     assert _wing("epoet.run") > _wing("epoet.poet.loop") > _wing("epoet.rollout.engine")
     assert _wing("epoet.rollout.engine") > _wing("epoet.envs.model") > _wing("epoet.config")

@@ -15,9 +15,9 @@ from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.rollout.evaluators import make_evaluator
-from epoet.epoet_sac.loop import EpoetSac, make_epoet_sac
+from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.replay_mix import ReplayMix
-from epoet.poet.runner import layer_sizes, make_loop
+from epoet.poet.runner import layer_sizes
 from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.run import run
 
@@ -34,24 +34,24 @@ SMOKE = ["algo=epoet_sac", "budget=smoke", "algo.es.hidden=[8]", "terrain.grid=4
 def _loop(overrides: list[str], workers: int = 1) -> tuple[EpoetSac, object]:
     cfg = load(SMOKE + overrides)
     evaluator = make_evaluator(cfg.agent, cfg.terrain, workers, 8, layer_sizes(cfg))
-    return make_loop(cfg, evaluator, make_epoet_sac), evaluator
+    return EpoetSac.from_config(cfg, evaluator), evaluator
 
 
 def test_es_transitions_from_the_worker_processes_reach_the_replay_buffer() -> None:
-    poet, evaluator = _loop(["algo.es_episodes_per_pair=3"], workers=2)
+    loop, evaluator = _loop(["algo.es_episodes_per_pair=3"], workers=2)
     with evaluator:
-        _, episodes = poet.es_step(record=poet.record_per_pair)
-        poet.add_to_replay(episodes)
+        _, episodes = loop.poet.es_step(0, record=loop.cfg.es_episodes_per_pair)
+        loop.add_to_replay(episodes)
     recorded = sum(int(e.lengths[:3].sum()) for e in episodes)
-    buffer = poet.learner.buffer
-    assert len(buffer) == recorded == poet.mix.added["es"] > 0
+    buffer = loop.learner.buffer
+    assert len(buffer) == recorded == loop.mix.added["es"] > 0
     stored = buffer[:]
     assert stored["observation"].dtype == torch.float32
     # rewards enter times the reward scale; they add up to the recorded episodes' returns
     returns = sum(e.returns[:3].sum() for e in episodes)
     np.testing.assert_allclose(stored["next", "reward"].double().sum().item(),
-                               poet.cfg.sac.reward_scale * returns, rtol=1e-4)
-    poet.close()
+                               loop.cfg.sac.reward_scale * returns, rtol=1e-4)
+    loop.close()
 
 
 def test_the_join_follows_algorithm_1() -> None:
@@ -67,7 +67,7 @@ def test_the_laptop_budget_holds_two_joins() -> None:
     cfg = load(["algo=epoet_sac"])
     assert cfg.budget.iterations < load([]).budget.iterations
     evaluator = make_evaluator(cfg.agent, cfg.terrain, 1, 8, layer_sizes(cfg))
-    laptop = make_loop(cfg, evaluator, make_epoet_sac)
+    laptop = EpoetSac.from_config(cfg, evaluator)
     with evaluator:
         assert [t for t in range(cfg.budget.iterations) if laptop.join_due(t)] == [38, 78]
     laptop.close()
@@ -83,15 +83,15 @@ def test_replay_mix_counts_what_the_buffer_still_holds() -> None:
 
 
 def test_crossover_with_itself_replaces_nothing() -> None:
-    poet, evaluator = _loop([])
+    loop, evaluator = _loop([])
     with evaluator:
-        poet.evaluate_pairs()
-        theta = poet.active[0].theta.copy()
-        outcome = poet.crossover_with(poet.active, theta)
+        loop.poet.evaluate_pairs(0)
+        theta = loop.pool.active[0].theta.copy()
+        outcome = loop.crossover_with(loop.pool.active, theta, 0)
     (old, new), = outcome.values()
-    assert old == new and not poet.replaced
-    np.testing.assert_array_equal(poet.active[0].theta, theta)
-    poet.close()
+    assert old == new and not loop.replaced
+    np.testing.assert_array_equal(loop.pool.active[0].theta, theta)
+    loop.close()
 
 
 def _metric(client: mlflow.MlflowClient, run_id: str, key: str) -> dict[int, float]:
@@ -105,7 +105,7 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
     (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
     run_id = r.info.run_id
     assert sorted(_metric(client, run_id, "joined")) == [2, 6]
-    assert poet.joins == 2 and sorted(poet.lineage(p) for p in poet.active) == [0, 1, 2]
+    assert poet.joins == 2 and sorted(poet.lineage(p) for p in poet.pool.active) == [0, 1, 2]
     # every crossover outcome: replaced exactly when the child's return is higher
     keys = [k for k in r.data.metrics if k.startswith("crossover/") and k.endswith("_replaced")]
     assert keys
@@ -172,25 +172,26 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
     the episodes' spread hid it (mean gaps 26.0 and 26.0 over 6 mapping seeds each). Closer,
     not a set factor closer: the gaps of 3 mapping seeds spread widely (on a second machine,
     whose float32 SAC updates differ in the last bits, 20.8 vs 41.4: a factor of 0.503)."""
-    poet, evaluator = _loop(["budget.episode_steps=150", "budget.eval_episodes=3",
+    loop, evaluator = _loop(["budget.episode_steps=150", "budget.eval_episodes=3",
                              "algo.distill.states=4096",
                              "algo.distill.epochs=20", "algo.sac.hidden=[64,64]",
                              "algo.es.hidden=[40,40]", "budget.n_pairs=8",
                              "terrain.max_height=0.0", "terrain.max_height_step=0.0"])
     gaps = {"distill": [], "random": []}
+    root = loop.pool.active[0]
     with evaluator:
-        _, episodes = poet.es_step(record=16)
-        poet.add_to_replay(episodes)
+        _, episodes = loop.poet.es_step(0, record=16)
+        loop.add_to_replay(episodes)
         rng = np.random.default_rng(0)
-        teacher = rng.normal(0.0, 0.5, poet.active[0].theta.shape)
-        distill_into_actor(poet.actor_net, teacher, poet.replay_states(1), poet.layer_sizes,
-                           epochs=30, batch=128, lr=1e-3, seed=0)
-        terrain = poet.terrain(poet.active[0].env)
+        teacher = rng.normal(0.0, 0.5, root.theta.shape)
+        distill_into_actor(loop.actor_net, teacher, loop.replay_states(1),
+                           loop.service.layer_sizes, epochs=30, batch=128, lr=1e-3, seed=0)
+        terrain = loop.service.terrain(root.env, 0)
         for mapping in gaps:
             for t in range(3):
-                mapped = poet.map_and_score(t, terrain, mapping, 0)
+                mapped = loop.map_and_score(t, terrain, mapping, 0)
                 gaps[mapping].append(abs(mapped.score - mapped.sac_score))
-    poet.close()
+    loop.close()
     assert np.mean(gaps["distill"]) < np.mean(gaps["random"]), gaps
 
 

@@ -64,20 +64,22 @@ def _poet(terrain_cfg: TerrainConfig, episodes: int) -> EPOET:
 
 def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainConfig) -> None:
     poet = _poet(terrain_cfg, episodes=2)
-    metrics = poet.iterate()
-    assert 0 < poet.obs_norm.count <= 2 * 30 and metrics["obs_norm/count"] == poet.obs_norm.count
-    assert not np.allclose(poet.obs_norm.std, 1.0)
-    pair = poet.active[0]
+    metrics = poet.run_iteration()
+    norm = poet.service.obs_norm
+    assert 0 < norm.count <= 2 * 30 and metrics["obs_norm/count"] == norm.count
+    assert not np.allclose(norm.std, 1.0)
+    pair = poet.pool.active[0]
     # the evaluation ran the folded policy: replaying it from the same starts gives the score
-    seeds = poet._seeds(poet.eval_episodes, Key.EVAL, pair.env.index, 0)
-    again = poet.evaluator.run([Request(poet.terrain(pair.env, 0),
-                                        Agents.of(poet.policy(pair.theta)[None], seeds))])
+    service = poet.service
+    seeds = service.seeds(service.eval_episodes, Key.EVAL, pair.env.index, 0)
+    again = service.evaluator.run([Request(service.terrain(pair.env, 0),
+                                           Agents.of(service.policy(pair.theta)[None], seeds))])
     assert again[0].returns.mean() == pytest.approx(pair.score, abs=1e-9)
-    np.testing.assert_array_equal(pair.best_theta, poet.policy(pair.theta))
+    np.testing.assert_array_equal(pair.best_theta, service.policy(pair.theta))
     # without normalisation the same seed runs other policies
     plain = _poet(terrain_cfg, episodes=0)
-    plain.iterate()
-    assert plain.obs_norm is None and plain.active[0].score != pair.score
+    plain.run_iteration()
+    assert plain.service.obs_norm is None and plain.pool.active[0].score != pair.score
 
 
 def test_an_epoet_run_with_normalisation_exports_raw_policies_and_resumes(

@@ -20,7 +20,8 @@ from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
-from epoet.poet.runner import layer_sizes, make_loop
+from epoet.poet.reproduction import best_agent_for, minimal_criterion, propose_children
+from epoet.poet.runner import layer_sizes
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,49 +42,49 @@ OPEN = dict(repro_threshold=-1e9, mc_lower=-1e9, mc_upper=1e9)  # every child pa
 
 def test_reproduction_admits_at_most_one_child(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=4, **OPEN)
-    poet.iterate()
-    assert poet.reproduce() == 1
-    child = poet.active[-1]
-    assert len(poet.active) == 2 and child.env.index == 1
+    poet.run_iteration()
+    assert poet.reproduce(poet.iteration) == 1
+    child = poet.pool.active[-1]
+    assert len(poet.pool.active) == 2 and child.env.index == 1
     assert child.env.generation == 1 and child.env.parent == 0
-    assert child.env.genome is not poet.active[0].env.genome
-    terrain = poet.terrain(child.env)
+    assert child.env.genome is not poet.pool.active[0].env.genome
+    terrain = poet.service.terrain(child.env, poet.iteration)
     assert terrain.generation == 1 and terrain.parent_id == "env0"
 
 
 def test_reproduction_requires_minimal_criterion(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=3, repro_threshold=-1e9, mc_lower=1e8,
                      mc_upper=1e9)
-    poet.iterate()
-    assert poet.reproduce() == 0 and len(poet.active) == 1
+    poet.run_iteration()
+    assert poet.reproduce(poet.iteration) == 0 and len(poet.pool.active) == 1
 
 
 def test_reproduction_requires_threshold(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=3, repro_threshold=1e9, mc_lower=-1e9,
                      mc_upper=1e9)
-    poet.iterate()
-    assert poet.reproduce() == 0
+    poet.run_iteration()
+    assert poet.reproduce(poet.iteration) == 0
 
 
 def test_oldest_pair_is_archived(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=2, max_num_envs=1, **OPEN)
-    poet.iterate()
-    poet.reproduce()
-    assert [p.env.index for p in poet.active] == [1]
-    assert [p.env.index for p in poet.archived] == [0]
-    metrics = poet.iterate()
+    poet.run_iteration()
+    poet.reproduce(poet.iteration)
+    assert [p.env.index for p in poet.pool.active] == [1]
+    assert [p.env.index for p in poet.pool.archived] == [0]
+    metrics = poet.run_iteration()
     assert metrics["archived_envs"] == 1 and metrics["active_envs"] == 1
 
 
 def test_transfer_replaces_a_beaten_agent(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    poet.iterate()
-    poet.reproduce()
-    target = poet.active[1]
+    poet.run_iteration()
+    poet.reproduce(poet.iteration)
+    target = poet.pool.active[1]
     target.scores[:] = [-1e9]          # any other agent beats this incumbent
     target.es.tell(*_fake_step(target))  # move its optimiser away from the initial state
     before = target.theta.copy()
-    assert poet.transfer() >= 1
+    assert poet.transfer(poet.iteration) >= 1
     assert not np.array_equal(target.theta, before)
     assert target.es.state_dict()["t"] == 0  # Adam state reset on acceptance
 
@@ -95,10 +96,10 @@ def _fake_step(pair):
 
 def test_annecs_counts_solved_children(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    poet.iterate()
-    poet.reproduce()
-    poet.iterate()  # every score clears the (open) threshold: the child is solved
-    assert poet.annecs == 1
+    poet.run_iteration()
+    poet.reproduce(poet.iteration)
+    # every score clears the (open) threshold: the child is solved
+    assert poet.run_iteration()["annecs"] == 1
 
 
 def test_best_score_is_the_best_score_so_far(terrain_cfg: TerrainConfig,
@@ -107,9 +108,9 @@ def test_best_score_is_the_best_score_so_far(terrain_cfg: TerrainConfig,
     far (it equalled `score` before): evaluations scripted to fall and rise again."""
     poet = make_poet(terrain_cfg)
     scripted = iter([5.0, 3.0, 4.0, 6.0])
-    monkeypatch.setattr(poet, "_scores", lambda requests: [np.array([next(scripted)])
-                                                           for _ in requests])
-    logged = [poet.iterate() for _ in range(4)]
+    monkeypatch.setattr(poet.service, "scores", lambda requests: [np.array([next(scripted)])
+                                                                  for _ in requests])
+    logged = [poet.run_iteration() for _ in range(4)]
     assert [m["score"] for m in logged] == [5.0, 3.0, 4.0, 6.0]
     assert [m["best_score"] for m in logged] == [5.0, 5.0, 5.0, 6.0]
     restored = make_poet(terrain_cfg)
@@ -142,7 +143,7 @@ def test_smoke_run_is_tracked(compose, mlflow_uri: str, tmp_path: Path) -> None:
     terrains = {a.path for a in client.list_artifacts(r.info.run_id, "terrains")}
     assert {"terrains/env0.npz", "terrains/env0.png"} <= terrains
     policy = np.load(tmp_path / "run" / "policies" / "env0.npz")
-    np.testing.assert_array_equal(policy["theta"], poet.active[0].theta)
+    np.testing.assert_array_equal(policy["theta"], poet.pool.active[0].theta)
 
 
 def _state(run_dir: Path) -> dict:
@@ -200,13 +201,13 @@ def test_multirun_has_one_parent_and_two_children(mlflow_uri: str, tmp_path: Pat
 
 def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    poet.iterate()
-    poet.reproduce()
-    for pair in poet.active:
+    poet.run_iteration()
+    poet.reproduce(poet.iteration)
+    for pair in poet.pool.active:
         pair.scores[:] = [-1e9]        # every direct transfer clears the bar
-    before = [p.theta.copy() for p in poet.active]
-    assert poet.transfer() == len(poet.active)
-    for pair in poet.active:
+    before = [p.theta.copy() for p in poet.pool.active]
+    assert poet.transfer(poet.iteration) == len(poet.pool.active)
+    for pair in poet.pool.active:
         # A proposal is a fine-tuned agent: it equals none of the agents as they were.
         assert not any(np.array_equal(pair.theta, theta) for theta in before)
 
@@ -217,14 +218,14 @@ def test_the_transfer_bar_is_the_best_of_the_last_evaluations(terrain_cfg: Terra
     evaluations ago no longer guards the agent."""
     poet = make_poet(terrain_cfg, num_children=2, **OPEN)
     assert poet.cfg.transfer_bar_window == 5
-    poet.iterate()
-    poet.reproduce()
-    for pair in poet.active:
+    poet.run_iteration()
+    poet.reproduce(poet.iteration)
+    for pair in poet.pool.active:
         pair.scores[:] = [1e9] + [-1e9] * 5
-    assert poet.transfer() == len(poet.active)
-    for pair in poet.active:
+    assert poet.transfer(poet.iteration) == len(poet.pool.active)
+    for pair in poet.pool.active:
         pair.scores[:] = [-1e9] + [1e9] + [-1e9] * 4
-    assert poet.transfer() == 0
+    assert poet.transfer(poet.iteration) == 0
 
 
 @pytest.mark.parametrize("later, due", [(5, [75, 150, 225]), (1, [75, 90, 105, 120])])
@@ -238,31 +239,35 @@ def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
         terrain_cfg: TerrainConfig) -> None:
     # Learn the child's scores on the real engine (they do not depend on the thresholds) ...
     probe = make_poet(terrain_cfg, num_children=1, **OPEN)
-    probe.iterate()
-    (child, parent), = probe._propose_children(probe.active)
-    mc_score = float(probe._scores([probe._eval_request(child.terrain, parent.theta[None],
-                                                        Key.MC, 1, child.slot)])[0][0])
-    best_score, _ = probe._best_agent_for(child)
+    probe.run_iteration()
+    service, t = probe.service, probe.iteration
+    (child, parent), = propose_children(service, probe.cfg, probe.pool.active, t)
+    mc_score = float(service.scores([service.eval_request(child.terrain, parent.theta[None],
+                                                          Key.MC, t, child.slot)])[0][0])
+    best_score, _ = best_agent_for(probe.pool, service, probe.cfg, child, t)
     assert best_score != mc_score
     # ... then set the window so that the parent's agent passes and the best agent does not.
     middle = (mc_score + best_score) / 2
     window = (mc_score - 1.0, middle) if best_score > mc_score else (middle, mc_score + 1.0)
     poet = make_poet(terrain_cfg, num_children=1, repro_threshold=-1e9, mc_lower=window[0],
                      mc_upper=window[1])
-    poet.iterate()
-    assert len(poet._minimal_criterion(poet._propose_children(poet.active))) == 1
-    assert poet.reproduce() == 0 and len(poet.active) == 1
+    poet.run_iteration()
+    t = poet.iteration
+    children = propose_children(poet.service, poet.cfg, poet.pool.active, t)
+    assert len(minimal_criterion(poet.pool, poet.service, children, t)) == 1
+    assert poet.reproduce(poet.iteration) == 0 and len(poet.pool.active) == 1
 
 
 def test_admission_fine_tunes_with_a_fresh_optimiser(terrain_cfg: TerrainConfig) -> None:
     poet = make_poet(terrain_cfg, seed=4, num_children=1, **OPEN)
-    poet.iterate()
-    (child, _), = poet._propose_children(poet.active)
-    score, theta = poet._best_agent_for(child)
-    assert not np.array_equal(theta, poet.active[0].theta), "seed 4: a fine-tuned agent wins"
-    es = poet.active[0].es  # the incumbent's optimiser state must not matter
+    poet.run_iteration()
+    t = poet.iteration
+    (child, _), = propose_children(poet.service, poet.cfg, poet.pool.active, t)
+    score, theta = best_agent_for(poet.pool, poet.service, poet.cfg, child, t)
+    assert not np.array_equal(theta, poet.pool.active[0].theta), "seed 4: a fine-tuned agent wins"
+    es = poet.pool.active[0].es  # the incumbent's optimiser state must not matter
     es.m[:], es.v[:], es.t, es.lr, es.sigma = 1.0, 1.0, 50, 0.5, 0.3
-    again, theta_again = poet._best_agent_for(child)
+    again, theta_again = best_agent_for(poet.pool, poet.service, poet.cfg, child, t)
     assert again == score
     np.testing.assert_array_equal(theta_again, theta)
 
@@ -275,7 +280,7 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
             poet = EPOET(replace(PAPER.algo, num_children=2, **every, **OPEN), terrain_cfg, ev,
                          seed=5, n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES)
             for _ in range(3):
-                poet.iterate()
+                poet.run_iteration()
             return poet.state_dict()
 
     one, two = final_state(1), final_state(2)
@@ -298,7 +303,7 @@ def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budg
     the paper's RK4 and S schedule), and every smaller one trades something."""
     cfg = load([f"budget={budget}"])
     assert cfg.agent.max_episode_steps == cfg.budget.episode_steps
-    loop = make_loop(cfg, SerialEvaluator(cfg.agent, cfg.terrain, 1, layer_sizes(cfg)))
+    loop = EPOET.from_config(cfg, SerialEvaluator(cfg.agent, cfg.terrain, 1, layer_sizes(cfg)))
     runs_with = (cfg.budget.score_scale, loop.transfer_interval, loop.reproduce_interval,
                  cfg.terrain.max_height_step, cfg.agent.integrator)
     assert runs_with == SCHEDULES[budget]

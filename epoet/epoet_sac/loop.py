@@ -1,6 +1,8 @@
 """ePOET-SAC (paper Section 3): the ePOET loop with a SAC learner beside the pool.
 
-Each iteration is Algorithm 1 with its red steps:
+`EpoetSac.run_iteration` is one iteration, Algorithm 1 with its red steps, in this order (the
+ePOET steps are the ePOET loop's, epoet/poet/loop.py, over the same pool and service):
+0. before iteration 0, `pretrain` (`pretrain_iterations` Train_SAC iterations; 0 by default);
 1. `reproduce` (every `reproduce_interval` iterations), as ePOET;
 2. `es_step` of every pair, the first `es_episodes_per_pair` episodes of each recorded in the
    worker processes, then `evaluate_pairs`;
@@ -9,9 +11,9 @@ Each iteration is Algorithm 1 with its red steps:
    and takes `updates_per_frame` gradient updates per frame;
 4. `transfer` (every `transfer_interval` iterations), as ePOET, then `update_actor_from_pool`:
    if the best pool agent beats the SAC actor on its environment, the actor learns from it;
-5. `join` (t mod (k N_transfer) = k N_transfer - 2, k = `join_every_transfers`): the SAC actor, mapped to the ES shape,
-   joins the pool as a new pair, and Algorithm 3's `crossover_with` runs against every other
-   active agent.
+5. `join` (t mod (k N_transfer) = k N_transfer - 2, k = `join_every_transfers`): the SAC
+   actor, mapped to the ES shape, joins the pool as a new pair, and Algorithm 3's
+   `crossover_with` runs against every other active agent.
 
 Decisions the paper leaves open (README "ePOET-SAC"):
 - Sharing the machine: by turns. The workers run the ES step on every core, then SAC collects
@@ -25,11 +27,11 @@ Decisions the paper leaves open (README "ePOET-SAC"):
   parts of an episode reach the replay only through the ES transitions.
 - SAC actor <-> ES agent: the shapes differ (`algo.sac.hidden` vs the ES agent's), so the
   transfer step distils the ES agent into the actor's mean, and the join maps the actor by
-  `mapping`:
-  `distill` (behaviour cloning on replay states) or `random` (the paper's random selection).
+  `mapping`: `distill` (behaviour cloning on replay states) or `random` (the paper's random
+  selection).
 - The joined agent pairs with a copy of the environment SAC trained on (a new index, the same
   CPPN genome); copies are not novel environments, so ANNECS does not count them.
-- Randomness: every SAC step re-seeds torch and the SAC env from keyed seeds (loop.Key), so a
+- Randomness: every SAC step re-seeds torch and the SAC env from keyed seeds (poet/keys.py), so a
   resumed run needs no generator state and equals an uninterrupted one.
 """
 from __future__ import annotations
@@ -46,22 +48,22 @@ from torchrl.envs import EnvBase, ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config
+from epoet.core.timing import PhaseTimer
+from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.replay_mix import ReplayMix
-from epoet.terrain.config import TerrainConfig
-from epoet.rollout.policy import init_params
-from epoet.rollout.engine import Episodes
-from epoet.rollout.backends.base import Evaluator
-from epoet.core.timing import PhaseTimer
 from epoet.poet.keys import Key
-from epoet.poet.loop import EPOET
+from epoet.poet.loop import EPOET, annecs, best_by_lineage
 from epoet.poet.pairs import Environment, Pair
-from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.env import OBS, episode_metrics, hexapod, make_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
+from epoet.rollout.backends.base import Evaluator
+from epoet.rollout.engine import Episodes
+from epoet.rollout.policy import init_params, policy_sizes
 from epoet.terrain import Terrain, make_terrain
+from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow
     from epoet.tracking import Tracker
@@ -87,15 +89,19 @@ class Mapped(NamedTuple):
     sac_score: float
 
 
-class EpoetSac(EPOET):
-    """The ePOET pool, a SAC learner and the steps that move agents between them."""
+class EpoetSac:
+    """The ePOET loop (its pool, service and steps), a SAC learner and the steps that move agents
+    between them."""
 
-    def __init__(self, algo: EpoetSacConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
-                 sac_env: EnvBase, frames_per_iteration: int,
-                 **poet: Any) -> None:
-        super().__init__(algo, terrain, evaluator, **poet)
-        self.cfg: EpoetSacConfig = algo
-        torch.manual_seed(self._seed(Key.SAC))        # the networks' initial weights
+    def __init__(self, algo: EpoetSacConfig, terrain: TerrainConfig, evaluator: Evaluator,
+                 sac_env: EnvBase, *, seed: int, n_pairs: int, eval_episodes: int,
+                 score_scale: float, layer_sizes: tuple[int, ...]) -> None:
+        self.cfg = algo
+        self.poet = EPOET(algo, terrain, evaluator, seed=seed, n_pairs=n_pairs,
+                          eval_episodes=eval_episodes, score_scale=score_scale,
+                          layer_sizes=layer_sizes)
+        self.service, self.pool = self.poet.service, self.poet.pool
+        torch.manual_seed(self.service.seed(Key.SAC))  # the networks' initial weights
         self.sac_env = sac_env
         self.learner = SacLearner(algo.sac, sac_env)
         self.actor_net = self.learner.loss.policy_net  # obs -> (loc, scale)
@@ -103,31 +109,55 @@ class EpoetSac(EPOET):
         # resets it): reset(seed=s) gives the spawn of the workers' episodes with spawn seed s,
         # so both kinds of agent share the starts.
         self.score_env = hexapod(sac_env)
-        self.frames_per_iteration = frames_per_iteration
-        self.updates_per_iteration = round(frames_per_iteration * algo.updates_per_frame)
+        self.frames_per_iteration = algo.frames_per_iteration
+        self.updates_per_iteration = round(algo.frames_per_iteration * algo.updates_per_frame)
         self.mix = ReplayMix(algo.sac.buffer_size)
         self.replaced: list[ReplacedAgent] = []
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
+    @classmethod
+    def from_config(cls, cfg: Config, evaluator: Evaluator) -> EpoetSac:
+        """The `algo=epoet_sac` loop of a run: torch threads as the workers (they take turns),
+        SAC's own env (`close` closes it), the budget's population, evaluations and scale."""
+        set_threads(cfg)
+        sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
+        budget = cfg.budget
+        return cls(cfg.algo, cfg.terrain, evaluator, sac_env, seed=cfg.seed,
+                   n_pairs=budget.n_pairs, eval_episodes=budget.eval_episodes,
+                   score_scale=budget.score_scale, layer_sizes=policy_sizes(cfg.algo.es.hidden))
+
+    @property
+    def iteration(self) -> int:
+        return self.poet.iteration
+
+    @property
+    def elapsed(self) -> float:
+        return self.poet.elapsed
+
     # --- one iteration: Algorithm 1 ------------------------------------------------------------
-    @property
-    def record_per_pair(self) -> int:
-        """The ES-step episodes of each pair whose transitions go into SAC's replay."""
-        return self.cfg.es_episodes_per_pair
-
-    @property
-    def joins(self) -> int:
-        """Joins so far (each made one pair, and pairs are never dropped)."""
-        return len(self.join_of)
-
-    def steps(self, t: int, timer: PhaseTimer) -> dict[str, float]:
-        """Algorithm 1: ePOET's steps with SAC trained after the ES step and updated from the
-        pool at transfers, then the join."""
+    def run_iteration(self) -> dict[str, float]:
+        """Run iteration `self.iteration` and return its metrics (`time/<step>`: where its wall
+        time went)."""
+        poet, t, timer = self.poet, self.iteration, PhaseTimer()
+        start = poet.start_iteration()
         metrics: dict[str, float] = {}
         if t == 0 and self.cfg.pretrain_iterations:
             with timer("pretrain"):
                 metrics.update(self.pretrain())
-        metrics.update(super().steps(t, timer))
+        if poet.reproduce_due(t):
+            with timer("reproduce"):
+                metrics["admitted"] = float(poet.reproduce(t))
+        with timer("optimize"):
+            es_metrics, episodes = poet.es_step(t, record=self.cfg.es_episodes_per_pair)
+            metrics.update(es_metrics)
+            metrics.update(poet.evaluate_pairs(t))
+        with timer("sac"):
+            self.add_to_replay(episodes)
+            metrics.update(self.train_sac(t))
+        if poet.transfer_due(t):
+            with timer("transfer"):
+                metrics["transfers"] = float(poet.transfer(t))
+                metrics.update(self.update_actor_from_pool(t))
         if self.join_due(t):
             with timer("join"):
                 metrics.update(self.join(t))
@@ -135,22 +165,26 @@ class EpoetSac(EPOET):
                         "sac/es_transitions": float(self.mix.added["es"]),
                         "sac/own_transitions": float(self.mix.added["sac"]),
                         "sac/es_share": self.mix.share("es")})
-        return metrics
-
-    def after_optimize(self, t: int, episodes: list[Episodes], timer: PhaseTimer
-                       ) -> dict[str, float]:
-        with timer("sac"):
-            self.add_to_replay(episodes)
-            return self.train_sac(t)
-
-    def after_transfer(self, t: int) -> dict[str, float]:
-        return self.update_actor_from_pool(t)
+        # The environment copies the joins pair with are not novel (not in ANNECS); the k-th
+        # join's pair is lineage k (0: the ES lineage), the paper's ePOET-SAC_gen<k> curves.
+        novel = [p for p in self.pool.pairs if p.env.index not in self.join_of]
+        return poet.end_iteration(metrics, timer, start, annecs(novel),
+                                  best_by_lineage(self.pool.active, self.lineage))
 
     def join_due(self, t: int) -> bool:
         """Algorithm 1: t > 0 and t mod (k N_transfer) = k N_transfer - 2, with
         k = `join_every_transfers` and N_transfer the transfer interval."""
-        period = self.cfg.join_every_transfers * self.transfer_interval
+        period = self.cfg.join_every_transfers * self.poet.transfer_interval
         return t > 0 and t % period == period - 2
+
+    @property
+    def joins(self) -> int:
+        """Joins so far (each made one pair, and pairs are never dropped)."""
+        return len(self.join_of)
+
+    def lineage(self, pair: Pair) -> int:
+        """The k-th join made the pair (0: the ES lineage)."""
+        return self.join_of.get(pair.env.index, 0)
 
     # --- the shared replay and Train_SAC (Algorithm 2) ---------------------------------------
     def add_to_replay(self, episodes: list[Episodes]) -> None:
@@ -170,18 +204,19 @@ class EpoetSac(EPOET):
 
     def sac_pair(self, t: int) -> Pair:
         """The active pair whose environment SAC uses at iteration t (paper: sampled)."""
-        rng = np.random.default_rng(self._seed(Key.SAC_ENV, t))
-        return self.active[int(rng.integers(len(self.active)))]
+        rng = np.random.default_rng(self.service.seed(Key.SAC_ENV, t))
+        return self.pool.active[int(rng.integers(len(self.pool.active)))]
 
     def train_sac(self, t: int) -> dict[str, float]:
         """Train_SAC on the sampled environment's terrain (or a bowl, `sac_terrain=bowl`)."""
         pair = self.sac_pair(t)
         if self.cfg.sac_terrain == "bowl":
-            terrain = make_terrain(dataclasses.replace(self.terrain_cfg, kind="bowl"),
-                                   seed=self._seed(Key.SAC_BOWL, t), iteration=t)
+            terrain = make_terrain(dataclasses.replace(self.service.terrain_cfg, kind="bowl"),
+                                   seed=self.service.seed(Key.SAC_BOWL, t), iteration=t)
         else:
-            terrain = self.terrain(pair.env)
-        metrics = self._train_sac(terrain, self._seed(Key.SAC, t), self._seed(Key.SAC_SPAWN, t))
+            terrain = self.service.terrain(pair.env, t)
+        metrics = self._train_sac(terrain, self.service.seed(Key.SAC, t),
+                                  self.service.seed(Key.SAC_SPAWN, t))
         metrics["sac/env"] = float(pair.env.index)
         return metrics
 
@@ -190,9 +225,9 @@ class EpoetSac(EPOET):
         iteration 0 (0 by default: Algorithm 1 has none)."""
         metrics: dict[str, float] = {}
         for i in range(self.cfg.pretrain_iterations):
-            metrics = self._train_sac(self.terrain(self.active[0].env),
-                                      self._seed(Key.PRETRAIN, i, 0),
-                                      self._seed(Key.PRETRAIN, i, 1))
+            metrics = self._train_sac(self.service.terrain(self.pool.active[0].env, 0),
+                                      self.service.seed(Key.PRETRAIN, i, 0),
+                                      self.service.seed(Key.PRETRAIN, i, 1))
         return metrics
 
     def _train_sac(self, terrain: Terrain, torch_seed: int, spawn_seed: int
@@ -209,7 +244,7 @@ class EpoetSac(EPOET):
                                         break_when_any_done=False)
         learned = self.learner.learn(data, self.updates_per_iteration)
         self.mix.add("sac", data.numel())
-        self.env_steps += data.numel()
+        self.service.env_steps += data.numel()
         return {f"sac/{k}": v for k, v in {**episode_metrics(data), **learned}.items()}
 
     # --- SAC actor <-> pool ----------------------------------------------------------------------
@@ -227,7 +262,7 @@ class EpoetSac(EPOET):
                     obs, reward, terminated, truncated, info = env.step(torch.tanh(loc).numpy())
                     total += reward
                     done = terminated or truncated
-                self.env_steps += info["steps"]
+                self.service.env_steps += info["steps"]
                 returns.append(total)
         return float(np.mean(returns))
 
@@ -244,36 +279,39 @@ class EpoetSac(EPOET):
         """Algorithm 1's "SAC_Actor = theta_top" when the best pool agent beats the actor on that
         agent's environment (same starts as its evaluation). An ES agent cannot be copied into
         the actor (other layer sizes): the actor's mean is distilled from it on replay states."""
-        top = max(self.active, key=lambda p: p.score)
+        service = self.service
+        top = max(self.pool.active, key=lambda p: p.score)
         sac_score = self.actor_score(
-            self.terrain(top.env), self._seeds(self.eval_episodes, Key.EVAL, top.env.index, t))
+            service.terrain(top.env, t),
+            service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t))
         metrics = {"sac/score": sac_score, "sac/top_score": top.score,
                    "sac/updated_from_pool": float(sac_score < top.score)}
         if sac_score < top.score:
             metrics["sac/distill_error"] = distill_into_actor(
-                self.actor_net, top.theta, self.replay_states(self._seed(Key.SAC, t, 1)),
-                self.layer_sizes, **self._distill_kwargs(self._seed(Key.SAC, t, 2)))
+                self.actor_net, top.theta, self.replay_states(service.seed(Key.SAC, t, 1)),
+                service.layer_sizes, **self._distill_kwargs(service.seed(Key.SAC, t, 2)))
         return metrics
 
     def map_actor(self, t: int, mapping: str) -> tuple[np.ndarray, float]:
         """The SAC actor as an ES vector by `mapping`, and the distillation's action error (NaN
         for the random mapping)."""
+        service, sizes = self.service, self.service.layer_sizes
         if mapping == "random":
-            rng = np.random.default_rng(self._seed(Key.JOIN, t))
-            return random_mapping(self.actor_net, self.layer_sizes, rng), float("nan")
-        init = init_params(self._seed(Key.JOIN, t, 0), self.layer_sizes)
-        return distill_into_es(self.actor_net, self.replay_states(self._seed(Key.JOIN, t, 1)),
-                               self.layer_sizes, init,
-                               **self._distill_kwargs(self._seed(Key.JOIN, t, 2)))
+            rng = np.random.default_rng(service.seed(Key.JOIN, t))
+            return random_mapping(self.actor_net, sizes, rng), float("nan")
+        init = init_params(service.seed(Key.JOIN, t, 0), sizes)
+        return distill_into_es(self.actor_net, self.replay_states(service.seed(Key.JOIN, t, 1)),
+                               sizes, init, **self._distill_kwargs(service.seed(Key.JOIN, t, 2)))
 
     def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
         """Map the SAC actor (random draws keyed by t), then score the mapped agent and the
         actor on `terrain` from the same starts (keyed by `ids`)."""
+        service = self.service
         theta, error = self.map_actor(t, mapping)
-        score = float(self._scores([self._eval_request(terrain, theta[None], Key.JOIN_EVAL,
-                                                       *ids)])[0][0])
-        sac_score = self.actor_score(terrain, self._seeds(self.eval_episodes, Key.JOIN_EVAL,
-                                                          *ids))
+        score = float(service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL,
+                                                           *ids)])[0][0])
+        sac_score = self.actor_score(terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL,
+                                                            *ids))
         return Mapped(theta, error, score, sac_score)
 
     def join(self, t: int) -> dict[str, float]:
@@ -281,16 +319,17 @@ class EpoetSac(EPOET):
         agent. Logs the mapped agent's score next to the SAC actor's on the same terrain and
         starts: the gap is what the mapping loses (the paper's stated limitation)."""
         home = self.sac_pair(t)
-        terrain = self.terrain(home.env)
+        terrain = self.service.terrain(home.env, t)
         mapped = self.map_and_score(t, terrain, self.cfg.mapping, t)
         joins = self.joins + 1
-        env = Environment(index=self.next_index, genome=home.env.genome,
+        env = Environment(index=self.pool.next_index, genome=home.env.genome,
                           generation=home.env.generation, parent=home.env.index, created_at=t)
-        pair = self._admit(env, mapped.theta)
+        pair = self.pool.admit(env, self.service.optimiser_for(env, mapped.theta))
         self.join_of[env.index] = joins
-        self._terrains[(env.index, t)] = terrain
-        self._record(pair, mapped.score)
-        outcome = self.crossover_with([p for p in self.active if p is not pair], mapped.theta)
+        self.service.keep_terrain(env, t, terrain)
+        self.pool.record(pair, mapped.score)
+        outcome = self.crossover_with([p for p in self.pool.active if p is not pair],
+                                      mapped.theta, t)
         metrics = {"joined": float(joins), "join/env": float(env.index),
                    "join/sac_score": mapped.sac_score, "join/mapped_score": mapped.score,
                    "join/mapping_error": mapped.error,
@@ -301,40 +340,32 @@ class EpoetSac(EPOET):
             metrics[f"crossover/env{index}_replaced"] = float(new > old)
         return metrics
 
-    def crossover_with(self, pairs: list[Pair], donor: np.ndarray
+    def crossover_with(self, pairs: list[Pair], donor: np.ndarray, t: int
                        ) -> dict[int, tuple[float, float]]:
         """Algorithm 3: each agent and its crossover with `donor` are rolled out from the same
         starts on the agent's environment; the child replaces the agent only if its return is
         higher, and the original is archived. Returns {env index: (old, new) return}."""
-        t = self.iteration
+        service = self.service
         children = [crossover(p.theta, donor,
-                              np.random.default_rng(self._seed(Key.CROSSOVER, p.env.index, t)))
+                              np.random.default_rng(service.seed(Key.CROSSOVER, p.env.index, t)))
                     for p in pairs]
-        scores = self._scores([self._eval_request(self.terrain(p.env), np.stack([p.theta, child]),
-                                                  Key.CROSSOVER_EVAL, p.env.index, t)
-                               for p, child in zip(pairs, children)])
+        scores = service.scores([service.eval_request(service.terrain(p.env, t),
+                                                      np.stack([p.theta, child]),
+                                                      Key.CROSSOVER_EVAL, p.env.index, t)
+                                 for p, child in zip(pairs, children)])
         outcome = {}
         for pair, child, (old, new) in zip(pairs, children, scores):
             outcome[pair.env.index] = (float(old), float(new))
             if new > old:
                 self.replaced.append(ReplacedAgent(pair.env.index, t, pair.theta.copy(),
                                                    float(old)))
-                self._replace_agent(pair, child, float(new))
+                self.pool.replace_agent(pair, child, float(new))
         return outcome
 
-    # --- generation curves, artifacts, checkpoints ------------------------------------------
-    def novel(self, pair: Pair) -> bool:
-        """The environment copies that the joins pair with are not novel (not in ANNECS)."""
-        return pair.env.index not in self.join_of
-
-    def lineage(self, pair: Pair) -> int:
-        """The k-th join made the pair (0: the ES lineage), the paper's Figure 2b
-        ePOET-SAC_gen<k> curves."""
-        return self.join_of.get(pair.env.index, 0)
-
+    # --- artifacts, checkpoints -----------------------------------------------------------------
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
-        super().log_artifacts(run_dir, tracker, choice)
+        self.poet.log_artifacts(run_dir, tracker, choice)
         sac = self.cfg.sac
         tracker.log_artifact(export_policy(run_dir / "sac_policy.pt", self.learner.actor,
                                            self.sac_env, sac.hidden, sac.activation))
@@ -343,20 +374,20 @@ class EpoetSac(EPOET):
             folder.mkdir(exist_ok=True)
             for agent in self.replaced:
                 np.savez(folder / f"env{agent.env}_it{agent.iteration}.npz", theta=agent.theta,
-                         score=agent.score, layer_sizes=np.array(self.layer_sizes))
+                         score=agent.score, layer_sizes=np.array(self.service.layer_sizes))
             tracker.log_artifact(folder, "replaced")
 
     def close(self) -> None:
         self.sac_env.close()
 
     def state_dict(self) -> dict[str, Any]:
-        return {**super().state_dict(), "sac": self.learner.state_dict(),
+        return {**self.poet.state_dict(), "sac": self.learner.state_dict(),
                 "mix": self.mix.state_dict(),
                 "replaced": [dataclasses.asdict(a) for a in self.replaced],
                 "join_of": dict(self.join_of)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        super().load_state_dict(state)
+        self.poet.load_state_dict(state)
         self.learner.load_state_dict(state["sac"])
         self.mix.load_state_dict(state["mix"])
         self.replaced = [ReplacedAgent(**a) for a in state["replaced"]]
@@ -365,10 +396,3 @@ class EpoetSac(EPOET):
             s["env"].index: s["sac_join"] for s in state["active"] + state["archived"]
             if s.get("sac_join")}
 
-
-def make_epoet_sac(cfg: Config, evaluator: Evaluator, **poet: Any) -> EpoetSac:
-    """The `algo=epoet_sac` loop: torch threads as the workers (they take turns), SAC's env."""
-    set_threads(cfg)
-    sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
-    return EpoetSac(cfg.algo, cfg.terrain, evaluator, sac_env=sac_env,
-                    frames_per_iteration=cfg.algo.frames_per_iteration, **poet)

@@ -1,5 +1,5 @@
 """What each keyed seed of an ePOET run is for: with the ids after it, a key names one random
-stream, a function of the run seed alone (epoet.poet.loop `_seeds`)."""
+stream, a function of the run seed alone (epoet.poet.service `Service.seeds`)."""
 from __future__ import annotations
 
 from enum import IntEnum

@@ -1,9 +1,10 @@
-"""Environment-agent pairs, what the ePOET loop keeps for each environment it has admitted, and
-the small records its steps pass around (thresholds, proposed children, fine-tuning jobs)."""
+"""Environment-agent pairs, what the ePOET loop keeps for each environment it has admitted, the
+pool that holds them, and the small records its steps pass around (thresholds, proposed
+children)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -72,11 +73,43 @@ class Child:
     slot: int
 
 
-class FineTune(NamedTuple):
-    """One proposal ES step: `theta` on `terrain` with `es`'s settings and state; `ids` key its
-    noise and spawn seeds."""
+class Pool:
+    """The environment-agent pairs of a run: the active ones, optimised every iteration, and the
+    archive of those that left it (Enhanced POET's optimizers and archived optimizers)."""
 
-    es: OpenAIES
-    terrain: Terrain
-    theta: np.ndarray
-    ids: tuple[int, ...]
+    def __init__(self, max_active: int, thresholds: Thresholds,
+                 policy: Callable[[np.ndarray], np.ndarray]) -> None:
+        self.active: list[Pair] = []
+        self.archived: list[Pair] = []
+        self.next_index = 0          # the index the next admitted environment gets
+        self.max_active = max_active
+        self.thresholds = thresholds
+        self.policy = policy         # ES parameters -> the policy a pair's best score keeps
+
+    @property
+    def pairs(self) -> list[Pair]:
+        return self.active + self.archived
+
+    def admit(self, env: Environment, es: OpenAIES) -> Pair:
+        """A new active pair; beyond `max_active` the oldest pair leaves for the archive."""
+        pair = Pair(env=env, es=es)
+        self.active.append(pair)
+        self.next_index = max(self.next_index, env.index + 1)
+        if len(self.active) > self.max_active:
+            self.archived.append(self.active.pop(0))
+        return pair
+
+    def record(self, pair: Pair, score: float) -> None:
+        """The pair's evaluation this iteration: its best so far, and whether its environment
+        has been solved (reached the reproduction threshold)."""
+        pair.scores.append(score)
+        if score > pair.best_score:
+            pair.best_score, pair.best_theta = score, np.array(self.policy(pair.theta))
+        pair.env.solved |= score >= self.thresholds.repro
+
+    def replace_agent(self, pair: Pair, theta: np.ndarray, score: float) -> None:
+        """A new agent for the pair (a transfer, a crossover child) with a fresh optimiser; its
+        score, measured this iteration, stands in place of the old agent's."""
+        pair.es.reset(theta)
+        pair.scores.pop()
+        self.record(pair, score)
