@@ -16,7 +16,7 @@ from epoet.core.lifecycle import Stopped
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def _app(cfg: DictConfig) -> None:
-    # Imported here, after Hydra composed the config: mlflow takes ~3 s to import, which a
+    # Imported here, after Hydra composed the config: mlflow is a slow import, which a
     # composition error (a typo in an override) should not wait for.
     from epoet.run import EvaluationError, run
     from epoet.tracking import TrackingError

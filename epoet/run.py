@@ -130,7 +130,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         # the optional extra, on demand
         from epoet.rollout.backends.ray_cluster import check_address
         check_address(cfg.workers.address)
-    # Only now mlflow (~1.5 s to import): bad input above fails without waiting for it.
+    # Only now mlflow (a slow import): bad input above fails without waiting for it.
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(raw, resolve=True)

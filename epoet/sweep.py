@@ -16,8 +16,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from epoet.eval.keys import SHIPPED_NAME, suite_metric
 
-# Hydra instantiates this callback for single runs too, before the job: epoet.tracking (mlflow,
-# ~1.5 s to import) is imported when a multirun starts, so a bad override fails without it.
+# Hydra instantiates this callback for single runs too, before the job: epoet.tracking (mlflow, a
+# slow import) is imported when a multirun starts, so a bad override fails without it.
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, Run
 

@@ -8,8 +8,8 @@
 - errors.py: `TrackingError`, one sentence
 
 Importers use `from epoet.tracking import X`. Each name is imported from its module when first
-asked for (PEP 562), so `TrackingError` costs nothing while `MlflowTracker` brings mlflow (about
-1.5 s): a command that fails on bad input before it tracks anything never waits for mlflow.
+asked for (PEP 562), so `TrackingError` costs nothing while `MlflowTracker` brings mlflow (a slow
+import): a command that fails on bad input before it tracks anything never waits for mlflow.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """What algorithms report to (`Tracker`) and the MLflow run that records it (`MlflowTracker`).
 
-Metrics are buffered and sent with `log_batch` because per-point `log_metric` on sqlite
-(~195 points/s) would dominate a run.
+Metrics are buffered and sent with `log_batch` because per-point `log_metric` on sqlite (one
+transaction per point) would dominate a run.
 """
 from __future__ import annotations
 
@@ -217,8 +217,8 @@ class MlflowTracker:
         timestamp) once.
         """
         # Our buffer and a synchronous call, not `log_batch(..., synchronous=False)`: MLflow's
-        # async queue writes each call as its own transaction (on sqlite, 500 calls of 8 points
-        # took 9 s against 0.4 s as one batch) unless the process-wide
+        # async queue writes each call as its own transaction (on sqlite, many times slower than
+        # one batch of the same points) unless the process-wide
         # MLFLOW_ASYNC_LOGGING_BUFFERING_SECONDS is set; its worker threads bypass
         # `RetryingClient`; and a failure only logs an error and drops the points, raising
         # nothing until someone waits on the call's future. A checkpoint needs its metrics in the
@@ -262,8 +262,9 @@ class MlflowTracker:
 
     def log_agent(self, policy: Path, loader_module: str, obs_dim: int, act_dim: int) -> None:
         """Log the trained agent as this run's MLflow model `agent` (a pyfunc whose data is the
-        policy file and whose loader is `loader_module`), with the signature observation
-        (n, obs_dim) -> action (n, act_dim): the UI's Models column links it and
+        policy file and whose loader is `loader_module`), with one signature for every
+        algorithm: observations (n, obs_dim), float32 or float64, -> actions (n, act_dim)
+        float64. The UI's Models column links it and
         `mlflow.pyfunc.load_model("runs:/<run id>/agent")` loads it.
 
         Through the client (create, upload, finalize, link as the run's output), not
@@ -272,12 +273,13 @@ class MlflowTracker:
         import mlflow.pyfunc  # the model API is only needed here, once per run
         from mlflow.entities import LoggedModelOutput, LoggedModelStatus
         from mlflow.models import ModelSignature
-        from mlflow.types import Schema, TensorSpec
+        from mlflow.types import ColSpec, Schema, TensorSpec
         run_id = self._require_open()
-        float64 = np.dtype(np.float64)
-        # unnamed tensors: predict gets the observation array itself
-        signature = ModelSignature(inputs=Schema([TensorSpec(float64, (-1, obs_dim))]),
-                                   outputs=Schema([TensorSpec(float64, (-1, act_dim))]))
+        # One unnamed double column per observation entry: MLflow widens float32 columns to
+        # double, where a float64 tensor spec refuses float32 arrays (and a float32 one float64).
+        signature = ModelSignature(inputs=Schema([ColSpec("double") for _ in range(obs_dim)]),
+                                   outputs=Schema([TensorSpec(np.dtype(np.float64),
+                                                              (-1, act_dim))]))
         try:
             model = self.client.create_logged_model(self.experiment_id, name="agent",
                                                     source_run_id=run_id)
