@@ -367,3 +367,35 @@ def test_sweep_with_a_failing_job_marks_the_parent_failed(store, tmp_path):
     assert parents[0].info.status == "FAILED"
     assert sorted((c.data.params["x"], c.info.status) for c in children) == \
         [("1", "FINISHED"), ("2", "FAILED")]
+
+
+def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, request,
+                                                                        monkeypatch):
+    """An ES and a torch agent (the authors', shipped), each logged as its run's MLflow model
+    and loaded with `mlflow.pyfunc.load_model`, act on float32 and float64 observations as the
+    policy does on the same values; both models have one signature."""
+    import mlflow
+
+    from epoet.envs.spaces import ACT_DIM, OBS_DIM
+    from epoet.eval.agents import file_source
+    from epoet.eval.reference import FOLDER
+    uri, _ = store
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)  # where load_model("runs:/...") looks
+    observations = np.random.default_rng(0).normal(size=(4, OBS_DIM))
+    signatures = []
+    for agent in ("poet_hexA8/flat.npz", "ppo/0.pt"):
+        path = FOLDER / "agents" / agent
+        with MlflowTracker(uri, request.node.name) as tracker:
+            run_id = tracker.start(agent)
+            tracker.log_agent(path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)
+        model = mlflow.pyfunc.load_model(f"runs:/{run_id}/agent")
+        policy = file_source(path).load()
+        for dtype in (np.float32, np.float64):
+            given = observations.astype(dtype)
+            actions = model.predict(given)
+            assert actions.shape == (4, ACT_DIM) and actions.dtype == np.float64, (agent, dtype)
+            expected = [policy(obs) for obs in given.astype(np.float64)]
+            np.testing.assert_allclose(actions, expected, rtol=1e-6, atol=1e-7,
+                                       err_msg=f"{agent} {dtype.__name__}")
+        signatures.append(model.metadata.signature)
+    assert signatures[0] == signatures[1]

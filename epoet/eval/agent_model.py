@@ -16,7 +16,9 @@ from epoet.eval.agents import Policy, file_source
 
 
 class PolicyModel:
-    """pyfunc's `predict`: a batch of observations (n, 53) to actions (n, 18)."""
+    """pyfunc's `predict`: a batch of observations (n, 53) to actions (n, 18) float64. MLflow
+    hands it the observations as a DataFrame of the signature's double columns (the caller's
+    array, float32 or float64, converted)."""
 
     def __init__(self, policy: Policy) -> None:
         self.policy = policy
