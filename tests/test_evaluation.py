@@ -257,6 +257,48 @@ def test_an_episode_is_solved_when_it_finishes_with_the_scaled_return(mlflow_uri
     assert not still.finished.any() and not still.solved.any()
 
 
+def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monkeypatch,
+                                                                  capsys):
+    """A run folder's checkpoint names its MLflow run. Looked for in a store that does not exist
+    (the default, the project's mlflow.db, here moved into tmp), the command fails in one line
+    and leaves no empty store there or in the cwd; with tracking.uri naming the run's store it
+    evaluates the run and logs to it."""
+    from epoet.config import load
+    from epoet.core.checkpoint import save_checkpoint
+    from epoet.eval import evaluate
+    from epoet.rollout.policy import init_params
+    from epoet.tracking import MlflowTracker, store
+
+    elsewhere = f"sqlite:///{tmp_path / 'elsewhere' / 'mlflow.db'}"
+    (tmp_path / "elsewhere").mkdir()
+    with MlflowTracker(elsewhere, "epoet") as tracker:
+        run_id = tracker.start("epoet-s0")
+    folder = tmp_path / "run"
+    (folder / "policies").mkdir(parents=True)
+    np.savez(folder / "policies" / "env0.npz", theta=init_params(0, ES_SIZES),
+             layer_sizes=np.array(ES_SIZES))
+    save_checkpoint(folder / "checkpoint.pkl", {"run_id": run_id, "algo": "epoet",
+                                                "config": dataclasses.asdict(load([]))})
+    default = tmp_path / "project" / "mlflow.db"
+    default.parent.mkdir()
+    monkeypatch.setattr(store, "DEFAULT_TRACKING_URI", f"sqlite:///{default}")
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    capsys.readouterr()  # MLflow's own log lines from creating the run's store
+    one_line_error(capsys, lambda: evaluate.main([f"run={folder}"]),
+                   f"run {run_id} is not in the MLflow store sqlite:///{default}")
+    assert not default.exists() and list(cwd.iterdir()) == []
+
+    suite = flat_course(tmp_path / "suite")
+    evaluate.main([f"run={folder}", f"tracking.uri={elsewhere}", f"suite={suite}", "episodes=1",
+                   "processes=1"])
+    assert "suite/suite/success_rate" in mlflow.MlflowClient(elsewhere).get_run(
+        run_id).data.metrics
+    assert not default.exists() and list(cwd.iterdir()) == []
+
+
 def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compose, mlflow_uri,
                                                                          tmp_path, monkeypatch):
     from epoet.core.checkpoint import load_checkpoint

@@ -13,7 +13,7 @@ from mlflow.exceptions import MlflowException
 
 from epoet.tracking.errors import TrackingError, reason
 from epoet.tracking.inputs import existing_path, metric_key
-from epoet.tracking.store import open_store, resolve_tracking_uri, ui_hint
+from epoet.tracking.store import open_store, resolve_tracking_uri, sqlite_path, ui_hint
 
 
 class StoredRun:
@@ -33,8 +33,15 @@ class StoredRun:
 
     @classmethod
     def open(cls, run_id: str, tracking_uri: str | None = None) -> StoredRun:
-        """Connect to the store (proving it answers) and find the run, or TrackingError."""
+        """Connect to the store (proving it answers) and find the run, or TrackingError. A
+        sqlite store that does not exist is not created (MLflow would make an empty one, left
+        behind by a command that looked for a run in the wrong store)."""
         uri = resolve_tracking_uri(tracking_uri)
+        db = sqlite_path(uri)
+        if db is not None and not db.is_file():
+            raise TrackingError(f"run {run_id} is not in the MLflow store {uri}: there is no "
+                                f"store at {db} (MLFLOW_TRACKING_URI or the command's "
+                                f"tracking.uri names the store the run was logged to).")
         client = open_store(uri)
         try:
             return cls(client, client.get_run(run_id), uri)
