@@ -29,6 +29,8 @@ ROWS = [
     ("unknown tracking", ["tracking=foo"], "Could not find 'tracking/foo'"),
     ("unknown launcher", ["hydra/launcher=foo"], "Could not find 'hydra/launcher/foo'"),
     ("unknown key", ["budget.iteration=3"], "Key 'iteration' not in"),
+    ("another algorithm's budget key", ["algo=ppo", "budget.n_pairs=4"],
+     "Key 'n_pairs' not in 'BaselineBudgetConfig'"),
     ("wrong type", ["seed=abc"],
      "seed=abc: Value 'abc' of type 'str' could not be converted to Integer"),
     ("out of range", ["budget.n_pairs=-1"], "budget.n_pairs must be > 0"),
@@ -94,7 +96,9 @@ def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) ->
         args = [a.format(good=tmp / "good", tmp=tmp) for a in overrides]
         if not any(a.startswith("hydra.run.dir") for a in args):
             args.append(f"hydra.run.dir={tmp / 'bad' / str(i)}")
-        base = SMOKE if "algo=ppo" not in args else [a for a in SMOKE if "algo.es" not in a]
+        # a baseline's config has neither ES settings nor an ES budget (iterations, pairs)
+        base = SMOKE if "algo=ppo" not in args else [
+            a for a in SMOKE if not a.startswith(("algo.es", "budget.iterations"))]
         procs[name] = _epoet([*base, *args], tmp, uri)
     for name, _, message in ROWS:
         _, err = procs[name].communicate(timeout=300)
