@@ -151,9 +151,14 @@ class EPOET:
     def transfer(self, t: int) -> int:
         """The transfer step (transfer.py); returns the agents replaced, counted in
         `transfers`."""
-        accepted = transfer(self.pool, self.service, self.cfg, t)
-        self.transfers += accepted
-        return accepted
+        return len(self.transfer_moves(t))
+
+    def transfer_moves(self, t: int) -> dict[int, int]:
+        """The transfer step; returns {target environment: source environment} of each
+        replacement."""
+        moves = transfer(self.pool, self.service, self.cfg, t)
+        self.transfers += len(moves)
+        return moves
 
     # --- what every iteration reports -------------------------------------------------------
     def start_iteration(self) -> tuple[float, int]:

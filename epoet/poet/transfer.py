@@ -12,9 +12,10 @@ from epoet.poet.pairs import Pool
 from epoet.poet.service import FineTune, Service
 
 
-def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
+def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> dict[int, int]:
     """Try every other agent on each environment; the best fine-tuned one that beats the
-    incumbent's recent best replaces it, resetting its optimiser. Returns how many did.
+    incumbent's recent best replaces it, resetting its optimiser. Returns the replacements,
+    {target environment index: source environment index}.
 
     As the reference: direct transfers are evaluated first; those that beat the target's best
     score over its last `transfer_bar_window` evaluations are refined by one proposal ES step
@@ -32,7 +33,7 @@ def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
     candidates = [(m, j) for m in range(len(active))
                   for j, score in zip(others[m], direct[m]) if score > bars[m]]
     if not candidates:
-        return 0
+        return {}
     proposals = service.fine_tune([FineTune(active[m].es, service.terrain(active[m].env, t),
                                             thetas[j], (active[m].env.index, t, j))
                                    for m, j in candidates],
@@ -41,10 +42,10 @@ def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
                                                   proposal[None], Key.TRANSFER,
                                                   active[m].env.index, t, j + 1)
                              for (m, j), proposal in zip(candidates, proposals)])
-    best: dict[int, tuple[float, np.ndarray]] = {}
-    for (m, _), proposal, score in zip(candidates, proposals, scores):
+    best: dict[int, tuple[float, np.ndarray, int]] = {}
+    for (m, j), proposal, score in zip(candidates, proposals, scores):
         if score[0] > max(bars[m], best.get(m, (-np.inf,))[0]):
-            best[m] = (float(score[0]), proposal)
-    for m, (score, theta) in best.items():
+            best[m] = (float(score[0]), proposal, j)
+    for m, (score, theta, _) in best.items():
         pool.replace_agent(active[m], theta, score)
-    return len(best)
+    return {active[m].env.index: active[j].env.index for m, (_, _, j) in best.items()}
