@@ -26,15 +26,19 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 from tensordict import TensorDictBase
+from torch import nn
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
+from torchrl.modules import MLP
 
 from epoet.config import Config
 from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.core.lifecycle import raise_if_stopped
 from epoet.rl.env import OBS, policy_key
 from epoet.rl.harness import Harness, TrainResult, make_collector
-from epoet.rl.nets import ACTIVATIONS, make_actor, step_if_finite
+from epoet.rl.nets import (ACTIVATIONS, SOFTPLUS_SCALE, ObsStandardize, make_actor,
+                           step_if_finite)
+from epoet.rl.policy_file import CRITICS_FILE, export_critics
 from epoet.rl.sac_loss import SacLoss, TwinQ
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
@@ -45,16 +49,26 @@ SAMPLE_CHUNK = 50  # batches drawn from the replay buffer per call
 
 
 class SacLearner:
-    """SAC's networks, loss, optimiser, target updater and replay buffer (also ePOET-SAC's)."""
+    """SAC's networks, loss, optimiser, target updater and replay buffer (also ePOET-SAC's).
 
-    def __init__(self, algo: SacLearnerConfig, env: EnvBase) -> None:
-        self.actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=False,
-                                safe_tanh=False)
+    ePOET-SAC's options: `standardize` puts an ObsStandardize in front of the actor and the
+    critics (the ES pool's statistics, `set_obs_statistics`; the replay keeps raw observations),
+    `scale_mapping` is the actor's scale head (epoet.rl.nets), and `warm_start` loads trained
+    weights."""
+
+    def __init__(self, algo: SacLearnerConfig, env: EnvBase, *, standardize: bool = False,
+                 scale_mapping: str = SOFTPLUS_SCALE) -> None:
         obs_dim, act_dim = env.observation_spec[OBS].shape[-1], env.action_spec.shape[-1]
+        self.obs_dim = obs_dim
+        self.standardize = ObsStandardize(obs_dim) if standardize else None
+        self.actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=False,
+                                safe_tanh=False, scale_mapping=scale_mapping,
+                                standardize=self.standardize)
         critics = TwinQ(obs_dim + act_dim, algo.hidden, ACTIVATIONS[algo.activation])
         target_entropy = -float(act_dim) if algo.target_entropy is None else algo.target_entropy
         self.loss = SacLoss(self.actor, critics, obs_key=policy_key(env), gamma=algo.gamma,
-                            alpha_init=algo.alpha_init, target_entropy=target_entropy)
+                            alpha_init=algo.alpha_init, target_entropy=target_entropy,
+                            standardize=self.standardize)
         self.tau = algo.tau
         self.optimizer = torch.optim.Adam(
             [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True)
@@ -64,6 +78,49 @@ class SacLearner:
         self.keys = self.loss.in_keys
         self.reward_scale = algo.reward_scale
         self.batch_size = algo.batch_size
+
+    @property
+    def mlp(self) -> nn.Module:
+        """The actor's MLP (obs -> [loc, scale pre-activations]), the exported policy's layout."""
+        return next(m for m in self.actor.modules() if isinstance(m, MLP))
+
+    @torch.no_grad()
+    def warm_start(self, actor: dict[str, torch.Tensor], critics: dict[str, torch.Tensor]
+                   ) -> None:
+        """Start from trained weights: the actor's MLP (the exported policy's state dict) and
+        the twin critics (TwinQ's), the target critics a copy of them; weights that act on raw
+        observations (they are re-expressed for the current statistics when standardising).
+        The temperature and the optimiser's state stay fresh."""
+        self.mlp.load_state_dict(actor)
+        self.loss.critics.load_state_dict(critics)
+        self.loss.target_critics.load_state_dict(critics)
+        if self.standardize is not None:  # raw-observation weights: from mean 0, std 1
+            mean, std = self.standardize.mean.clone(), self.standardize.std.clone()
+            self.standardize.mean.zero_(), self.standardize.std.fill_(1.0)
+            self.set_obs_statistics(mean, std)
+
+    @torch.no_grad()
+    def set_obs_statistics(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        """Standardise with new statistics, keeping every network's function of the raw
+        observation: the first layers of the actor, critics and target critics are re-expressed
+        (W' = W diag(std' / std), b' = b + W (mean' - mean) / std), so what SAC learned stays
+        learned while the statistics move. Adam's moments are not re-expressed."""
+        new_mean = torch.as_tensor(mean, dtype=torch.float32)
+        new_std = torch.as_tensor(std, dtype=torch.float32)
+        old = self.standardize
+        if torch.equal(new_mean, old.mean) and torch.equal(new_std, old.std):
+            return
+        ratio, shift = new_std / old.std, (new_mean - old.mean) / old.std
+        first = self.mlp[0]                                  # (out, in)
+        first.bias += first.weight @ shift
+        first.weight *= ratio
+        for twin in (self.loss.critics, self.loss.target_critics):
+            w, b = twin.weights[0], twin.biases[0]           # (n, in, out), (n, 1, out)
+            obs_w = w[:, :self.obs_dim, :]
+            b += (shift @ obs_w)[:, None, :]
+            obs_w *= ratio[:, None]
+        old.mean.copy_(new_mean)
+        old.std.copy_(new_std)
 
     def add(self, data: TensorDictBase) -> None:
         """Store transitions (the loss's keys, nothing more), rewards times the reward scale."""
@@ -156,4 +213,7 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
                 collector.reset()  # checkpoints end the running episode (harness.py)
         if state.last_eval_frames != state.frames:  # the final policy, unless just evaluated
             run.evaluate(learner.actor)
+        # the critics beside the policy: what ePOET-SAC's warm start (algo.sac_init) loads
+        tracker.log_artifact(export_critics(run_dir / CRITICS_FILE, learner.loss.critics,
+                                            algo.hidden, algo.activation))
         return run.finish(learner.actor, learner)

@@ -17,6 +17,10 @@ temperature) with the same networks the collector's actor uses:
 
 The three losses touch disjoint parameters, so one Adam over all trainable ones equals SAC's
 three optimisers with one learning rate (Adam is per parameter).
+
+With a `standardize` module (ePOET-SAC with observation normalisation) the critics read the
+standardised observation, as the actor does (the module sits in the actor's network too); the
+replay keeps raw observations.
 """
 from __future__ import annotations
 
@@ -67,9 +71,11 @@ class SacLoss(nn.Module):
     the learned log-temperature."""
 
     def __init__(self, actor: ProbabilisticActor, critics: TwinQ, *, obs_key: str, gamma: float,
-                 alpha_init: float, target_entropy: float) -> None:
+                 alpha_init: float, target_entropy: float,
+                 standardize: nn.Module | None = None) -> None:
         super().__init__()
         self.policy_net = actor.module[0].module    # obs -> (loc, scale): the collector's net
+        self.critic_input = nn.Identity() if standardize is None else standardize
         self.critics = critics
         self.target_critics = copy.deepcopy(critics).requires_grad_(False)
         self.log_alpha = nn.Parameter(torch.tensor(math.log(alpha_init)))
@@ -89,16 +95,18 @@ class SacLoss(nn.Module):
 
     def forward(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         obs, action = batch[self.obs_key], batch["action"]
+        next_obs = batch["next", self.obs_key]
         alpha = self.log_alpha.exp().detach()
         with torch.no_grad():
-            next_action, next_log_prob = self._sample(batch["next", self.obs_key])
-            next_q = self.target_critics(batch["next", self.obs_key], next_action).min(0).values
+            next_action, next_log_prob = self._sample(next_obs)
+            next_q = self.target_critics(self.critic_input(next_obs), next_action).min(0).values
             not_done = 1.0 - batch["next", "terminated"].squeeze(-1).float()
             target = batch["next", "reward"].squeeze(-1) + self.gamma * not_done * (
                 next_q - alpha * next_log_prob)
-        loss_qvalue = (self.critics(obs, action) - target).square().mean(-1).sum()
+        q_obs = self.critic_input(obs)
+        loss_qvalue = (self.critics(q_obs, action) - target).square().mean(-1).sum()
         new_action, log_prob = self._sample(obs)
-        q_new = self.critics(obs, new_action, detach=True).min(0).values
+        q_new = self.critics(q_obs, new_action, detach=True).min(0).values
         loss_actor = (alpha * log_prob - q_new).mean()
         loss_alpha = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
         return {"loss_actor": loss_actor, "loss_qvalue": loss_qvalue, "loss_alpha": loss_alpha,
