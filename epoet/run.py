@@ -7,6 +7,7 @@ fails here, in one sentence, before any long work starts.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -101,6 +102,15 @@ def runner_for(cfg: Config) -> Runner:
     return get_method(cfg.algo._target_)
 
 
+def check_inputs(cfg: Config) -> None:
+    """What a new run starts from beyond its config (e.g. ePOET-SAC's `algo.sac_init`), checked
+    by the runner's module's `check_inputs(cfg)` when it has one (ConfigError in one sentence),
+    before the tracker opens."""
+    check = getattr(sys.modules[runner_for(cfg).__module__], "check_inputs", None)
+    if check is not None:
+        check(cfg)
+
+
 def run(raw: DictConfig, run_dir: Path) -> Any:
     """Train the configured algorithm; returns the runner's final state (None when
     `resume=auto` finds the run folder already finished)."""
@@ -130,6 +140,8 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         # the optional extra, on demand
         from epoet.rollout.backends.ray_cluster import check_address
         check_address(cfg.workers.address)
+    if resume is None:
+        check_inputs(cfg)
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,6 @@
 """ePOET-SAC on the real engine, worker pool, SAC learner and tracker: the shared replay, the
-join's schedule, crossover, the mapping's fidelity and exact resume."""
+join's schedule, crossover, the mapping's fidelity, warm starts (`algo.sac_init`), one set of
+observation statistics for the pool and the learner, and exact resume."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,22 +20,34 @@ from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.poet.runner import layer_sizes
 from epoet.epoet_sac.bridge import distill_into_actor
+from epoet.epoet_sac.runner import warm_start_of
+from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
+from epoet.rollout.policy import forward
 from epoet.run import run
 
-# Small everything; transfer every iteration, so joins come at t mod 4 = 2 (2, 6, ...), and
-# reproduce at the paper's 75.
+# Small everything, a cold start; transfer every iteration, so joins come at t mod 4 = 2 (2, 6,
+# ...), and reproduce at the paper's 75.
 SMOKE = ["algo=epoet_sac", "budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40",
          "algo.iterations_before_transfer=1", "algo.adjust_interval=75",
          "algo.frames_per_iteration=60",
          "algo.updates_per_frame=0.5", "algo.sac.hidden=[32,32]", "algo.sac.batch_size=32",
          "algo.sac.init_random_frames=60", "algo.distill.states=256", "algo.distill.epochs=3",
-         "algo.distill.batch=64", "checkpoint_every=1", "workers.num=1"]
+         "algo.distill.batch=64", "checkpoint_every=1", "workers.num=1", "algo.sac_init=null"]
+# The authors' SAC (256-256) as the start, with the pool's observation statistics.
+AUTHORS = ["algo.sac.hidden=[256,256]", "algo.sac_init=reference:sac/42",
+           "algo.es.obs_norm_episodes=1"]
+
+
+def smoke(*overrides: str) -> list[str]:
+    """SMOKE with `overrides` in place of its own values for the same keys."""
+    keys = {o.split("=", 1)[0] for o in overrides}
+    return [o for o in SMOKE if o.split("=", 1)[0] not in keys] + list(overrides)
 
 
 def _loop(overrides: list[str], workers: int = 1) -> tuple[EpoetSac, object]:
-    cfg = load(SMOKE + overrides)
+    cfg = load(smoke(*overrides))
     evaluator = make_evaluator(cfg.agent, cfg.terrain, workers, 8, layer_sizes(cfg))
-    return EpoetSac.from_config(cfg, evaluator), evaluator
+    return EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg)), evaluator
 
 
 def test_es_transitions_from_the_worker_processes_reach_the_replay_buffer() -> None:
@@ -127,8 +140,11 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
     for key in ("sac/loss_qvalue", "sac/loss_actor", "sac/alpha", "sac/entropy",
                 "sac/buffer_size", "sac/es_transitions", "sac/own_transitions", "sac/es_share",
                 "sac/score", "join/sac_score", "join/mapped_score", "gen0/score", "gen1/score",
-                "time/optimize", "time/sac", "time/join"):
+                "time/optimize", "time/sac", "time/join", "transfers/from_joined"):
         assert key in r.data.metrics, key
+    transfers = _metric(client, run_id, "transfers")
+    for step, out_of_joined in _metric(client, run_id, "transfers/from_joined").items():
+        assert out_of_joined <= transfers[step]
     assert r.data.metrics["sac/own_transitions"] == 7 * 60
     names = {a.path for a in client.list_artifacts(run_id)}
     assert {"sac_policy.pt", "policies", "terrains"} <= names
@@ -147,19 +163,26 @@ def _flat(state: dict) -> dict[str, np.ndarray]:
     return out
 
 
-def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
+@pytest.mark.parametrize("start", [[], AUTHORS], ids=["cold", "authors_normalised"])
+def test_resume_ends_in_the_uninterrupted_state(start: list[str], compose, mlflow_uri: str,
                                                 tmp_path: Path) -> None:
     """Killed after iteration 2 (a join), resumed to 5 (a join at 6 is not reached): the pool,
-    the SAC networks, optimiser and replay buffer equal an uninterrupted run's."""
-    run(compose(SMOKE + ["budget.iterations=5"]), tmp_path / "straight")
-    run(compose(SMOKE + ["budget.iterations=3"]), tmp_path / "killed")
-    run(compose(SMOKE + ["budget.iterations=5", f"resume={tmp_path / 'killed'}"]),
+    the SAC networks, optimiser and replay buffer equal an uninterrupted run's; with a warm start
+    and normalisation also the observation statistics and the learner's copy of them (the
+    resumed run reads no warm start: its checkpoint holds the learner)."""
+    run(compose(smoke(*start, "budget.iterations=5")), tmp_path / "straight")
+    run(compose(smoke(*start, "budget.iterations=3")), tmp_path / "killed")
+    run(compose(smoke(*start, "budget.iterations=5", f"resume={tmp_path / 'killed'}")),
         tmp_path / "resumed")
     a, b = (load_checkpoint(tmp_path / d / "checkpoint.pkl")["poet"] for d in
             ("straight", "resumed"))
     assert a["iteration"] == b["iteration"] == 5 and a["env_steps"] == b["env_steps"]
     assert a["join_of"] == b["join_of"] and len(a["join_of"]) == 1 and a["mix"] == b["mix"]
     assert any(k.startswith("replay.") for k in _flat(a["sac"]))  # the SAC state has its replay
+    if start:  # the statistics, and the learner standardising with them
+        assert a["obs_norm"]["count"] > 0
+        stats = _flat(a["sac"])
+        assert stats["loss.critic_input.std"].min() < 1.0
     # every entry: the pool (by length; bests, optimisers, genomes), joins, mix, the SAC state
     assert_same_state(a, b)
 
@@ -204,3 +227,123 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
 def test_bad_settings_fail_in_one_sentence(override: str, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         load(["algo=epoet_sac", override])
+
+
+REFERENCE_SAC = Path(__file__).resolve().parent.parent / "epoet" / "reference" / "agents" / "sac"
+
+
+def _actions(loop: EpoetSac, obs: np.ndarray) -> np.ndarray:
+    with torch.no_grad():
+        return torch.tanh(loop.actor_net(torch.as_tensor(obs, dtype=torch.float32))[0]).numpy()
+
+
+def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(
+        tmp_path: Path) -> None:
+    """algo.sac_init=reference:sac/42: the learner's actor acts as the shipped policy file on
+    observations of real episodes, its scales are the authors' exp(clamp(log_std, -20, 2)), its
+    critics and target critics are the shipped ones, and it collects with its actor from the
+    first frame. When the pool's statistics arrive, the actor and critics standardise with them
+    and still compute the same functions of the raw observation; the exported policy too."""
+    loop, evaluator = _loop(AUTHORS)
+    cold, _ = _loop(["algo.sac.hidden=[256,256]", "algo.sac_init=null"])
+    policy = load_policy(REFERENCE_SAC / "42.pt")
+    critics = read_critics(REFERENCE_SAC / "42.critics.pt")["state_dict"]
+    with evaluator:
+        _, episodes = loop.poet.es_step(0, record=2)  # updates the statistics
+    obs = np.concatenate([e.transitions["obs"] for e in episodes])[::7]
+    assert len(obs) >= 8
+    np.testing.assert_allclose(_actions(loop, obs), policy(obs), atol=1e-6)
+    assert np.abs(_actions(cold, obs) - policy(obs)).max() > 0.1  # a cold actor does not
+    spec = torch.load(REFERENCE_SAC / "42.pt", weights_only=True)["state_dict"]
+    x = torch.as_tensor(obs)
+    for i in (0, 2):
+        x = torch.relu(x @ spec[f"{i}.weight"].T + spec[f"{i}.bias"])
+    log_std = (x @ spec["4.weight"].T + spec["4.bias"])[:, 18:]
+    with torch.no_grad():
+        _, scale = loop.actor_net(torch.as_tensor(obs))
+    torch.testing.assert_close(scale, log_std.clamp(-20, 2).exp(), rtol=1e-5, atol=1e-7)
+    for name in ("critics", "target_critics"):
+        for key, value in critics.items():
+            torch.testing.assert_close(getattr(loop.learner.loss, name).state_dict()[key], value)
+    assert loop.random_frames == 0 and cold.random_frames == 60
+
+    def q_values(on: EpoetSac) -> torch.Tensor:
+        loss = on.learner.loss
+        with torch.no_grad():
+            return loss.critics(loss.critic_input(torch.as_tensor(obs)),
+                                torch.as_tensor(policy(obs)))
+
+    q_before = q_values(loop)
+    loop.sync_obs_statistics()
+    stats = loop.service.obs_norm
+    assert stats.count > 0 and stats.std.min() < 0.5  # statistics far from mean 0, std 1
+    np.testing.assert_allclose(loop.learner.standardize.std.numpy(), stats.std, rtol=1e-6)
+    first = loop.learner.mlp[0].weight.detach()
+    assert not torch.allclose(first, spec["0.weight"])  # re-expressed for the statistics
+    np.testing.assert_allclose(_actions(loop, obs), policy(obs), atol=1e-4)
+    torch.testing.assert_close(q_values(loop), q_before, rtol=1e-4, atol=1e-3)
+    exported = load_policy(export_policy(tmp_path / "sac_policy.pt", loop.learner.actor,
+                                         loop.sac_env, [256, 256], "relu"))
+    assert torch.load(tmp_path / "sac_policy.pt", weights_only=True)["obs_loc"] is None
+    np.testing.assert_allclose(exported(obs), policy(obs), atol=1e-4)
+    loop.close()
+    cold.close()
+
+
+def test_a_warm_start_from_our_sac_run_loads_its_actor_and_critics(
+        compose, mlflow_uri: str, tmp_path: Path) -> None:
+    """A SAC run of ours as algo.sac_init, by run folder (its critics.pt, or for an older run
+    its checkpoint's critics) and by MLflow run id (its artifacts): the learner's actor acts as
+    the run's exported policy and its critics are the run's."""
+    folder = tmp_path / "sac"
+    run(compose(["algo=sac", "budget=smoke", "workers.num=1", "terrain.grid=40",
+                 "budget.episode_steps=30", "budget.frames=120", "budget.eval_every=120",
+                 "budget.eval_episodes=1", "algo.frames_per_batch=60", "algo.hidden=[32,32]",
+                 "algo.batch_size=32", "algo.updates_per_batch=8",
+                 "algo.init_random_frames=60"]), folder)
+    client = mlflow.MlflowClient(mlflow_uri)
+    (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
+    assert CRITICS_FILE in {a.path for a in client.list_artifacts(r.info.run_id)}
+    policy = load_policy(folder / "policy.pt")
+    critics = read_critics(folder / CRITICS_FILE)["state_dict"]
+    obs = np.random.default_rng(0).normal(0.0, 1.0, (16, 53)).astype(np.float32)
+    cold, _ = _loop([])
+    assert np.abs(_actions(cold, obs) - policy(obs)).max() > 0.05
+    cold.close()
+    (tmp_path / "older").mkdir()  # a run folder from before SAC runs exported their critics
+    for name in ("checkpoint.pkl", "policy.pt"):
+        (tmp_path / "older" / name).write_bytes((folder / name).read_bytes())
+    for spec in (folder, r.info.run_id, tmp_path / "older"):
+        loop, _ = _loop([f"algo.sac_init={spec}"])
+        np.testing.assert_allclose(_actions(loop, obs), policy(obs), atol=1e-6)
+        for key, value in critics.items():
+            torch.testing.assert_close(loop.learner.loss.target_critics.state_dict()[key], value)
+        loop.close()
+
+
+def test_the_join_and_the_transfer_cross_in_the_pools_standardised_space() -> None:
+    """With normalisation, the distilled join agent is an ES vector on standardised
+    observations: folded with the pool's statistics (what the workers run) it acts as the SAC
+    actor on raw states, with the distillation's reported error. And the transfer step teaches
+    the actor the raw-observation agent the workers run, not the unfolded vector."""
+    loop, evaluator = _loop(["algo.es.obs_norm_episodes=1", "algo.distill.epochs=20",
+                             "algo.distill.states=1024"])
+    service, root = loop.service, loop.pool.active[0]
+    with evaluator:
+        _, episodes = loop.poet.es_step(0, record=4)
+        loop.sync_obs_statistics()
+        loop.add_to_replay(episodes)
+        theta, error = loop.map_actor(0, "distill")
+        states = loop.replay_states(7)
+        mapped = forward(service.policy(theta), states, service.layer_sizes)
+        gap = np.mean((mapped - _actions(loop, states)) ** 2)
+        assert gap == pytest.approx(error, rel=0.3, abs=1e-4)
+        assert service.obs_norm.std.min() < 0.5  # the raw and standardised spaces differ
+        assert np.mean((forward(theta, states, service.layer_sizes) - mapped) ** 2) > 10 * gap
+        loop.pool.record(root, 1e9)  # the pool's best beats the actor: it learns from it
+        assert loop.update_actor_from_pool(0)["sac/updated_from_pool"] == 1.0
+    after = _actions(loop, states)
+    raw_agent = forward(service.policy(root.theta), states, service.layer_sizes)
+    unfolded = forward(root.theta, states, service.layer_sizes)
+    assert np.mean((after - raw_agent) ** 2) < 0.5 * np.mean((after - unfolded) ** 2)
+    loop.close()

@@ -12,17 +12,45 @@ into the other, so every crossing is a mapping:
 - `distill_into_actor` (the transfer step, "SAC_Actor = theta_top"): behaviour cloning of an ES
   agent's actions into the SAC actor's mean, tanh(loc(s)), on replay states; the actor's scale
   head is left as it is, so SAC keeps its exploration.
+
+With observation normalisation the pool's ES vectors act on standardised observations and the
+actor standardises inside its network with the same statistics (epoet.rl.nets.ObsStandardize):
+`random_mapping` draws from those weights, `distill_into_es` fits on standardised states, and
+`distill_into_actor` is given the raw-observation agent (the service's `policy(theta)`), so a
+joined agent and a crossover child read the observations their parents read.
 `crossover` is Algorithm 3's crossover_single.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
 from torch import nn
 
-from epoet.rollout.policy import forward, num_params, unflatten
+from epoet.rollout.policy import Standardizer, forward, num_params, unflatten
+
+
+@dataclass
+class ReplacedAgent:
+    """An agent that a crossover child replaced (Algorithm 3: "archive theta^m")."""
+
+    env: int
+    iteration: int
+    theta: np.ndarray
+    score: float
+
+
+class Mapped(NamedTuple):
+    """The SAC actor mapped to an ES vector, with the mapped agent's and the actor's scores on
+    one terrain from the same starts (their gap: what the mapping loses)."""
+
+    theta: np.ndarray
+    error: float            # distillation's mean squared action error; NaN for `random`
+    score: float
+    sac_score: float
 
 
 def crossover(theta: np.ndarray, donor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -80,20 +108,23 @@ def _fit(module: nn.Module, predict, states: torch.Tensor, targets: torch.Tensor
 
 
 def distill_into_es(policy_net: nn.Module, states: np.ndarray, layer_sizes: Sequence[int],
-                    init: np.ndarray, *, epochs: int, batch: int, lr: float, seed: int
-                    ) -> tuple[np.ndarray, float]:
+                    init: np.ndarray, *, epochs: int, batch: int, lr: float, seed: int,
+                    standardizer: Standardizer | None = None) -> tuple[np.ndarray, float]:
     """An ES vector trained, from `init`, to output the SAC actor's deterministic actions on
-    `states`; returns it and the final mean squared action error."""
+    `states` (raw observations); returns it and the final mean squared action error. With the
+    pool's `standardizer` the vector acts on standardised observations, as the pool's do."""
     obs = torch.as_tensor(states, dtype=torch.float32)
     with torch.no_grad():
         loc, _ = policy_net(obs)
         targets = torch.tanh(loc).double()
+    es_obs = torch.as_tensor(states if standardizer is None else
+                             (states - standardizer.mean) / standardizer.std, dtype=torch.float64)
     student = _es_module(layer_sizes)
     with torch.no_grad():  # start from `init`, in the flat layout's (in, out) orientation
         for (w, b), linear in zip(unflatten(init.copy(), layer_sizes), _actor_linears(student)):
             linear.weight.copy_(torch.from_numpy(w.T.copy()))
             linear.bias.copy_(torch.from_numpy(b.copy()))
-    error = _fit(student, student, obs.double(), targets, epochs=epochs, batch=batch, lr=lr,
+    error = _fit(student, student, es_obs, targets, epochs=epochs, batch=batch, lr=lr,
                  generator=torch.Generator().manual_seed(seed))
     theta = np.zeros(num_params(layer_sizes))
     for (w, b), linear in zip(unflatten(theta, layer_sizes), _actor_linears(student)):

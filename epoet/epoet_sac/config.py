@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Optional
 
 from epoet.core.schema import check, non_negative, positive
 from epoet.poet.config import PoetConfig
@@ -44,6 +44,8 @@ class EpoetSacConfig(PoetConfig):
     mapping: str                     # the join's SAC actor -> ES mapping: distill | random
     join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
     pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
+    sac_init: Optional[str]          # None: cold; a SAC run (folder or MLflow run id) or
+                                     # reference:sac/42: its actor and critics (warm_start.py)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -53,7 +55,6 @@ class EpoetSacConfig(PoetConfig):
               f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
         check(self.mapping in JOIN_MAPPINGS,
               f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
-        # The SAC actor and the join exchange raw-observation policies with the ES pool.
-        check(self.es.obs_norm_episodes == 0,
-              "algo.es.obs_norm_episodes must be 0 for algo=epoet_sac: observation "
-              "normalisation is implemented for ePOET's ES only.")
+        check(self.sac_init is None or bool(str(self.sac_init).strip()),
+              "algo.sac_init must be null (a cold start), a SAC run folder or MLflow run id, or "
+              "reference:sac/42.")

@@ -15,31 +15,18 @@ ePOET steps are the ePOET loop's, epoet/poet/loop.py, over the same pool and ser
    actor, mapped to the ES shape, joins the pool as a new pair, and Algorithm 3's
    `crossover_with` runs against every other active agent.
 
-Decisions the paper leaves open (README "ePOET-SAC"):
-- Sharing the machine: by turns. The workers run the ES step on every core, then SAC collects
-  and updates with torch on every core; `time/<step>` metrics show the split, and
-  `frames_per_iteration` / `updates_per_frame` set it.
-- SAC's episodes: each Train_SAC resets on the iteration's terrain of the sampled environment
-  (`sac_terrain=bowl`: a fresh bowl at the same S, the reference's behaviour) and runs
-  episodes there until its frames are spent; the episode still running is cut (a time limit:
-  SAC bootstraps through it). Where a budget's frames per iteration are fewer than its episode
-  steps (laptop, workstation), SAC's own episodes never get past that many steps: the later
-  parts of an episode reach the replay only through the ES transitions.
-- SAC actor <-> ES agent: the shapes differ (`algo.sac.hidden` vs the ES agent's), so the
-  transfer step distils the ES agent into the actor's mean, and the join maps the actor by
-  `mapping`: `distill` (behaviour cloning on replay states) or `random` (the paper's random
-  selection).
-- The joined agent pairs with a copy of the environment SAC trained on (a new index, the same
-  CPPN genome); copies are not novel environments, so ANNECS does not count them.
-- Randomness: every SAC step re-seeds torch and the SAC env from keyed seeds (poet/keys.py), so a
-  resumed run needs no generator state and equals an uninterrupted one.
+Decisions the paper leaves open are README "ePOET-SAC"'s: sharing the cores by turns
+(`time/<step>` shows the split), SAC's episodes restarting every Train_SAC (cut by its
+frames), the mappings between the two policy shapes (`mapping`: distill | random), the joined
+pair's environment (a copy, not novel), keyed randomness (a resumed run equals an
+uninterrupted one), one set of observation statistics for the pool and the learner
+(`sync_obs_statistics`) and where SAC starts (`sac_init`, warm_start.py).
 """
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -49,9 +36,11 @@ from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config
 from epoet.core.timing import PhaseTimer
-from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
+from epoet.epoet_sac.bridge import (Mapped, ReplacedAgent, crossover, distill_into_actor,
+                                    distill_into_es, random_mapping)
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.replay_mix import ReplayMix
+from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET, annecs, best_by_lineage
 from epoet.poet.pairs import Environment, Pair
@@ -69,33 +58,14 @@ if TYPE_CHECKING:  # the tracking module imports mlflow
     from epoet.tracking import Tracker
 
 
-@dataclass
-class ReplacedAgent:
-    """An agent that a crossover child replaced (Algorithm 3: "archive theta^m")."""
-
-    env: int
-    iteration: int
-    theta: np.ndarray
-    score: float
-
-
-class Mapped(NamedTuple):
-    """The SAC actor mapped to an ES vector, with the mapped agent's and the actor's scores on
-    one terrain from the same starts (their gap: what the mapping loses)."""
-
-    theta: np.ndarray
-    error: float            # distillation's mean squared action error; NaN for `random`
-    score: float
-    sac_score: float
-
-
 class EpoetSac:
     """The ePOET loop (its pool, service and steps), a SAC learner and the steps that move agents
     between them."""
 
     def __init__(self, algo: EpoetSacConfig, terrain: TerrainConfig, evaluator: Evaluator,
                  sac_env: EnvBase, *, seed: int, n_pairs: int, eval_episodes: int,
-                 score_scale: float, layer_sizes: tuple[int, ...]) -> None:
+                 score_scale: float, layer_sizes: tuple[int, ...],
+                 warm_start: WarmStart | None = None) -> None:
         self.cfg = algo
         self.poet = EPOET(algo, terrain, evaluator, seed=seed, n_pairs=n_pairs,
                           eval_episodes=eval_episodes, score_scale=score_scale,
@@ -103,8 +73,15 @@ class EpoetSac:
         self.service, self.pool = self.poet.service, self.poet.pool
         torch.manual_seed(self.service.seed(Key.SAC))  # the networks' initial weights
         self.sac_env = sac_env
-        self.learner = SacLearner(algo.sac, sac_env)
-        self.actor_net = self.learner.loss.policy_net  # obs -> (loc, scale)
+        # With the pool's observation statistics, the actor and critics standardise inside
+        # (the same statistics, `sync_obs_statistics`); the replay keeps raw observations.
+        self.learner = SacLearner(algo.sac, sac_env, standardize=self.service.obs_norm is not None,
+                                  scale_mapping=scale_mapping_for(algo.sac_init))
+        if warm_start is not None:  # not on resume: the checkpoint holds the learner
+            self.learner.warm_start(warm_start.actor, warm_start.critics)
+        # a warm-started actor acts from the first frame; a cold one after uniform actions
+        self.random_frames = 0 if algo.sac_init else algo.sac.init_random_frames
+        self.actor_net = self.learner.loss.policy_net  # raw obs -> (loc, scale)
         # The SAC actor's deterministic scores step SAC's gym env directly (every Train_SAC
         # resets it): reset(seed=s) gives the spawn of the workers' episodes with spawn seed s,
         # so both kinds of agent share the starts.
@@ -116,7 +93,8 @@ class EpoetSac:
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
     @classmethod
-    def from_config(cls, cfg: Config, evaluator: Evaluator) -> EpoetSac:
+    def from_config(cls, cfg: Config, evaluator: Evaluator,
+                    warm_start: WarmStart | None = None) -> EpoetSac:
         """The `algo=epoet_sac` loop of a run: torch threads as the workers (they take turns),
         SAC's own env (`close` closes it), the budget's population, evaluations and scale."""
         set_threads(cfg)
@@ -124,7 +102,8 @@ class EpoetSac:
         budget = cfg.budget
         return cls(cfg.algo, cfg.terrain, evaluator, sac_env, seed=cfg.seed,
                    n_pairs=budget.n_pairs, eval_episodes=budget.eval_episodes,
-                   score_scale=budget.score_scale, layer_sizes=policy_sizes(cfg.algo.es.hidden))
+                   score_scale=budget.score_scale, layer_sizes=policy_sizes(cfg.algo.es.hidden),
+                   warm_start=warm_start)
 
     @property
     def iteration(self) -> int:
@@ -152,11 +131,15 @@ class EpoetSac:
             metrics.update(es_metrics)
             metrics.update(poet.evaluate_pairs(t))
         with timer("sac"):
+            self.sync_obs_statistics()
             self.add_to_replay(episodes)
             metrics.update(self.train_sac(t))
         if poet.transfer_due(t):
             with timer("transfer"):
-                metrics["transfers"] = float(poet.transfer(t))
+                moves = poet.transfer_moves(t)  # {target env: source env}
+                metrics["transfers"] = float(len(moves))
+                metrics["transfers/from_joined"] = float(sum(
+                    source in self.join_of for source in moves.values()))
                 metrics.update(self.update_actor_from_pool(t))
         if self.join_due(t):
             with timer("join"):
@@ -187,6 +170,14 @@ class EpoetSac:
         return self.join_of.get(pair.env.index, 0)
 
     # --- the shared replay and Train_SAC (Algorithm 2) ---------------------------------------
+    def sync_obs_statistics(self) -> None:
+        """The learner standardises with the pool's statistics of this iteration (updated by
+        the ES step), its networks' raw-observation functions kept (SacLearner)."""
+        stats = self.service.obs_norm
+        if stats is not None:
+            self.learner.set_obs_statistics(torch.from_numpy(stats.mean),
+                                            torch.from_numpy(stats.std))
+
     def add_to_replay(self, episodes: list[Episodes]) -> None:
         """The recorded ES transitions (float32, from the workers) into SAC's replay buffer."""
         recorded = [e.transitions for e in episodes if e.transitions is not None]
@@ -237,7 +228,7 @@ class EpoetSac:
         hexapod(self.sac_env).set_terrain(terrain)
         torch.manual_seed(torch_seed)
         self.sac_env.set_seed(spawn_seed)
-        explore = self.mix.added["sac"] >= self.cfg.sac.init_random_frames
+        explore = self.mix.added["sac"] >= self.random_frames
         with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
             data = self.sac_env.rollout(self.frames_per_iteration,
                                         policy=self.learner.actor if explore else None,
@@ -287,8 +278,9 @@ class EpoetSac:
         metrics = {"sac/score": sac_score, "sac/top_score": top.score,
                    "sac/updated_from_pool": float(sac_score < top.score)}
         if sac_score < top.score:
-            metrics["sac/distill_error"] = distill_into_actor(
-                self.actor_net, top.theta, self.replay_states(service.seed(Key.SAC, t, 1)),
+            metrics["sac/distill_error"] = distill_into_actor(  # raw-observation agent
+                self.actor_net, service.policy(top.theta),
+                self.replay_states(service.seed(Key.SAC, t, 1)),
                 service.layer_sizes, **self._distill_kwargs(service.seed(Key.SAC, t, 2)))
         return metrics
 
@@ -301,7 +293,8 @@ class EpoetSac:
             return random_mapping(self.actor_net, sizes, rng), float("nan")
         init = init_params(service.seed(Key.JOIN, t, 0), sizes)
         return distill_into_es(self.actor_net, self.replay_states(service.seed(Key.JOIN, t, 1)),
-                               sizes, init, **self._distill_kwargs(service.seed(Key.JOIN, t, 2)))
+                               sizes, init, standardizer=service.standardizer(),
+                               **self._distill_kwargs(service.seed(Key.JOIN, t, 2)))
 
     def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
         """Map the SAC actor (random draws keyed by t), then score the mapped agent and the

@@ -12,15 +12,30 @@ from typing import Any
 
 from epoet.config import Config
 from epoet.epoet_sac.loop import EpoetSac
+from epoet.epoet_sac.warm_start import WarmStart, load_warm_start
 from epoet.poet.runner import layer_sizes, train_loop
 from epoet.rollout.evaluators import evaluator_for
 from epoet.tracking import Tracker
 
 
+def warm_start_of(cfg: Config) -> WarmStart | None:
+    """The SAC weights `algo.sac_init` names (None: a cold start); ConfigError in one sentence
+    if they cannot start this learner."""
+    spec = cfg.algo.sac_init
+    return None if spec is None else load_warm_start(spec, cfg.algo.sac, cfg.tracking.uri)
+
+
+def check_inputs(cfg: Config) -> None:
+    """What epoet.run checks before the tracker opens (a new run only): the warm start."""
+    warm_start_of(cfg)
+
+
 def train(cfg: Config, tracker: Tracker, run_dir: Path,
           resume: dict[str, Any] | None) -> EpoetSac:
-    """Train ePOET-SAC for the budget's iterations (or hours); SAC's env closes at the end."""
+    """Train ePOET-SAC for the budget's iterations (or hours); SAC's env closes at the end. A
+    resumed run's learner comes from its checkpoint, so its warm start is not read again."""
+    warm_start = warm_start_of(cfg) if resume is None else None
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator, \
-            closing(EpoetSac.from_config(cfg, evaluator)) as loop:
+            closing(EpoetSac.from_config(cfg, evaluator, warm_start)) as loop:
         train_loop(loop, cfg, tracker, run_dir, resume)
     return loop
