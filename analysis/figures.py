@@ -258,9 +258,10 @@ def write_figures(experiment: str, out: Path, suite: str | None = None,
     else:
         written += plot_learning_curves(curves, out)
     poet = [r for r in runs if r.data.tags["algo"] in POET_ALGOS]
-    if poet:
-        written += plot_generations(generation_table(client, poet), out)
-        written += plot_environments(environments_table(client, poet), out)
+    if poet:  # runs without a training history (the authors' agents) have no curves to draw
+        generations, environments = generation_table(client, poet), environments_table(client, poet)
+        written += plot_generations(generations, out) if not generations.empty else []
+        written += plot_environments(environments, out) if not environments.empty else []
         written += admitted_galleries(client, poet, out)
     loaded = load_suite(suite)
     picks = [next(t.name for t in loaded.terrains if t.level == level)

@@ -176,6 +176,10 @@ def test_the_evaluate_command_runs_a_reference_agent_on_the_paper_suite(mlflow_u
     assert "success rate" in done.stdout
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["episodes_per_terrain"] == 1 and summary["label"] == "reference:poet_hexA8/flat"
+    # the figures read its MLflow run like any other: a t-SNE panel, no training curves needed
+    from analysis.figures import write_figures
+    written = write_figures("reference", tmp_path / "figures", "paper", tracking_uri=mlflow_uri)
+    assert tmp_path / "figures" / "tsne.png" in written
 
 
 def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
