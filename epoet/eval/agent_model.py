@@ -24,7 +24,8 @@ class PolicyModel:
         self.policy = policy
 
     def predict(self, model_input: Any, params: dict[str, Any] | None = None) -> np.ndarray:
-        observations = np.atleast_2d(np.asarray(model_input, dtype=np.float64))
+        # a copy: MLflow's DataFrame may hand a read-only array, which torch warns about
+        observations = np.atleast_2d(np.array(model_input, dtype=np.float64))
         return np.stack([np.asarray(self.policy(obs), dtype=np.float64)
                          for obs in observations])
 
