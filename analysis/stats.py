@@ -40,6 +40,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -169,7 +170,9 @@ def _pair_bootstrap():
     """rliable's independent-samples stratified bootstrap with a terrain draw shared by both
     algorithms (see the module docstring)."""
 
-    class TerrainsAndRuns(rliable()[0].StratifiedIndependentBootstrap):
+    base: Any = rliable()[0].StratifiedIndependentBootstrap  # a class from a lazy import
+
+    class TerrainsAndRuns(base):
         def update_indices(self):
             positional, keywords = super().update_indices()
             terrains = self._args_shapes[0][1]

@@ -96,6 +96,14 @@ def evaluation_on(run: Run, suite: Suite) -> Logged | None:
     return logged_evaluation(run.data.tags, suite.name, suite.fingerprint)
 
 
+def evaluation_of(run: Run, suite: Suite) -> Logged:
+    """`evaluation_on` of a run known to have one (`unevaluated` left out those without)."""
+    logged = evaluation_on(run, suite)
+    if logged is None:
+        raise ValueError(f"run {run.info.run_id} has no evaluation on suite {suite.name}.")
+    return logged
+
+
 def unevaluated(runs: Sequence[Run], suite: Suite) -> list[Run]:
     """The runs with no evaluation on `suite` (`evaluation_on`)."""
     return [r for r in runs if evaluation_on(r, suite) is None]

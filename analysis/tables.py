@@ -40,7 +40,7 @@ from mlflow.entities import Run
 
 from analysis.records import one_course_scale, record_episodes
 from analysis.stats import write_stats
-from analysis.store import (AnalysisError, connect, default_experiment, evaluation_on, in_order,
+from analysis.store import (AnalysisError, connect, default_experiment, evaluation_of, in_order,
                             require_runs, run_command, seed_of, select_runs, unevaluated)
 from epoet.eval.keys import SHIPPED_NAME
 from epoet.eval.suite import LEVELS, Suite, load_suite
@@ -70,7 +70,7 @@ def episodes_of(client: MlflowClient, runs: Sequence[Run], suite: Suite) -> pd.D
     frames = []
     with tempfile.TemporaryDirectory(prefix="epoet-tables-") as tmp:
         for run in runs:
-            folder = evaluation_on(run, suite).artifacts
+            folder = evaluation_of(run, suite).artifacts
             path = StoredRun(client, run).download(f"{folder}/episodes.csv",
                                                    Path(tmp) / run.info.run_id)
             frame = pd.read_csv(path)
@@ -145,7 +145,7 @@ def course_scale(runs: Sequence[Run], suite: Suite) -> str:
     """The one course scale the runs were evaluated at on `suite` (a budget's episodes set it:
     "solved" on a fifth of the course is not "solved" on all of it, so scales are never
     mixed)."""
-    return one_course_scale({r.info.run_id: evaluation_on(r, suite).course_scale for r in runs})
+    return one_course_scale({r.info.run_id: evaluation_of(r, suite).course_scale for r in runs})
 
 
 def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1",

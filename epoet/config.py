@@ -16,7 +16,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Optional
+from typing import Any, Callable, ClassVar, Optional, cast
 
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
@@ -358,7 +358,8 @@ def _typed_keys(message: str, cfg: DictConfig) -> str:
     """Name the key the user typed: an error about a key that only follows another
     ("agent.max_episode_steps must be > 0") names the source first
     ("budget.episode_steps (agent.max_episode_steps) must be > 0")."""
-    for key, source in _interpolated(OmegaConf.to_container(cfg, resolve=False)).items():
+    plain = cast(dict[str, Any], OmegaConf.to_container(cfg, resolve=False))  # a DictConfig's
+    for key, source in _interpolated(plain).items():
         message = re.sub(rf"(?<![\w.(]){re.escape(key)}(?![\w])", f"{source} ({key})", message)
     return message
 
@@ -386,7 +387,7 @@ def _plain(value: Any) -> dict:
     if value is None:
         return {}
     if isinstance(value, DictConfig):
-        return OmegaConf.to_container(value, resolve=True)
+        return cast(dict, OmegaConf.to_container(value, resolve=True))  # a DictConfig's: a dict
     if isinstance(value, TerrainConfig):  # a dataclass terrain with a dict agent
         return asdict(value)
     return dict(value)

@@ -87,6 +87,7 @@ def evaluate_missing(experiment: str, out: Path, suites: Sequence[str | None],
     with evaluation_pool(default_workers()) as pool:
         for name, cfg in configs:
             _, _, run = evaluate_run(cfg, pool=pool)
+            assert run.run_id is not None  # `run=<run id>`: a stored run
             client.set_tag(run.run_id, f"{COMMIT_TAG}/{name}", commit)
 
 

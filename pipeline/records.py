@@ -36,7 +36,7 @@ import tempfile
 from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 from mlflow import MlflowClient
@@ -81,15 +81,21 @@ def known_fingerprints() -> dict[str, str]:
 def evaluations_of(run: Run, named: dict[str, str]) -> dict[str, tuple[Logged, str, str]]:
     """{suite name: (where its files are, fingerprint, episodes tag)} of the run's evaluations:
     each `eval_suite/<name>` tag, and an old unkeyed `eval_suite` of a named suite."""
-    tags, found = run.data.tags, {}
+    tags = run.data.tags
+    found: dict[str, tuple[Logged, str, str]] = {}
+
+    def add(name: str, fingerprint: str, episodes_tag: str) -> None:
+        logged = logged_evaluation(tags, name, fingerprint)
+        if logged is not None:  # always: the fingerprint is the value of the tag it looks up
+            found[name] = (logged, fingerprint, episodes_tag)
+
     for key, fingerprint in tags.items():
         if key.startswith(f"{SUITE_TAG}/"):
             name = key.split("/", 1)[1]
-            found[name] = (logged_evaluation(tags, name, fingerprint), fingerprint,
-                           f"{EPISODES_TAG}/{name}")
+            add(name, fingerprint, f"{EPISODES_TAG}/{name}")
     old = tags.get(SUITE_TAG)
-    if old is not None and (name := named.get(old)) is not None and name not in found:
-        found[name] = (logged_evaluation(tags, name, old), old, EPISODES_TAG)
+    if old is not None and (old_name := named.get(old)) is not None and old_name not in found:
+        add(old_name, old, EPISODES_TAG)
     return found
 
 
@@ -138,7 +144,7 @@ def command_from_params(run: Run) -> str:
     from epoet.tracking import flatten
     tags, params = run.data.tags, run.data.params
     base = [f"algo={tags['algo']}", f"budget={tags['budget']}", f"seed={seed_of(run)}"]
-    composed = flatten(OmegaConf.to_container(compose(base), resolve=True))
+    composed = flatten(cast(dict[str, Any], OmegaConf.to_container(compose(base), resolve=True)))
     changed = [f"{key}={override_value(value)}" for key, value in sorted(params.items())
                if key in composed and composed[key] != value and key != "tracking.uri"]
     return shlex.join(["python", "-m", "epoet", *base, *changed])

@@ -37,8 +37,10 @@ def evaluate_reference(out: Path, suite: str, episodes: int) -> list[str]:
     loaded = load_suite(suite)
     runs = {name: resolve_run(PREFIX + name) for name in names()}  # made in the store if new
     client, uri = connect()
-    missing = [name for name, run in runs.items()
-               if evaluation_on(client.get_run(run.run_id), loaded) is None]
+    ids = {name: run.stored.run_id for name, run in runs.items()
+           if run.stored is not None}  # every one: resolve_run stores reference agents
+    missing = [name for name, run_id in ids.items()
+               if evaluation_on(client.get_run(run_id), loaded) is None]
     if missing:
         print(f"[reference] evaluating {len(missing)} agent(s) on suite {loaded.name}, "
               f"{episodes} episodes per terrain: {', '.join(missing)}", flush=True)
@@ -49,7 +51,7 @@ def evaluate_reference(out: Path, suite: str, episodes: int) -> list[str]:
                                         f"out={out / 'evaluations' / name.replace('/', '_')}"],
                                        config_name="evaluate"))
                 evaluate_run(cfg, pool=pool)
-    return [run.run_id for run in runs.values()]
+    return list(ids.values())
 
 
 def agent_rows(episodes: pd.DataFrame) -> pd.DataFrame:

@@ -18,7 +18,9 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from types import FrameType, TracebackType
+from typing import Any
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -42,7 +44,7 @@ class StopOnSignal:
 
     def __init__(self) -> None:
         self.signum: int | None = None
-        self._previous: dict[int, object] = {}
+        self._previous: dict[int, Callable[[int, FrameType | None], Any] | int | None] = {}
 
     def __enter__(self) -> StopOnSignal:
         global _active
@@ -78,7 +80,7 @@ def stop_requested() -> bool:
 
 def raise_if_stopped(where: str) -> None:
     """Raise `Stopped` if a stop was requested; call it right after writing the checkpoint."""
-    if stop_requested():
+    if _active is not None and _active.signum is not None:  # stop_requested(), narrowed
         raise Stopped(_active.signum, where)
 
 

@@ -13,7 +13,8 @@ from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, REWARD_TERMS, EpisodeState, HexapodTask
-from epoet.terrain import Terrain, make_terrain
+from epoet.terrain import make_terrain
+from epoet.terrain.terrain import TerrainLike
 
 
 class HexapodEnv(gym.Env):
@@ -39,14 +40,14 @@ class HexapodEnv(gym.Env):
         self.render_mode = render_mode
         self.render_size = (height, width)  # pixels of `render()`'s frames
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float64)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
-        self.terrain: Terrain | None = None
+        self.action_space: gym.spaces.Box = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        self.terrain: TerrainLike | None = None
         self.episodes = 0
         self._state = EpisodeState.zeros(1)
         self._obs = np.zeros((1, OBS_DIM))
         self._renderer: mujoco.Renderer | None = None
 
-    def set_terrain(self, terrain: Terrain) -> None:
+    def set_terrain(self, terrain: TerrainLike) -> None:
         """Swap the heightfield in place (takes effect now; call before `reset`)."""
         self.ground.set(self.model, terrain.heightmap, terrain.max_height, terrain.size)
         self.terrain = terrain

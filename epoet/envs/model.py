@@ -179,7 +179,7 @@ class Ground:
         self._roughness = None
         model.hfield_data[:] = (self.heightmap * (self.max_height / self.elevation)).ravel()
 
-    def cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cell(self, x: np.ndarray | float, y: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """Nearest (row, col) of world points, clipped to the grid."""
         col = np.rint((np.asarray(x) / self.half_x + 1) * 0.5 * (self.ncol - 1)).astype(int)
         row = np.rint((np.asarray(y) / self.half_y + 1) * 0.5 * (self.nrow - 1)).astype(int)

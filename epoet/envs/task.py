@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections import namedtuple
 from dataclasses import astuple, dataclass, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
@@ -43,9 +44,23 @@ class EpisodeState:
 # What the compiled step reads of the config and the model layout, as a namedtuple (numba takes
 # one where it cannot take a dataclass): every reward weight under its config name, then the
 # episode rules and the index of the first actuator-force sensor.
-_Constants = namedtuple("_Constants", [f.name for f in fields(RewardConfig)] + [
-    "v_ref", "finish_x", "progress_margin", "half_size", "max_episode_steps",
-    "no_progress_steps", "actuator_force"])
+if TYPE_CHECKING:
+    class _Constants(RewardConfig):
+        """What the type checker sees of the namedtuple below (its fields are built at run time)."""
+
+        v_ref: float
+        finish_x: float
+        progress_margin: float
+        half_size: float
+        max_episode_steps: int
+        no_progress_steps: int
+        actuator_force: int
+
+        def __init__(self, *values: float) -> None: ...
+else:
+    _Constants = namedtuple("_Constants", [f.name for f in fields(RewardConfig)] + [
+        "v_ref", "finish_x", "progress_margin", "half_size", "max_episode_steps",
+        "no_progress_steps", "actuator_force"])
 
 
 @njit(cache=True)

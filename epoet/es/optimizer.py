@@ -48,7 +48,7 @@ def centered_ranks(x: np.ndarray) -> np.ndarray:
     return (ranks / (x.size - 1) - 0.5).reshape(x.shape)
 
 
-def _check_returns(seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray
+def _check_returns(seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     pos = np.asarray(returns_pos, dtype=np.float64)
     neg = np.asarray(returns_neg, dtype=np.float64)
@@ -62,7 +62,7 @@ def _check_returns(seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: n
     return pos, neg
 
 
-def es_gradient(seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray,
+def es_gradient(seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray,
                 sigma: float, num_params: int) -> np.ndarray:
     """Ascent direction g = sum_i (r+_i - r-_i) eps_i / (n sigma), r = centered ranks of all 2n."""
     pos, neg = _check_returns(seeds, returns_pos, returns_neg)
@@ -124,7 +124,7 @@ class OpenAIES:
         """n_pairs perturbation seeds (int64) from this optimiser's own Generator."""
         return self.rng.integers(0, SEED_HIGH, size=self.n_pairs, dtype=np.int64)
 
-    def _step(self, theta: np.ndarray, seeds: Sequence[int], returns_pos: np.ndarray,
+    def _step(self, theta: np.ndarray, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray,
               returns_neg: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
         """(new theta, m, v, t, g) of one step from `theta`; no attribute is modified."""
@@ -137,7 +137,7 @@ class OpenAIES:
                                        self.t, self.lr, ADAM_BETA1, ADAM_BETA2, ADAM_EPS)
         return new_theta, m, v, t, g
 
-    def tell(self, seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray
+    def tell(self, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray
              ) -> dict[str, float]:
         """Apply one ES step from the returns of theta +- sigma*eps(seeds); return statistics."""
         new_theta, self.m, self.v, self.t, g = self._step(self.theta, seeds, returns_pos,
@@ -156,7 +156,7 @@ class OpenAIES:
         self.sigma = max(self.sigma * self.cfg.sigma_decay, self.cfg.sigma_floor)
         return stats
 
-    def propose(self, seeds: Sequence[int], returns_pos: np.ndarray, returns_neg: np.ndarray,
+    def propose(self, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray,
                 theta: np.ndarray | None = None, step: str = "adam") -> np.ndarray:
         """One step's theta without touching any state (transfer's and admission's "proposal").
 

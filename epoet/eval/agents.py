@@ -17,7 +17,7 @@ import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from omegaconf import OmegaConf
@@ -82,7 +82,7 @@ class TrainedRun:
         if self.config is None:
             return default
         merged = OmegaConf.merge(OmegaConf.structured(AgentConfig), self.config["agent"])
-        return OmegaConf.to_object(merged)
+        return cast(AgentConfig, OmegaConf.to_object(merged))  # the structured schema's type
 
     @property
     def score_scale(self) -> float:
@@ -141,7 +141,8 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
                          f"training.")
     config = None
     if stored.has_artifact("config.yaml"):
-        config = OmegaConf.to_container(OmegaConf.load(stored.download("config.yaml", folder)))
+        loaded = OmegaConf.load(stored.download("config.yaml", folder))
+        config = cast(dict[str, Any], OmegaConf.to_container(loaded))  # a run's config: a mapping
     source, name = found
     source.check()
     label = stored.name if source.kind == "torch" else f"{stored.name} {name}"

@@ -111,7 +111,8 @@ def run_task(task: Task) -> tuple[int, list[list[Any]], list[np.ndarray], list[s
     rows, samples, broken = [], [], []
     for episode, seed in enumerate(task.seeds):
         obs, info = env.reset(seed=seed)
-        x0, total, path, actions = info["x"], 0.0, [info["roughness"]], []
+        x0, total, path = info["x"], 0.0, [info["roughness"]]
+        actions: list[np.ndarray] = []
         done = cut = False
         while not done:
             action = np.asarray(policy(obs), dtype=np.float64)
@@ -216,7 +217,7 @@ def write_results(result: Evaluation, folder: Path, info: dict[str, Any]) -> dic
     with atomic_write(paths["episodes.csv"]) as f:
         f.write(result.episodes.to_csv(index=False).encode())
     with atomic_write(paths["actions.npz"]) as f:
-        np.savez_compressed(f, **result.actions)
+        np.savez_compressed(f, **result.actions)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
     with atomic_write(paths["summary.json"]) as f:
         f.write((json.dumps({**info, **result.metrics}, indent=1) + "\n").encode())
     return paths
@@ -236,6 +237,7 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | No
     """Resolve, check, evaluate, write and log: the whole command, for `make paper` too;
     returns the evaluation, its results folder and the agent's run. Episodes run on `pool`
     (`evaluation_pool`), or on a pool of `cfg.processes` opened for this evaluation."""
+    assert cfg.run is not None  # required: AgentCommandConfig checks it
     run = resolve_run(cfg.run, cfg.tracking.uri)
     suite = load_suite(cfg.suite)
     folder = results_folder(cfg, run, suite)

@@ -213,6 +213,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cfg = parse_args(sys.argv[1:] if argv is None else argv)
         imageio = require_imageio()
+        assert cfg.run is not None and cfg.terrain is not None  # required: RenderConfig checks
         run = resolve_run(cfg.run, cfg.tracking.uri)  # needs no mujoco: checked before GL
         open_gl()
     except (ConfigError, RenderError, AgentError, HydraException, OmegaConfBaseException,

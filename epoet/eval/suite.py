@@ -271,10 +271,10 @@ def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict],
              "course": dataclasses.asdict(course), "levels": dict(zip(LEVELS[1:], LEVEL_BOUNDS)),
              "terrains": entries}
     with atomic_write(folder / "heights.npz") as f:
-        np.savez_compressed(f, **{e["name"]: quantize(t.heightmap)
+        np.savez_compressed(f, **{e["name"]: quantize(t.heightmap)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
                                   for t, e in zip(terrains, entries)})
     with atomic_write(folder / "genomes.npz") as f:
-        np.savez_compressed(f, **{e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)
+        np.savez_compressed(f, **{e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
                                   for t, e in zip(terrains, entries)})
     with atomic_write(folder / "suite.json") as f:
         f.write((json.dumps(index, indent=1) + "\n").encode())

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
-from epoet.config import Config
+from epoet.config import Config, PoetBudgetConfig
 from epoet.core.lifecycle import raise_if_stopped, stop_requested
 from epoet.poet.loop import EPOET
 from epoet.poet.service import Service
@@ -46,7 +46,7 @@ def train_loop(loop: Loop, cfg: Config, tracker: Tracker, run_dir: Path,
     """Run `loop`'s iterations until `budget.iterations` (or `budget.hours`), logging each one's
     metrics and checkpointing every `checkpoint_every` iterations, at the end and on a stop
     signal; then tag why it stopped and log the pool's artifacts."""
-    budget = cfg.budget
+    budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET's YAML picks the ePOET family's
     if resume is not None:
         loop.load_state_dict(resume["poet"])
         print(f"[{cfg.algo.name}] resumed at iteration {loop.iteration}", flush=True)
@@ -82,7 +82,8 @@ def _progress(cfg: Config, iteration: int, metrics: dict[str, float], elapsed: f
     if "join/mapped_score" in metrics:  # ePOET-SAC's join
         extra += (f" join: {cfg.algo.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
                   f" vs the SAC actor's {metrics['join/sac_score']:.1f}")
-    print(f"[{cfg.algo.name}] it {iteration}/{cfg.budget.iterations} "
+    iterations = cast(PoetBudgetConfig, cfg.budget).iterations
+    print(f"[{cfg.algo.name}] it {iteration}/{iterations} "
           f"pairs={int(metrics['active_envs'])} archived={int(metrics['archived_envs'])} "
           f"score={metrics['score']:.1f} best={metrics['best_score']:.1f} "
           f"annecs={int(metrics['annecs'])} steps/s={metrics['steps_per_second']:,.0f} "

@@ -97,7 +97,7 @@ def read_torch_policy(path: Path) -> dict[str, Any]:
         raise bad_agent(path, "torch", f"lacks a field of {POLICY_FORMAT} ({err})") from None
     if activation not in RL_ACTIVATIONS:
         raise bad_agent(path, "torch", f"has an unknown activation {activation!r}")
-    expected = {}
+    expected: dict[str, tuple[int, ...]] = {}
     for layer, (n_in, n_out) in enumerate(zip(sizes[:-1], sizes[1:])):
         expected[f"{2 * layer}.weight"] = (n_out, n_in)
         expected[f"{2 * layer}.bias"] = (n_out,)

@@ -28,7 +28,6 @@ from __future__ import annotations
 import copy
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
 import mujoco
 import mujoco.batch
@@ -41,6 +40,7 @@ from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
 from epoet.rollout.policy import forward_rows, num_params, sizes_array
+from epoet.terrain.terrain import TerrainLike
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
 
@@ -50,14 +50,6 @@ _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 Job = tuple[int, np.ndarray, int, int, bool]
 """One episode to run: (episode index, policy parameters (P,), spawn seed, terrain index,
 whether its transitions are recorded)."""
-
-
-class TerrainLike(Protocol):
-    """What the engine reads of an `epoet.terrain.Terrain`."""
-
-    heightmap: np.ndarray
-    max_height: float
-    size: float
 
 
 @dataclass
@@ -84,8 +76,9 @@ def merge_episodes(parts: Sequence[tuple[np.ndarray, Episodes]], n: int) -> Epis
         raise RuntimeError(f"rollout parts hold {index.size} episodes that do not cover each "
                            f"of 0..{n - 1} exactly once.")
     order = np.argsort(index)
-    merged = Episodes(*(np.concatenate([getattr(ep, name) for _, ep in parts])[order]
-                        for name in ("returns", "lengths", "finished")))
+    returns, lengths, finished = (np.concatenate([getattr(ep, name) for _, ep in parts])[order]
+                                  for name in ("returns", "lengths", "finished"))
+    merged = Episodes(returns, lengths, finished)
     recorded = [ep.transitions for _, ep in parts if ep.transitions is not None]
     if recorded:
         merged.transitions = _group_by_episode(
@@ -264,6 +257,7 @@ class RolloutEngine:
             # all rows is cheaper than selecting the active ones every step.
             reward, terminated, truncated, _ = self.task.step(qpos, qvel, sensor, run.state, obs)
             if len(recorded):
+                assert run.recorder is not None  # made when a recorded episode started
                 run.recorder.add(recorded, run.episode, before, actions, reward, obs, terminated)
             if _tally(reward, terminated, truncated, run.running, run.returns, done):
                 ended = np.flatnonzero(done)
@@ -285,7 +279,7 @@ class RolloutEngine:
 
     def _start(self, run: _Run, slots: Iterable[int]) -> None:
         """Spawn the next jobs into free `slots`; slots left without a job stay idle."""
-        started = []
+        started: list[int] = []
         for i in slots:
             job = next(run.jobs, None)
             if job is None:
@@ -304,14 +298,14 @@ class RolloutEngine:
             started.append(i)
         if not started:
             return
-        started = np.array(started, dtype=np.int32)  # ascending, as `slots` are
+        ids = np.array(started, dtype=np.int32)  # ascending, as `slots` are
         # Also makes the batch re-read models that set_terrains edited (it reads them when set).
         self._sims.set_models(self._slot_model)
         # The settled states' position and velocity stages (contacts and their sensors), as a
         # step leaves them; the slot's first step starts from them.
-        self._sims.forward(started, stage=_STAGE_VEL)
+        self._sims.forward(ids, stage=_STAGE_VEL)
         width = len(run.running)
-        self.task.begin(self._qpos[:width], run.state, started)
+        self.task.begin(self._qpos[:width], run.state, ids)
         # Recomputing the observation of every row is cheaper than selecting the new ones.
         self.task.observe(self._qpos[:width], self._qvel[:width], self._sensor[:width],
                           self._obs[:width])

@@ -31,7 +31,7 @@ def noise(seed: int, num_params: int) -> np.ndarray:
     return np.random.default_rng(int(seed)).standard_normal(num_params)
 
 
-def mirrored_population(theta: np.ndarray, seeds: Sequence[int], sigma: float) -> np.ndarray:
+def mirrored_population(theta: np.ndarray, seeds: Sequence[int] | np.ndarray, sigma: float) -> np.ndarray:
     """(2n, P) points to evaluate: row i is theta + sigma*eps_i, row n + i theta - sigma*eps_i."""
     theta = check_theta(theta)
     n = len(seeds)
@@ -47,8 +47,13 @@ def mirrored_population(theta: np.ndarray, seeds: Sequence[int], sigma: float) -
 class Population(Protocol):
     """A numbered set of episodes whose parameters are rebuilt on demand from a compact form."""
 
-    num_params: int
-    shape: tuple[int, ...]      # how the episodes' results are arranged for the caller
+    @property
+    def num_params(self) -> int: ...
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """How the episodes' results are arranged for the caller."""
+        ...
 
     def __len__(self) -> int: ...
 

@@ -17,7 +17,7 @@ import os
 import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import neat
 import numpy as np
@@ -46,6 +46,20 @@ def normalize(a: np.ndarray) -> np.ndarray:
     if span <= 1e-12 * max(1.0, abs(lo), abs(hi)):
         return np.zeros(np.shape(a))
     return np.clip((a - lo) / span, 0.0, 1.0)
+
+
+class TerrainLike(Protocol):
+    """What the env and the rollout engine read of a terrain (a `Terrain`, a suite terrain, the
+    plain arrays shipped to workers); read-only, so frozen dataclasses and named tuples qualify."""
+
+    @property
+    def heightmap(self) -> np.ndarray: ...
+
+    @property
+    def max_height(self) -> float: ...
+
+    @property
+    def size(self) -> float: ...
 
 
 @dataclass(frozen=True, eq=False)

@@ -70,7 +70,7 @@ class StoredRun:
         return ui_hint(self.tracking_uri, self.experiment_id)
 
     def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
-                    artifacts: Mapping[str, str | Path] = {}, step: int = 0) -> None:
+                    artifacts: Mapping[str | Path, str] = {}, step: int = 0) -> None:
         """Metrics at `step` (one batch), tags and artifacts {local path: artifact folder}.
 
         Each result is logged once: a metric point the run already holds (same key, step and

@@ -143,6 +143,7 @@ class MlflowTracker:
         except MlflowException as exc:
             raise TrackingError(f"cannot start MLflow run in {self.tracking_uri}: "
                                 f"{reason(exc)}") from exc
+        assert self.run_id is not None  # set by create_run or _resume
         return self.run_id
 
     def _resume(self, run_id: str, run_name: str | None,
@@ -166,6 +167,7 @@ class MlflowTracker:
 
     def _log_params_and_tags(self, params: dict[str, str], tags: dict[str, str]) -> None:
         """One `log_batch`, which MLflow splits into calls of its limit (100 params or tags)."""
+        assert self.run_id is not None  # start() set it
         self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in params.items()],
                               tags=[RunTag(k, v) for k, v in tags.items()])
 
@@ -173,6 +175,7 @@ class MlflowTracker:
         """This run's children (a sweep's jobs), oldest first."""
         if self.run_id is None:
             raise TrackingError("the MLflow run has not been started.")
+        assert self.experiment_id is not None  # set with run_id
         children: list[Run] = []
         token = None
         while True:
@@ -275,6 +278,7 @@ class MlflowTracker:
         from mlflow.models import ModelSignature
         from mlflow.types import ColSpec, Schema, TensorSpec
         run_id = self._require_open()
+        assert self.experiment_id is not None  # set with run_id
         # One unnamed double column per observation entry: MLflow widens float32 columns to
         # double, where a float64 tensor spec refuses float32 arrays (and a float32 one float64).
         signature = ModelSignature(inputs=Schema([ColSpec("double") for _ in range(obs_dim)]),

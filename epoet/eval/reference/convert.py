@@ -25,6 +25,7 @@ import subprocess
 import sys
 import zipfile
 from pathlib import Path
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -62,7 +63,7 @@ LEVEL_COUNTS = (("easy", 9), ("medium", 14), ("hard", 9))
 _UUID = re.compile(r"^[0-9a-f]{8}-[0-9a-f]{4}-")
 
 
-def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+def npz_bytes(arrays: Mapping[str, np.ndarray | np.generic]) -> bytes:
     """An .npz (np.load reads it) without the write time numpy's savez puts in it."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w") as archive:
@@ -107,7 +108,7 @@ def convert_es(source: Path, files: dict[str, bytes], agents: dict[str, Any]) ->
             niche = path.name[len(run) + 1:-len(".best.json")]
             name = f"{run}/{niche[:8] if _UUID.match(niche) else niche}"
             theta, score = _es_agent(path)
-            entry = {"algo": algo, "kind": "es", "file": f"agents/{name}.npz",
+            entry: dict[str, Any] = {"algo": algo, "kind": "es", "file": f"agents/{name}.npz",
                      "source": str(path.relative_to(source)), "logged_score": score,
                      "layout": LAYOUT}
             files[entry["file"]] = npz_bytes({
@@ -152,7 +153,7 @@ def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any])
             from epoet.eval.reference.layout import CONTACTS, observation_source
             loc, scale = loc[observation_source()], scale[observation_source()]
             loc[CONTACTS], scale[CONTACTS] = 0.0, 1.0
-        entry = {"algo": name.split("/")[0], "kind": "torch",
+        entry: dict[str, Any] = {"algo": name.split("/")[0], "kind": "torch",
                  "file": f"agents/{name}.pt", "source": str(path.relative_to(source)),
                  "logged_score": _best_logged(folder / "log.csv"), "layout": LAYOUT}
         f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
@@ -215,7 +216,8 @@ def convert_suite(source: Path, files: dict[str, bytes]) -> dict[str, Any]:
         raise ReferenceFileError(f"{source / GENOMES} holds {len(paths)} genome pickles, not "
                                  f"the {sum(n for _, n in LEVEL_COUNTS)} of the paper's suite.")
     course = load_suite().course   # the reference's course, as the shipped suite has it
-    genomes, entries, heights = {}, [], {}
+    genomes, heights = {}, {}
+    entries: list[dict[str, Any]] = []
     for k, path in enumerate(paths):
         name = f"r{k // 8}c{k % 8}"
         genome = read_genome(path)
@@ -264,6 +266,7 @@ def main(argv: list[str] | None = None) -> None:
         cfg: ReferenceConfig = validate(compose(sys.argv[1:] if argv is None else argv,
                                                 config_name="reference"))
         out = FOLDER if cfg.out is None else Path(cfg.out)
+        assert cfg.source is not None  # required: ReferenceConfig checks it
         files = convert(Path(cfg.source))
         if cfg.check:
             if found := differences(out, files):

@@ -19,7 +19,7 @@ import numpy as np
 try:  # numpy's array reconstruction; numpy 2 moved the module its pickles name
     from numpy._core import multiarray as _multiarray
 except ImportError:  # numpy 1
-    from numpy.core import multiarray as _multiarray
+    from numpy.core import multiarray as _multiarray  # type: ignore[no-redef]  # the same module
 
 _NUMPY: dict[tuple[str, str], Any] = {("numpy", "ndarray"): np.ndarray, ("numpy", "dtype"): np.dtype}
 for _module in ("numpy.core.multiarray", "numpy._core.multiarray"):

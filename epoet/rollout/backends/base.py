@@ -60,7 +60,7 @@ class Evaluator(Protocol):
 
     def __enter__(self) -> "Evaluator": ...
 
-    def __exit__(self, *exc: object) -> None: ...
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None: ...
 
 
 class Backend(ABC):
@@ -121,7 +121,7 @@ class Backend(ABC):
     def __enter__(self) -> "Backend":
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         self.close()
 
     def close(self) -> None:
@@ -159,7 +159,7 @@ def split_results(parts: Sequence[tuple[np.ndarray, Episodes]], sizes: Sequence[
                             episodes.finished[rows])
             t = episodes.transitions
             keep = None if t is None else (t["episode"] >> _SHIFT) == k
-            if keep is not None and keep.any():
+            if t is not None and keep is not None and keep.any():
                 part.transitions = {**{key: v[keep] for key, v in t.items()},
                                     "episode": t["episode"][keep] & mask}
             mine.append((index[rows] & mask, part))

@@ -49,6 +49,7 @@ def _init_worker(agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
 
 def _items(call: int) -> Iterator[tuple[int, int]]:
     """This call's (request, episode) items from the shared queue, up to one end marker."""
+    assert _queue is not None  # set by _init_worker
     while True:
         tag, request, index = _queue.get()
         if tag != call:
@@ -61,6 +62,7 @@ def _items(call: int) -> Iterator[tuple[int, int]]:
 def _work(call: int, reliefs: Sequence[Relief], populations: Sequence[Population],
           records: Sequence[int], slots: int) -> tuple[np.ndarray, Episodes]:
     """Run this call's queue items until the end marker: (encoded indices, results)."""
+    assert _engine is not None  # built by _init_worker
     _engine.set_terrains(reliefs)
     return _engine.run_jobs(engine_jobs(_items(call), populations, records), slots=slots)
 
@@ -143,6 +145,7 @@ class PoolEvaluator(Backend):
     def _kill_workers(self) -> None:
         """SIGKILL every worker (ProcessPoolExecutor has no public terminate before Python
         3.14, and its terminate sends the SIGTERM workers ignore)."""
+        assert self._pool is not None
         for process in list((self._pool._processes or {}).values()):
             process.kill()
 

@@ -27,6 +27,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +44,7 @@ try:
     import ray
     from ray.exceptions import RayActorError, WorkerCrashedError
 except ImportError:  # the optional extra; RayEvaluator says how to install it
-    ray = None
+    ray = None  # type: ignore[assignment]  # RayEvaluator checks for None before any use
 
 INSTALL_HINT = "pip install -c constraints.txt -e '.[distributed]'"
 
@@ -159,7 +160,7 @@ class _RolloutActor:
         """This actor's process id, once its engine is built."""
         return os.getpid()
 
-    def work(self, feed: object, call: int, reliefs: Sequence[Relief],
+    def work(self, feed: Any, call: int, reliefs: Sequence[Relief],
              populations: Sequence[Population], records: Sequence[int], slots: int
              ) -> tuple[np.ndarray, Episodes]:
         self.engine.set_terrains(reliefs)
@@ -167,7 +168,7 @@ class _RolloutActor:
         return self.engine.run_jobs(jobs, slots=slots)
 
 
-def _pull(feed: object, call: int) -> Iterator[tuple[int, int]]:
+def _pull(feed: Any, call: int) -> Iterator[tuple[int, int]]:
     while chunk := ray.get(feed.take.remote(call)):
         yield from chunk
 
@@ -202,7 +203,8 @@ class RayEvaluator(Backend):
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
         self._remote_actor = ray.remote(num_cpus=1)(_RolloutActor)
-        self._feed = ray.remote(num_cpus=0)(_Feed).remote()
+        # Any: ray's types do not give an actor handle's methods their `.remote`.
+        self._feed: Any = ray.remote(num_cpus=0)(_Feed).remote()
         self._calls = itertools.count()
         self._actors: list = []
         self._start()
