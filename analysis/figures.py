@@ -38,7 +38,7 @@ from mlflow.entities import Run  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
 from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, default_experiment,  # noqa: E402
-                            evaluation_on, history, in_order, require_runs, run_command, seed_of,
+                            evaluation_of, evaluation_on, history, in_order, require_runs, run_command, seed_of,
                             select_runs)
 from epoet.eval.keys import suite_argument  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
@@ -183,7 +183,7 @@ def tsne_table(client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str
                 continue
             stored = StoredRun(client, run)
             folder = Path(tmp) / run.info.run_id
-            logged = evaluation_on(run, suite).artifacts
+            logged = evaluation_of(run, suite).artifacts
             episodes = pd.read_csv(stored.download(f"{logged}/episodes.csv", folder))
             with np.load(stored.download(f"{logged}/actions.npz", folder)) as data:
                 row, action = data["row"], data["action"]

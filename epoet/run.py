@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, cast
 
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
@@ -116,7 +116,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
     `resume=auto` finds the run folder already finished)."""
     cfg: Config = validate(raw)
     resume = None
-    resume_from = cfg.resume
+    resume_from: str | Path | None = cfg.resume
     if resume_from == AUTO:
         # `make paper` calls the same sweep again after an interruption: finished jobs are
         # skipped, interrupted ones continue from their checkpoint, the rest start.
@@ -145,7 +145,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
     run_dir.mkdir(parents=True, exist_ok=True)
-    resolved = OmegaConf.to_container(raw, resolve=True)
+    resolved = cast(dict[str, Any], OmegaConf.to_container(raw, resolve=True))  # a DictConfig's
     tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,
             "seed": str(cfg.seed), "budget": cfg.budget.name}
     with MlflowTracker(cfg.tracking.uri, cfg.tracking.experiment) as tracker:
@@ -162,6 +162,7 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         log_agent_model(tracker, run_dir)
     if cfg.evaluate:
         evaluate_agent(cfg, run_dir)
+    assert tracker.run_id is not None  # start() set it
     with atomic_write(run_dir / DONE) as f:  # after the run and its evaluation are done
         f.write(f"{tracker.run_id}\n".encode())
     print("\n".join(ending(cfg, run_dir, StoredRun.open(tracker.run_id, tracker.tracking_uri),

@@ -114,8 +114,9 @@ def _from_folder(spec: str, folder: Path) -> _Found:
         raise _not_sac(spec, algo)
     if not (folder / POLICY_FILE).is_file():
         raise _fail(spec, f"has no {POLICY_FILE}: the SAC run has not finished")
-    critics: Path | dict[str, Any] = folder / CRITICS_FILE
-    if not critics.is_file():  # a run from before SAC runs exported their critics
+    critics_file = folder / CRITICS_FILE
+    critics: Path | dict[str, Any] = critics_file
+    if not critics_file.is_file():  # a run from before SAC runs exported their critics
         config = state["config"]["algo"]
         loss = state["learner"]["loss"]
         critics = {"activation": config["activation"], "hidden": list(config["hidden"]),

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, cast
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from epoet.terrain import new_genome
 from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
-    from epoet.config import Config
+    from epoet.config import Config, PoetBudgetConfig
     from epoet.tracking import Tracker
 
 
@@ -72,7 +72,7 @@ class EPOET:
     @classmethod
     def from_config(cls, cfg: Config, evaluator: Evaluator) -> EPOET:
         """The `algo=epoet` loop of a run: the budget's population, evaluations and scale."""
-        budget = cfg.budget
+        budget = cast("PoetBudgetConfig", cfg.budget)  # ePOET's YAML picks the ePOET family's
         return cls(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                    eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
                    layer_sizes=policy_sizes(cfg.algo.es.hidden))
@@ -133,6 +133,7 @@ class EPOET:
                             f"{prefix}/lr": stats["lr"], f"{prefix}/sigma": stats["sigma"]})
         if service.obs_norm is not None:  # the new statistics take effect from the evaluation on
             for episodes in results:
+                assert episodes.transitions is not None  # recorded while obs_norm is on
                 service.obs_norm.update(episodes.transitions["obs"])
             metrics["obs_norm/count"] = float(service.obs_norm.count)
         return metrics, results

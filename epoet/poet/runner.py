@@ -32,8 +32,12 @@ class Loop(Protocol):
     """What `train_loop` asks of a loop (EPOET, EpoetSac)."""
 
     service: Service
-    iteration: int
-    elapsed: float
+
+    @property
+    def iteration(self) -> int: ...
+
+    @property
+    def elapsed(self) -> float: ...
 
     def run_iteration(self) -> dict[str, float]: ...
     def state_dict(self) -> dict[str, Any]: ...

@@ -46,6 +46,6 @@ def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> dict[int,
     for (m, j), proposal, score in zip(candidates, proposals, scores):
         if score[0] > max(bars[m], best.get(m, (-np.inf,))[0]):
             best[m] = (float(score[0]), proposal, j)
-    for m, (score, theta, _) in best.items():
-        pool.replace_agent(active[m], theta, score)
+    for m, (best_score, theta, _) in best.items():
+        pool.replace_agent(active[m], theta, best_score)
     return {active[m].env.index: active[j].env.index for m, (_, _, j) in best.items()}

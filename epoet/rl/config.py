@@ -31,6 +31,8 @@ def _check_network(obj: Any) -> None:
 class BaselineConfig:
     """What the RL baselines ask of a run: they collect in-process and count frames."""
 
+    name: str  # the algorithm's, a field of each baseline's schema
+
     def check_run(self, cfg: Any) -> None:
         """What a baseline needs of the run's other settings (`cfg`: the root Config)."""
         check(cfg.workers.backend == "local",

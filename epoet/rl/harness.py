@@ -32,7 +32,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 import torch
@@ -43,7 +43,7 @@ from torchrl.envs.utils import set_exploration_type
 from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
-from epoet.config import Config
+from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import stop_requested
 from epoet.run_state import report_stop, save_run_state
@@ -81,8 +81,9 @@ class BatchPlan:
 
 
 def batch_plan(cfg: Config) -> BatchPlan:
-    frames = min(cfg.algo.frames_per_batch, cfg.budget.frames)
-    return BatchPlan(frames, math.ceil(cfg.budget.frames / frames),
+    budget = cast(BaselineBudgetConfig, cfg.budget)  # a baseline's YAML picks the baselines'
+    frames = min(cfg.algo.frames_per_batch, budget.frames)
+    return BatchPlan(frames, math.ceil(budget.frames / frames),
                      frames / cfg.algo.frames_per_batch)
 
 
@@ -263,13 +264,16 @@ class Harness:
                         "time/batch": elapsed, "train/episodes": state.episodes,
                         "env_steps": state.frames, "elapsed": state.wall_time})
         self.tracker.log_metrics(state.frames, metrics)
+        assert self.progress is not None  # opened before the first batch
         self.progress.update(batch.numel())
 
     def evaluate(self, actor: ProbabilisticActor) -> None:
         """Evaluate `actor` (see the module docstring) and log it; the next evaluation is due
         `budget.eval_every` frames on."""
         if self.obs_stats is not None:  # the evaluation env normalises as the training env
-            obs_norm_of(self.eval_env).load_state_dict(obs_norm_of(self.env).state_dict())
+            eval_norm, train_norm = obs_norm_of(self.eval_env), obs_norm_of(self.env)
+            assert eval_norm is not None and train_norm is not None  # both envs normalise
+            eval_norm.load_state_dict(train_norm.state_dict())
         state = self.state
         state.last_eval = evaluate(self.eval_env, actor, self.cfg.budget.eval_episodes,
                                    self.seeds.eval, hexapod(self.env).episodes,
@@ -277,12 +281,13 @@ class Harness:
         state.last_eval_frames = state.frames
         state.best_score = max(state.best_score, state.last_eval["return_mean"])
         while state.next_eval <= state.frames:
-            state.next_eval += self.cfg.budget.eval_every
+            state.next_eval += cast(BaselineBudgetConfig, self.cfg.budget).eval_every
         metrics = {**{f"eval/{k}": v for k, v in state.last_eval.items()},
                    "score": state.last_eval["return_mean"], "best_score": state.best_score}
         if state.batches == 0:  # later evaluations follow a batch that logged the axes already
             metrics.update({"env_steps": state.frames, "elapsed": state.wall_time})
         self.tracker.log_metrics(state.frames, metrics)
+        assert self.progress is not None  # opened before the first batch
         self.progress.write(f"[{self.cfg.algo.name}] frames={state.frames} eval return="
                             f"{state.last_eval['return_mean']:.1f} "
                             f"finish={state.last_eval['finish_rate']:.2f}")

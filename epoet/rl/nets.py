@@ -48,6 +48,9 @@ class ObsStandardize(nn.Module):
     """(obs - mean) / std with the statistics as buffers (checkpointed with the network). No
     clip, as the ES pool's (epoet.es.obs_norm), so it folds into the next linear layer."""
 
+    mean: torch.Tensor  # buffers, registered below
+    std: torch.Tensor
+
     def __init__(self, dim: int) -> None:
         super().__init__()
         self.register_buffer("mean", torch.zeros(dim))

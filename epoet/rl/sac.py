@@ -80,7 +80,7 @@ class SacLearner:
         self.batch_size = algo.batch_size
 
     @property
-    def mlp(self) -> nn.Module:
+    def mlp(self) -> MLP:
         """The actor's MLP (obs -> [loc, scale pre-activations]), the exported policy's layout."""
         return next(m for m in self.actor.modules() if isinstance(m, MLP))
 
@@ -108,6 +108,7 @@ class SacLearner:
         new_mean = torch.as_tensor(mean, dtype=torch.float32)
         new_std = torch.as_tensor(std, dtype=torch.float32)
         old = self.standardize
+        assert old is not None, "set_obs_statistics needs a learner made with standardize=True"
         if torch.equal(new_mean, old.mean) and torch.equal(new_std, old.std):
             return
         ratio, shift = new_std / old.std, (new_mean - old.mean) / old.std

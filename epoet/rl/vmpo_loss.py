@@ -141,7 +141,7 @@ class VMPOLoss(LossModule):
 
     _AcceptedKeys = VMPOKeys
     default_keys = _AcceptedKeys
-    tensor_keys: _AcceptedKeys
+    tensor_keys: VMPOKeys
     default_value_estimator = ValueEstimators.GAE
     SUPPORTED_VALUE_ESTIMATORS = (
         ValueEstimators.TD0,
@@ -190,7 +190,7 @@ class VMPOLoss(LossModule):
             critic_coeff=critic_coeff,
         )
 
-        self._in_keys = None
+        self._in_keys: list[NestedKey] | None = None
         super().__init__()
         self.convert_to_functional(actor_network, "actor_network")
         self.convert_to_functional(critic_network, "critic_network")
@@ -240,6 +240,7 @@ class VMPOLoss(LossModule):
     def in_keys(self) -> list[NestedKey]:
         if self._in_keys is None:
             self._set_in_keys()
+            assert self._in_keys is not None  # _set_in_keys sets it
         return self._in_keys
 
     @in_keys.setter
