@@ -16,16 +16,24 @@ from __future__ import annotations
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from mlflow.entities import Run
+if TYPE_CHECKING:  # `X as X`: re-exported names (for the type checker; __getattr__ at run time)
+    from mlflow.entities import Run as Run
 
-    from epoet.tracking.errors import TrackingError
-    from epoet.tracking.inputs import metric_key
-    from epoet.tracking.provenance import PARENT_RUN_ENV, flatten, git_commit, parent_run_id
-    from epoet.tracking.store import (DEFAULT_TRACKING_URI, PROJECT_ROOT, open_store,
-                                      resolve_tracking_uri, sqlite_path, ui_hint)
-    from epoet.tracking.stored_run import StoredRun
-    from epoet.tracking.writer import MlflowTracker, Tracker
+    from epoet.tracking.errors import TrackingError as TrackingError
+    from epoet.tracking.inputs import metric_key as metric_key
+    from epoet.tracking.provenance import PARENT_RUN_ENV as PARENT_RUN_ENV
+    from epoet.tracking.provenance import flatten as flatten
+    from epoet.tracking.provenance import git_commit as git_commit
+    from epoet.tracking.provenance import parent_run_id as parent_run_id
+    from epoet.tracking.store import DEFAULT_TRACKING_URI as DEFAULT_TRACKING_URI
+    from epoet.tracking.store import PROJECT_ROOT as PROJECT_ROOT
+    from epoet.tracking.store import open_store as open_store
+    from epoet.tracking.store import resolve_tracking_uri as resolve_tracking_uri
+    from epoet.tracking.store import sqlite_path as sqlite_path
+    from epoet.tracking.store import ui_hint as ui_hint
+    from epoet.tracking.stored_run import StoredRun as StoredRun
+    from epoet.tracking.writer import MlflowTracker as MlflowTracker
+    from epoet.tracking.writer import Tracker as Tracker
 
 _HOME = {"TrackingError": "epoet.tracking.errors", "metric_key": "epoet.tracking.inputs",
          "PARENT_RUN_ENV": "epoet.tracking.provenance", "flatten": "epoet.tracking.provenance",
