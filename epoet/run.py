@@ -71,13 +71,15 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
 
 def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
     """`key (old -> new)` for every setting that differs, except the RESUMABLE ones (`saved`:
-    a checkpoint's config, in any layout `saved_config` reads)."""
+    a checkpoint's config, in any layout `saved_config` reads). A setting the checkpoint
+    predates counts as null (its run had none of it), so such a run resumes with that setting
+    at null, where it would otherwise show as changed whatever the user sets."""
     from epoet.tracking import flatten
     old, new = flatten(saved_config(saved)), flatten(current)
     keys = sorted(k for k in old.keys() | new.keys()
-                  if old.get(k) != new.get(k)
+                  if old.get(k, "None") != new.get(k, "None")
                   and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE))
-    return [f"{k} ({old.get(k)} -> {new.get(k)})" for k in keys]
+    return [f"{k} ({old.get(k, 'None')} -> {new.get(k, 'None')})" for k in keys]
 
 
 def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict[str, str]:

@@ -116,10 +116,11 @@ def test_state_must_be_a_dict(tmp_path):
 
 # Configs as checkpoints stored them before the budgets owned their integrator and S schedule and
 # the algorithm x budget values lived in conf/algo_budget/ (written by that code, commit 28f1848),
-# each with today's overrides for the same run.
+# each with today's overrides for the same run (ePOET-SAC then had no SAC warm start).
 BEFORE_ALGO_BUDGET = Path(__file__).with_name("configs_before_algo_budget.json")
 TODAY = {"algo=epoet budget=smoke algo.later_reproduce_interval=15":
-         ["algo=epoet", "budget=smoke", "algo.later_adjust_interval=1"]}
+         ["algo=epoet", "budget=smoke", "algo.later_adjust_interval=1"],
+         "algo=epoet_sac budget=laptop": ["algo=epoet_sac", "budget=laptop", "algo.sac_init=null"]}
 
 
 @pytest.mark.parametrize("overrides", sorted(json.loads(BEFORE_ALGO_BUDGET.read_text())))
