@@ -35,8 +35,8 @@ from epoet.core.cli import fail
 from epoet.core.files import atomic_write
 from epoet.core.schema import ConfigError
 from epoet.eval.reference import FOLDER, MANIFEST
-from epoet.eval.reference.layout import (LAYOUT, es_theta, fold_critic_input, fold_input,
-                                         fold_output_rows)
+from epoet.eval.reference.layout import (CONTACTS, LAYOUT, es_theta, fold_critic_input,
+                                         fold_input, fold_output_rows, observation_source)
 from epoet.eval.reference.pickles import (ReferenceFileError, read_genome, read_normaliser,
                                           to_neat)
 from epoet.eval.reference.terrain import EVAL_HEIGHT, render
@@ -128,6 +128,11 @@ def _best_logged(path: Path) -> float | None:
     return max(values) if values else None
 
 
+def _f32(array: np.ndarray) -> Any:
+    import torch
+    return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32))
+
+
 def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any]) -> None:
     import torch
     for name, (activation, normalised) in TORCH_RUNS.items():
@@ -150,20 +155,18 @@ def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any])
         w0, b0 = fold_input(first, biases[0], contact)
         w2, b2 = fold_output_rows(last, biases[2])
         if normalised:  # the normaliser in epoet's order; contacts read as 0 (weight 0 anyway)
-            from epoet.eval.reference.layout import CONTACTS, observation_source
             loc, scale = loc[observation_source()], scale[observation_source()]
             loc[CONTACTS], scale[CONTACTS] = 0.0, 1.0
         entry: dict[str, Any] = {"algo": name.split("/")[0], "kind": "torch",
                  "file": f"agents/{name}.pt", "source": str(path.relative_to(source)),
                  "logged_score": _best_logged(folder / "log.csv"), "layout": LAYOUT}
-        f32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
         spec = {"format": POLICY_FORMAT, "obs_dim": int(w0.shape[1]), "act_dim": 18,
                 "hidden": [int(first.shape[0]), int(second.shape[0])], "activation": activation,
-                "obs_loc": f32(loc) if normalised else None,
-                "obs_scale": f32(scale) if normalised else None,
+                "obs_loc": _f32(loc) if normalised else None,
+                "obs_scale": _f32(scale) if normalised else None,
                 "obs_clip": clip if normalised else None,
-                "state_dict": {"0.weight": f32(w0), "0.bias": f32(b0), "2.weight": f32(second),
-                               "2.bias": f32(biases[1]), "4.weight": f32(w2), "4.bias": f32(b2)},
+                "state_dict": {"0.weight": _f32(w0), "0.bias": _f32(b0), "2.weight": _f32(second),
+                               "2.bias": _f32(biases[1]), "4.weight": _f32(w2), "4.bias": _f32(b2)},
                 "provenance": json.dumps(entry)}
         buffer = io.BytesIO()
         torch.save(spec, buffer)
