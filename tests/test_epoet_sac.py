@@ -21,6 +21,7 @@ from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.poet.runner import layer_sizes
 from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.epoet_sac.runner import warm_start_of
+from epoet.rl.env import episode_metrics, hexapod
 from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
 from epoet.rollout.policy import forward
 from epoet.run import run
@@ -346,4 +347,46 @@ def test_the_join_and_the_transfer_cross_in_the_pools_standardised_space() -> No
     raw_agent = forward(service.policy(root.theta), states, service.layer_sizes)
     unfolded = forward(root.theta, states, service.layer_sizes)
     assert np.mean((after - raw_agent) ** 2) < 0.5 * np.mean((after - unfolded) ** 2)
+    loop.close()
+
+
+def test_the_starts_command_runs_each_start_at_the_workstation_budget() -> None:
+    """`python -m pipeline.epoet_sac_starts` (README "ePOET-SAC"): each start's jobs compose to
+    the workstation budget with normalisation on and that start, overrides last."""
+    from pipeline.epoet_sac_starts import starts, train_command
+    expected = {"cold": None, "ours": "/runs/sac_s1", "authors": "reference:sac/42"}
+    for start, sac_init in starts("/runs/sac_s1").items():
+        command = train_command(start, sac_init, "1,2,3", 1, ["budget.hours=0.25"])
+        assert command[3:5] == ["-m", "algo=epoet_sac"] and "seed=1,2,3" in command
+        job = [a for a in command[4:] if not a.startswith(("hydra.", "seed="))]
+        cfg = load([*job, "seed=2"])
+        assert (cfg.budget.name, cfg.algo.sac_init, cfg.algo.es.obs_norm_episodes,
+                cfg.budget.hours) == ("workstation", expected[start], 1, 0.25)
+
+
+def test_sacs_frames_cut_episodes_as_torchrls_rollout_did() -> None:
+    """Train_SAC's frames (collect.py, in place of TorchRL's env.rollout): each row's next
+    observation is the following row's observation within an episode, a done episode is
+    followed by a fresh one, and the episode statistics add up (what `episode_metrics` and the
+    learner read)."""
+    loop, evaluator = _loop(["budget.episode_steps=20"])
+    hexapod(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))
+    torch.manual_seed(0)
+    data = loop.collect(50, 3, explore=True)
+    nxt = data["next"]
+    done = nxt["done"].squeeze(-1)
+    assert data.batch_size == (50,) and int(done.sum()) >= 2
+    assert torch.equal(done, nxt["terminated"].squeeze(-1) | nxt["truncated"].squeeze(-1))
+    start = 0
+    for i in range(50):
+        assert int(nxt["step_count"][i]) == i - start + 1
+        assert float(nxt["episode_reward"][i]) == pytest.approx(
+            float(nxt["reward"][start:i + 1].sum()), rel=1e-5, abs=1e-4)
+        if i + 1 < 50 and not done[i]:
+            assert torch.equal(data["observation"][i + 1], nxt["observation"][i])
+        if done[i]:
+            start = i + 1
+    lengths = nxt["step_count"][done].float()
+    assert episode_metrics(data)["episode_length"] == pytest.approx(float(lengths.mean()))
+    assert set(loop.learner.keys) <= set(data.keys(include_nested=True))
     loop.close()

@@ -46,6 +46,7 @@ class EpoetSacConfig(PoetConfig):
     pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
     sac_init: Optional[str]          # None: cold; a SAC run (folder or MLflow run id) or
                                      # reference:sac/42: its actor and critics (warm_start.py)
+    sac_threads: Optional[int]       # torch threads of the SAC learner; None: workers.num
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -55,6 +56,8 @@ class EpoetSacConfig(PoetConfig):
               f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
         check(self.mapping in JOIN_MAPPINGS,
               f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
+        check(self.sac_threads is None or self.sac_threads > 0,
+              f"algo.sac_threads must be > 0 or null, got {self.sac_threads}.")
         check(self.sac_init is None or bool(str(self.sac_init).strip()),
               "algo.sac_init must be null (a cold start), a SAC run folder or MLflow run id, or "
               "reference:sac/42.")

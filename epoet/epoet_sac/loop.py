@@ -31,13 +31,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 from tensordict import TensorDict
-from torchrl.envs import EnvBase, ExplorationType
-from torchrl.envs.utils import set_exploration_type
+from torchrl.envs import EnvBase
 
 from epoet.config import Config
 from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import (Mapped, ReplacedAgent, crossover, distill_into_actor,
                                     distill_into_es, random_mapping)
+from epoet.epoet_sac.collect import collect
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for
@@ -86,6 +86,8 @@ class EpoetSac:
         # resets it): reset(seed=s) gives the spawn of the workers' episodes with spawn seed s,
         # so both kinds of agent share the starts.
         self.score_env = hexapod(sac_env)
+        self.act_dim = sac_env.action_spec.shape[-1]
+        self.sac_threads = torch.get_num_threads()  # from_config's (algo.sac_threads)
         self.frames_per_iteration = algo.frames_per_iteration
         self.updates_per_iteration = round(algo.frames_per_iteration * algo.updates_per_frame)
         self.mix = ReplayMix(algo.sac.buffer_size)
@@ -95,9 +97,12 @@ class EpoetSac:
     @classmethod
     def from_config(cls, cfg: Config, evaluator: Evaluator,
                     warm_start: WarmStart | None = None) -> EpoetSac:
-        """The `algo=epoet_sac` loop of a run: torch threads as the workers (they take turns),
-        SAC's own env (`close` closes it), the budget's population, evaluations and scale."""
+        """The `algo=epoet_sac` loop of a run: torch threads `algo.sac_threads` (null: as the
+        workers; they take turns), SAC's own env (`close` closes it), the budget's population,
+        evaluations and scale."""
         set_threads(cfg)
+        if cfg.algo.sac_threads is not None:
+            torch.set_num_threads(cfg.algo.sac_threads)
         sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
         budget = cfg.budget
         return cls(cfg.algo, cfg.terrain, evaluator, sac_env, seed=cfg.seed,
@@ -227,16 +232,18 @@ class EpoetSac:
         than `init_random_frames` were collected) on `terrain`, then the gradient updates."""
         hexapod(self.sac_env).set_terrain(terrain)
         torch.manual_seed(torch_seed)
-        self.sac_env.set_seed(spawn_seed)
-        explore = self.mix.added["sac"] >= self.random_frames
-        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-            data = self.sac_env.rollout(self.frames_per_iteration,
-                                        policy=self.learner.actor if explore else None,
-                                        break_when_any_done=False)
+        data = self.collect(self.frames_per_iteration, spawn_seed,
+                            explore=self.mix.added["sac"] >= self.random_frames)
         learned = self.learner.learn(data, self.updates_per_iteration)
         self.mix.add("sac", data.numel())
         self.service.env_steps += data.numel()
         return {f"sac/{k}": v for k, v in {**episode_metrics(data), **learned}.items()}
+
+    def collect(self, frames: int, spawn_seed: int, explore: bool) -> TensorDict:
+        """SAC's frames on its env's terrain (collect.py): the stochastic actor's, or uniform
+        actions (`explore` False)."""
+        return collect(self.score_env, self.actor_net if explore else None, frames, spawn_seed,
+                       self.act_dim)
 
     # --- SAC actor <-> pool ----------------------------------------------------------------------
     def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
