@@ -390,3 +390,28 @@ def test_sacs_frames_cut_episodes_as_torchrls_rollout_did() -> None:
     assert episode_metrics(data)["episode_length"] == pytest.approx(float(lengths.mean()))
     assert set(loop.learner.keys) <= set(data.keys(include_nested=True))
     loop.close()
+
+
+def test_the_starts_table_reports_what_each_runs_joins_did(compose, mlflow_uri: str,
+                                                          tmp_path: Path) -> None:
+    """starts.md (pipeline.epoet_sac_starts) from two real runs: per start and seed the joined
+    actor's and mapped agent's scores at each join, the replacements, transfers out of joined
+    pairs and admissions summed over the run; a start not run yet says so."""
+    from pipeline.epoet_sac_starts import NAME, summary_table
+    for start, init in (("cold", "null"), ("authors", "reference:sac/42")):
+        run(compose(smoke("budget.iterations=3", f"algo.sac_init={init}",
+                          "algo.sac.hidden=[256,256]", f"tracking.experiment={NAME}-{start}")),
+            tmp_path / start)
+    table = summary_table(["shipped"]).splitlines()
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in table[2:] if line}
+    assert set(rows) == {"cold", "ours", "authors"} and "not run yet" in rows["ours"]
+    client = mlflow.MlflowClient(mlflow_uri)
+    for start in ("cold", "authors"):
+        (r,) = client.search_runs(
+            [client.get_experiment_by_name(f"{NAME}-{start}").experiment_id])
+        cells = rows[start]
+        assert cells[1] == "0" and cells[3] == "3"  # seed, iterations
+        (score,) = _metric(client, r.info.run_id, "join/sac_score").values()
+        assert cells[4] == f"{score:.0f} (it 2)"
+        assert cells[6] == f"{sum(_metric(client, r.info.run_id, 'replaced').values()):.0f}"
+        assert cells[-1].strip(" |") == "-"  # not evaluated on the suite
