@@ -94,15 +94,18 @@ class SacLoss(nn.Module):
         return torch.tanh(pre_tanh), log_prob
 
     def forward(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        obs, action = batch[self.obs_key], batch["action"]
-        next_obs = batch["next", self.obs_key]
+        return self.losses(batch[self.obs_key], batch["action"], batch["next", self.obs_key],
+                           batch["next", "reward"], batch["next", "terminated"])
+
+    def losses(self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor,
+               reward: torch.Tensor, terminated: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The three losses on plain tensors (what bench/epoet_sac_cost.py --compile compiles)."""
         alpha = self.log_alpha.exp().detach()
         with torch.no_grad():
             next_action, next_log_prob = self._sample(next_obs)
             next_q = self.target_critics(self.critic_input(next_obs), next_action).min(0).values
-            not_done = 1.0 - batch["next", "terminated"].squeeze(-1).float()
-            target = batch["next", "reward"].squeeze(-1) + self.gamma * not_done * (
-                next_q - alpha * next_log_prob)
+            not_done = 1.0 - terminated.squeeze(-1).float()
+            target = reward.squeeze(-1) + self.gamma * not_done * (next_q - alpha * next_log_prob)
         q_obs = self.critic_input(obs)
         loss_qvalue = (self.critics(q_obs, action) - target).square().mean(-1).sum()
         new_action, log_prob = self._sample(obs)
