@@ -239,24 +239,25 @@ def projection(cfg: Config, frames: int) -> None:
 
 
 def compiled_ratio(loop: EpoetSac, args: argparse.Namespace) -> None:
-    """torch.compile of the loss module, then eager over compiled time per update."""
-    learner = loop.learner
-    eager = learner.loss.forward
-    compiled = torch.compile(learner.loss.forward)
+    """torch.compile of the losses (SacLoss.losses, on plain tensors), then eager over compiled
+    time per update."""
+    loss = loop.learner.loss
+    eager = loss.losses
+    compiled = torch.compile(eager)
     start = time.perf_counter()
-    learner.loss.forward = compiled
-    learner.gradient_steps(3)
+    loss.losses = compiled
+    loop.learner.gradient_steps(3)
     print(f"[compile] compiled in {time.perf_counter() - start:.0f} s", flush=True)
 
-    def with_forward(fn: Callable[..., Any]) -> Callable[[], float]:
+    def with_losses(fn: Callable[..., Any]) -> Callable[[], float]:
         def run() -> float:
-            learner.loss.forward = fn
-            return seconds(lambda: learner.gradient_steps(args.updates))
+            loss.losses = fn
+            return seconds(lambda: loop.learner.gradient_steps(args.updates))
         return run
 
-    alternate("compile: eager over compiled (time per update)", with_forward(compiled),
-              with_forward(eager), args.rounds)
-    learner.loss.forward = eager
+    alternate("compile: eager over compiled (time per update)", with_losses(compiled),
+              with_losses(eager), args.rounds)
+    loss.losses = eager
 
 
 def es_steps_ratio(cfg: Config, rounds: int, cores: int) -> float:
