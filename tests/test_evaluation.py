@@ -451,6 +451,7 @@ def test_the_sweep_parent_reads_as_the_sweep(paper) -> None:
         line = next(li for li in stdout.splitlines() if li.startswith(f"[sweep] {algo} seed=1"))
         assert "FINISHED" in line and run.info.run_id in line
 
+
 def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(paper, tmp_path):
     """The IQM and probability-of-improvement tables and figures beside Tables 1-2, and the
     evaluation records (`--records`) rebuild every table without the store."""
