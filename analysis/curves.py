@@ -16,6 +16,7 @@ The CSV files hold exactly the plotted points, so the figures can be redrawn or 
 elsewhere. The store is epoet's (`sqlite:///<project root>/mlflow.db`); MLFLOW_TRACKING_URI
 overrides it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,8 +34,16 @@ from matplotlib.ticker import MaxNLocator  # noqa: E402
 from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 
-from analysis.store import (ALGO_COLOURS, BASELINE_ALGOS, AnalysisError, connect,  # noqa: E402
-                            default_experiment, history, run_command, select_runs)
+from analysis.store import (  # noqa: E402
+    ALGO_COLOURS,
+    BASELINE_ALGOS,
+    AnalysisError,
+    connect,
+    default_experiment,
+    history,
+    run_command,
+    select_runs,
+)
 from analysis.store import seed_of as _seed  # noqa: E402
 
 EPOET_ALGOS = ("epoet",)
@@ -48,12 +57,10 @@ def epoet_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
     """Rows of EPOET_COLUMNS for every pair of every ePOET run, pairs in index order."""
     rows = []
     for run in runs:
-        pairs = sorted(int(m.group(1)) for key in run.data.metrics
-                       if (m := PAIR_KEY.match(key)))
+        pairs = sorted(int(m.group(1)) for key in run.data.metrics if (m := PAIR_KEY.match(key)))
         for pair in pairs:
             for step, value in history(client, run.info.run_id, f"pair{pair}/return_mean"):
-                rows.append((run.info.run_id, run.data.tags["algo"], _seed(run), pair, step,
-                             value))
+                rows.append((run.info.run_id, run.data.tags["algo"], _seed(run), pair, step, value))
     return pd.DataFrame(rows, columns=EPOET_COLUMNS)
 
 
@@ -84,8 +91,10 @@ def plot_epoet(table: pd.DataFrame, runs: Sequence[Run], path: Path) -> None:
         rows = table[table.run_id == run.info.run_id]
         for pair, curve in rows.groupby("pair", sort=True):
             ax.plot(curve.iteration, curve.return_mean, label=f"pair{pair}", linewidth=1.2)
-        ax.set_title(f"{run.info.run_name} (seed {_seed(run) or '?'}, "
-                     f"{run.data.tags.get('budget', '?')})", fontsize=10)
+        ax.set_title(
+            f"{run.info.run_name} (seed {_seed(run) or '?'}, {run.data.tags.get('budget', '?')})",
+            fontsize=10,
+        )
         ax.set_xlabel("iteration")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_ylabel("mean training return")
@@ -103,9 +112,14 @@ def plot_baselines(table: pd.DataFrame, path: Path) -> None:
     for ax, algo in zip(axes, algos):
         rows = table[table.algo == algo]
         for run_id, curve in rows.groupby("run_id", sort=False):
-            ax.plot(curve.frames, curve.return_mean, color=ALGO_COLOURS[algo], alpha=0.8,
-                    marker="." if len(curve) < 20 else None,
-                    label=f"seed {curve.seed.iloc[0]} ({run_id[:8]})")
+            ax.plot(
+                curve.frames,
+                curve.return_mean,
+                color=ALGO_COLOURS[algo],
+                alpha=0.8,
+                marker="." if len(curve) < 20 else None,
+                label=f"seed {curve.seed.iloc[0]} ({run_id[:8]})",
+            )
         ax.set_title(algo.upper(), fontsize=10)
         ax.set_xlabel("frames")
         ax.set_ylabel("evaluation return")
@@ -116,21 +130,32 @@ def plot_baselines(table: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path,
-                 source: str) -> list[Path]:
+def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path, source: str) -> list[Path]:
     """Write both figures and their CSV files; skip (and say so) a figure without runs.
 
     Raises AnalysisError when neither figure has anything to plot.
     """
     epoet_runs = [r for r in runs if r.data.tags.get("algo") in EPOET_ALGOS]
     baseline_runs = [r for r in runs if r.data.tags.get("algo") in BASELINE_ALGOS]
-    tables = {"epoet_curves": (epoet_table(client, epoet_runs), epoet_runs, "ePOET",
-                               "pair<N>/return_mean"),
-              "baseline_curves": (baseline_table(client, baseline_runs), baseline_runs,
-                                  "PPO/SAC/VMPO", EVAL_KEY)}
+    tables = {
+        "epoet_curves": (
+            epoet_table(client, epoet_runs),
+            epoet_runs,
+            "ePOET",
+            "pair<N>/return_mean",
+        ),
+        "baseline_curves": (
+            baseline_table(client, baseline_runs),
+            baseline_runs,
+            "PPO/SAC/VMPO",
+            EVAL_KEY,
+        ),
+    }
     if all(table.empty for table, *_ in tables.values()):
-        raise AnalysisError(f"{source} has no ePOET runs with pair<N>/return_mean and no "
-                          f"PPO/SAC/VMPO runs with {EVAL_KEY} to plot.")
+        raise AnalysisError(
+            f"{source} has no ePOET runs with pair<N>/return_mean and no "
+            f"PPO/SAC/VMPO runs with {EVAL_KEY} to plot."
+        )
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, (table, selected, label, key) in tables.items():
@@ -155,14 +180,27 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.curves",
         description="Learning curves (paper Figure 2 style) of ePOET and baseline runs from "
-                    "the MLflow store (MLFLOW_TRACKING_URI overrides the project's mlflow.db).")
-    parser.add_argument("--experiment", default=default_experiment(),
-                        help="MLflow experiment whose FINISHED runs are plotted (default: the "
-                             "runs' default, tracking.experiment)")
-    parser.add_argument("--out", type=Path, default=Path("figures"),
-                        help="folder for the PNG and CSV files (default: figures)")
-    parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
-                        help="plot these runs (any status, any experiment) instead")
+        "the MLflow store (MLFLOW_TRACKING_URI overrides the project's mlflow.db).",
+    )
+    parser.add_argument(
+        "--experiment",
+        default=default_experiment(),
+        help="MLflow experiment whose FINISHED runs are plotted (default: the "
+        "runs' default, tracking.experiment)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("figures"),
+        help="folder for the PNG and CSV files (default: figures)",
+    )
+    parser.add_argument(
+        "--run",
+        nargs="+",
+        default=[],
+        metavar="RUN_ID",
+        help="plot these runs (any status, any experiment) instead",
+    )
     return parser.parse_args(argv)
 
 
@@ -173,8 +211,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     def curves() -> None:
         client, uri = connect()
         runs = select_runs(client, uri, args.experiment, args.run, EPOET_ALGOS + BASELINE_ALGOS)
-        source = (f"the selected runs in {uri}" if args.run
-                  else f"experiment {args.experiment!r} in {uri}")
+        source = (
+            f"the selected runs in {uri}"
+            if args.run
+            else f"experiment {args.experiment!r} in {uri}"
+        )
         write_curves(client, runs, args.out, source)
 
     return run_command(curves)

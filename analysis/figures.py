@@ -17,6 +17,7 @@ Writes to `--out` (each figure with the CSV of exactly its plotted points):
 - `suite_gallery.png`: the evaluation suite by level, as 3D surfaces (Figure 3).
 - `admitted_<run>.png`: the terrains a ePOET-family run admitted, in admission order (Figure 4).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,12 +38,23 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
-from analysis.store import (ALGO_COLOURS, POET_ALGOS, connect, default_experiment,  # noqa: E402
-                            evaluation_of, evaluation_on, history, in_order, require_runs, run_command, seed_of,
-                            select_runs)
+from analysis.store import (  # noqa: E402
+    ALGO_COLOURS,
+    POET_ALGOS,
+    connect,
+    default_experiment,
+    evaluation_of,
+    evaluation_on,
+    history,
+    in_order,
+    require_runs,
+    run_command,
+    seed_of,
+    select_runs,
+)
 from epoet.eval.keys import suite_argument  # noqa: E402
-from epoet.terrain import Terrain, plot_terrain  # noqa: E402
 from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
+from epoet.terrain import Terrain, plot_terrain  # noqa: E402
 from epoet.tracking import StoredRun  # noqa: E402
 
 GEN_KEY = re.compile(r"^gen(\d+)/score$")
@@ -69,10 +81,20 @@ def curve_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
         elapsed = dict(history(client, rid, "elapsed"))
         for step, score in history(client, rid, "score"):
             if step in steps and step in elapsed:
-                rows.append((rid, run.data.tags["algo"], seed_of(run), step, steps[step],
-                             elapsed[step], score))
-    return pd.DataFrame(rows, columns=["run_id", "algo", "seed", "step", "env_steps", "elapsed",
-                                       "score"])
+                rows.append(
+                    (
+                        rid,
+                        run.data.tags["algo"],
+                        seed_of(run),
+                        step,
+                        steps[step],
+                        elapsed[step],
+                        score,
+                    )
+                )
+    return pd.DataFrame(
+        rows, columns=["run_id", "algo", "seed", "step", "env_steps", "elapsed", "score"]
+    )
 
 
 def mean_std_on_grid(curves: pd.DataFrame, x: str) -> pd.DataFrame:
@@ -86,25 +108,41 @@ def mean_std_on_grid(curves: pd.DataFrame, x: str) -> pd.DataFrame:
         else:
             grid = np.linspace(lo, hi, GRID_POINTS)
         values = np.array([np.interp(grid, g[x], g.score) for g in runs])
-        out.append(pd.DataFrame({"algo": algo, x: grid, "mean": values.mean(0),
-                                 "std": values.std(0, ddof=1) if len(runs) > 1 else 0.0,
-                                 "seeds": len(runs)}))
+        out.append(
+            pd.DataFrame(
+                {
+                    "algo": algo,
+                    x: grid,
+                    "mean": values.mean(0),
+                    "std": values.std(0, ddof=1) if len(runs) > 1 else 0.0,
+                    "seeds": len(runs),
+                }
+            )
+        )
     return pd.concat(out, ignore_index=True)
 
 
 def plot_learning_curves(curves: pd.DataFrame, out: Path) -> list[Path]:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     tables = []
-    for ax, x, label in ((axes[0], "env_steps", "environment steps"),
-                         (axes[1], "elapsed", "training time (s)")):
+    for ax, x, label in (
+        (axes[0], "env_steps", "environment steps"),
+        (axes[1], "elapsed", "training time (s)"),
+    ):
         table = mean_std_on_grid(curves, x)
         tables.append(table.assign(axis=x).rename(columns={x: "x"}))
         for algo in in_order(table.algo):
             t = table[table.algo == algo]
             colour = ALGO_COLOURS[algo]
             ax.plot(t[x], t["mean"], color=colour, label=f"{algo} ({t.seeds.iloc[0]} seeds)")
-            ax.fill_between(t[x], t["mean"] - t["std"], t["mean"] + t["std"], color=colour,
-                            alpha=0.2, linewidth=0)
+            ax.fill_between(
+                t[x],
+                t["mean"] - t["std"],
+                t["mean"] + t["std"],
+                color=colour,
+                alpha=0.2,
+                linewidth=0,
+            )
         ax.set_xlabel(label)
         ax.set_ylabel("score")
         ax.grid(alpha=0.3)
@@ -119,10 +157,19 @@ def generation_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
         for key in run.data.metrics:
             if match := GEN_KEY.match(key):
                 for step, value in history(client, run.info.run_id, key):
-                    rows.append((run.info.run_id, run.data.tags["algo"], seed_of(run),
-                                 int(match.group(1)), step, value))
-    return pd.DataFrame(rows, columns=["run_id", "algo", "seed", "generation", "iteration",
-                                       "score"])
+                    rows.append(
+                        (
+                            run.info.run_id,
+                            run.data.tags["algo"],
+                            seed_of(run),
+                            int(match.group(1)),
+                            step,
+                            value,
+                        )
+                    )
+    return pd.DataFrame(
+        rows, columns=["run_id", "algo", "seed", "generation", "iteration", "score"]
+    )
 
 
 def plot_generations(table: pd.DataFrame, out: Path) -> list[Path]:
@@ -144,13 +191,24 @@ def plot_generations(table: pd.DataFrame, out: Path) -> list[Path]:
 def environments_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
     rows = []
     for run in runs:
-        series = {key: dict(history(client, run.info.run_id, key))
-                  for key in ("annecs", "active_envs", "archived_envs")}
+        series = {
+            key: dict(history(client, run.info.run_id, key))
+            for key in ("annecs", "active_envs", "archived_envs")
+        }
         for step in sorted(series["annecs"]):
-            rows.append((run.info.run_id, run.data.tags["algo"], seed_of(run), step,
-                         *(series[k].get(step, np.nan) for k in series)))
-    return pd.DataFrame(rows, columns=["run_id", "algo", "seed", "iteration", "annecs",
-                                       "active_envs", "archived_envs"])
+            rows.append(
+                (
+                    run.info.run_id,
+                    run.data.tags["algo"],
+                    seed_of(run),
+                    step,
+                    *(series[k].get(step, np.nan) for k in series),
+                )
+            )
+    return pd.DataFrame(
+        rows,
+        columns=["run_id", "algo", "seed", "iteration", "annecs", "active_envs", "archived_envs"],
+    )
 
 
 def plot_environments(table: pd.DataFrame, out: Path) -> list[Path]:
@@ -158,8 +216,14 @@ def plot_environments(table: pd.DataFrame, out: Path) -> list[Path]:
     for ax, key in zip(axes, ("annecs", "active_envs", "archived_envs")):
         for run_id, rows in table.groupby("run_id", sort=False):
             algo = rows.algo.iloc[0]
-            ax.step(rows.iteration, rows[key], where="post", color=ALGO_COLOURS[algo],
-                    alpha=0.8, label=f"{algo} s{rows.seed.iloc[0]}")
+            ax.step(
+                rows.iteration,
+                rows[key],
+                where="post",
+                color=ALGO_COLOURS[algo],
+                alpha=0.8,
+                label=f"{algo} s{rows.seed.iloc[0]}",
+            )
         ax.set_title(key.replace("_", " "))
         ax.set_xlabel("iteration")
         ax.grid(alpha=0.3)
@@ -167,19 +231,28 @@ def plot_environments(table: pd.DataFrame, out: Path) -> list[Path]:
     return save(fig, table, out / "annecs")
 
 
-def tsne_table(client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str],
-               suite: Suite, seed: int = 0) -> pd.DataFrame:
+def tsne_table(
+    client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str], suite: Suite, seed: int = 0
+) -> pd.DataFrame:
     """2-D t-SNE of each algorithm's sampled actions on `terrains` (its first run evaluated on
     `suite`)."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="epoet-tsne-") as tmp:
         for algo in in_order(r.data.tags["algo"] for r in runs):
-            run = next((r for r in runs if r.data.tags["algo"] == algo
-                        and evaluation_on(r, suite) is not None), None)
+            run = next(
+                (
+                    r
+                    for r in runs
+                    if r.data.tags["algo"] == algo and evaluation_on(r, suite) is not None
+                ),
+                None,
+            )
             if run is None:
-                print(f"t-SNE: no {algo} run has an evaluation on suite {suite.name} (python -m "
-                      f"epoet.eval.evaluate run=<run id> "
-                      f"suite={suite_argument(suite.name, suite.folder)} makes one)")
+                print(
+                    f"t-SNE: no {algo} run has an evaluation on suite {suite.name} (python -m "
+                    f"epoet.eval.evaluate run=<run id> "
+                    f"suite={suite_argument(suite.name, suite.folder)} makes one)"
+                )
                 continue
             stored = StoredRun(client, run)
             folder = Path(tmp) / run.info.run_id
@@ -190,8 +263,9 @@ def tsne_table(client: MlflowClient, runs: Sequence[Run], terrains: Sequence[str
             mask = np.isin(episodes.terrain.to_numpy()[row], terrains)
             if mask.sum() < 5:
                 continue
-            points = TSNE(2, perplexity=min(30.0, (mask.sum() - 1) / 3), random_state=seed,
-                          init="pca").fit_transform(action[mask])
+            points = TSNE(
+                2, perplexity=min(30.0, (mask.sum() - 1) / 3), random_state=seed, init="pca"
+            ).fit_transform(action[mask])
             for (x, y), r in zip(points, row[mask]):
                 rows.append((algo, run.info.run_id, episodes.terrain[r], x, y))
     return pd.DataFrame(rows, columns=["algo", "run_id", "terrain", "x", "y"])
@@ -218,8 +292,12 @@ def _gallery(terrains: Sequence, path: Path, columns: int) -> Path:
     fig = Figure(figsize=(3.4 * columns, 3.2 * rows), dpi=90)
     zmax = max(t.max_height for t in terrains)
     for k, terrain in enumerate(terrains):
-        plot_terrain(fig.add_subplot(rows, columns, k + 1, projection="3d"), terrain, zmax=zmax,
-                     max_facets=60)
+        plot_terrain(
+            fig.add_subplot(rows, columns, k + 1, projection="3d"),
+            terrain,
+            zmax=zmax,
+            max_facets=60,
+        )
     fig.subplots_adjust(left=0.02, right=0.98, bottom=0.03, top=0.95, wspace=0.05, hspace=0.2)
     fig.savefig(path)
     return path
@@ -246,8 +324,13 @@ def admitted_galleries(client: MlflowClient, runs: Sequence[Run], out: Path) -> 
     return written
 
 
-def write_figures(experiment: str, out: Path, suite: str | None = None,
-                  run_ids: Sequence[str] = (), tracking_uri: str | None = None) -> list[Path]:
+def write_figures(
+    experiment: str,
+    out: Path,
+    suite: str | None = None,
+    run_ids: Sequence[str] = (),
+    tracking_uri: str | None = None,
+) -> list[Path]:
     client, uri = connect(tracking_uri)
     runs = require_runs(select_runs(client, uri, experiment, run_ids), experiment, uri)
     out.mkdir(parents=True, exist_ok=True)
@@ -264,8 +347,11 @@ def write_figures(experiment: str, out: Path, suite: str | None = None,
         written += plot_environments(environments, out) if not environments.empty else []
         written += admitted_galleries(client, poet, out)
     loaded = load_suite(suite)
-    picks = [next(t.name for t in loaded.terrains if t.level == level)
-             for level in TSNE_LEVELS if any(t.level == level for t in loaded.terrains)]
+    picks = [
+        next(t.name for t in loaded.terrains if t.level == level)
+        for level in TSNE_LEVELS
+        if any(t.level == level for t in loaded.terrains)
+    ]
     tsne = tsne_table(client, runs, picks, loaded)
     if not tsne.empty:
         written += plot_tsne(tsne, picks, out)
@@ -276,13 +362,20 @@ def write_figures(experiment: str, out: Path, suite: str | None = None,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m analysis.figures",
-                                     description="The paper's figures from the MLflow store.")
-    parser.add_argument("--experiment", default=default_experiment(),
-                        help="MLflow experiment (default: the runs' default, tracking.experiment)")
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.figures", description="The paper's figures from the MLflow store."
+    )
+    parser.add_argument(
+        "--experiment",
+        default=default_experiment(),
+        help="MLflow experiment (default: the runs' default, tracking.experiment)",
+    )
     parser.add_argument("--out", type=Path, default=Path("results/figures"))
-    parser.add_argument("--suite", default=None,
-                        help="suite name (shipped, paper) or suite folder (default: shipped)")
+    parser.add_argument(
+        "--suite",
+        default=None,
+        help="suite name (shipped, paper) or suite folder (default: shipped)",
+    )
     parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID")
     args = parser.parse_args(argv)
     return run_command(lambda: write_figures(args.experiment, args.out, args.suite, args.run))

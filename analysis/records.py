@@ -12,6 +12,7 @@ A record's `run.json` lists the suites it holds (`evaluations`, each with the su
 fingerprint and the course scale): only those are read, so a folder left over from an earlier
 export of another run is never mixed in.
 """
+
 from __future__ import annotations
 
 import json
@@ -34,20 +35,25 @@ def read_records(folder: Path) -> list[dict[str, Any]]:
     first; AnalysisError when there is none."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise AnalysisError(f"there is no records folder {folder}: export one with "
-                            f"`python -m pipeline.records --experiment <experiment> "
-                            f"--out {folder}`.")
+        raise AnalysisError(
+            f"there is no records folder {folder}: export one with "
+            f"`python -m pipeline.records --experiment <experiment> "
+            f"--out {folder}`."
+        )
     records = []
     for path in sorted(folder.glob(f"*/{RUN_FILE}")):
         info = json.loads(path.read_text())
         if info.get("format") != FORMAT:
-            raise AnalysisError(f"{path} is not an epoet record (format {info.get('format')!r}, "
-                                f"expected {FORMAT}).")
+            raise AnalysisError(
+                f"{path} is not an epoet record (format {info.get('format')!r}, expected {FORMAT})."
+            )
         records.append({**info, "record": path.parent.name})
     if not records:
-        raise AnalysisError(f"{folder} holds no records (<record>/{RUN_FILE}): export them "
-                            f"with `python -m pipeline.records --experiment <experiment> "
-                            f"--out {folder}`.")
+        raise AnalysisError(
+            f"{folder} holds no records (<record>/{RUN_FILE}): export them "
+            f"with `python -m pipeline.records --experiment <experiment> "
+            f"--out {folder}`."
+        )
     return sorted(records, key=lambda r: (r.get("started") or "", r["record"]))
 
 
@@ -56,9 +62,11 @@ def one_course_scale(scales: dict[str, str]) -> str:
     ("solved" on a fifth of the course is not "solved" on all of it, so scales never mix)."""
     found = set(scales.values())
     if len(found) > 1:
-        raise AnalysisError(f"the runs were evaluated at different course scales "
-                            f"({', '.join(sorted(found))}): table one budget's runs at a time "
-                            f"(one experiment per budget, or --run).")
+        raise AnalysisError(
+            f"the runs were evaluated at different course scales "
+            f"({', '.join(sorted(found))}): table one budget's runs at a time "
+            f"(one experiment per budget, or --run)."
+        )
     return found.pop()
 
 
@@ -77,7 +85,8 @@ def record_episodes(folder: Path, suite: Suite) -> tuple[pd.DataFrame, str, list
             raise AnalysisError(
                 f"record {info['record']} was evaluated on other terrains under the name "
                 f"{suite.name} (fingerprint {evaluation['fingerprint']}, this suite "
-                f"{suite.fingerprint}): its numbers are not this suite's.")
+                f"{suite.fingerprint}): its numbers are not this suite's."
+            )
         frame = pd.read_csv(Path(folder) / info["record"] / suite.name / EPISODES)
         frame.insert(0, "run_id", info["run_id"])
         frame.insert(1, "algo", info["algo"])
@@ -85,7 +94,9 @@ def record_episodes(folder: Path, suite: Suite) -> tuple[pd.DataFrame, str, list
         frames.append(frame)
         scales[info["record"]] = str(evaluation["course_scale"])
     if not frames:
-        raise AnalysisError(f"no record in {folder} has an evaluation on suite {suite.name} "
-                            f"({suite.fingerprint}): evaluate the runs on it and export the "
-                            f"records again (`make paper` does both).")
+        raise AnalysisError(
+            f"no record in {folder} has an evaluation on suite {suite.name} "
+            f"({suite.fingerprint}): evaluate the runs on it and export the "
+            f"records again (`make paper` does both)."
+        )
     return pd.concat(frames, ignore_index=True), one_course_scale(scales), left_out

@@ -33,6 +33,7 @@ point estimates come from rliable's own functions; inside the bootstrap the prob
 improvement uses `poi`, the same number vectorised (rliable's calls scipy once per terrain,
 ~25 ms per resample; tests/test_stats.py checks the two agree).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -52,10 +53,10 @@ import pandas as pd  # noqa: E402
 
 from analysis.store import ALGO_COLOURS, in_order  # noqa: E402
 
-REPS = 2000          # bootstrap resamples per interval
-SEED = 0             # the bootstraps' seed: reproducible intervals
+REPS = 2000  # bootstrap resamples per interval
+SEED = 0  # the bootstraps' seed: reproducible intervals
 CONFIDENCE = 0.95
-METRICS = {"success": "solved", "return": "return"}   # score -> episodes.csv column
+METRICS = {"success": "solved", "return": "return"}  # score -> episodes.csv column
 LABELS = {"success": "success rate (%)", "return": "return"}
 
 
@@ -69,6 +70,7 @@ def rliable():
     import only, that decorator accepts the old call (as a FutureWarning); pandas is restored
     afterwards. (arch's bootstrap, the part rliable uses, does not touch it.)"""
     import pandas.util._decorators as decorators
+
     original = decorators.deprecate_kwarg
 
     def old_call(klass, *args, **kwargs):
@@ -82,7 +84,6 @@ def rliable():
     finally:
         decorators.deprecate_kwarg = original
     return library, metrics
-
 
 
 @contextmanager
@@ -109,13 +110,19 @@ def score_matrices(episodes: pd.DataFrame, score: str) -> dict[str, np.ndarray]:
     matrices = {}
     for algo in in_order(episodes.algo):
         mine = episodes[episodes.algo == algo]
-        table = (mine.assign(value=mine[column].astype(float))
-                 .groupby(["run_id", "terrain"], sort=False).value.mean().unstack("terrain"))
+        table = (
+            mine.assign(value=mine[column].astype(float))
+            .groupby(["run_id", "terrain"], sort=False)
+            .value.mean()
+            .unstack("terrain")
+        )
         table = table.reindex(index=list(dict.fromkeys(mine.run_id)), columns=terrains)
         if table.isna().any().any():
             missing = table.columns[table.isna().any()].tolist()
-            raise ValueError(f"{algo} has runs without episodes on terrains {missing[:3]}: "
-                             f"every run must be evaluated on the same suite")
+            raise ValueError(
+                f"{algo} has runs without episodes on terrains {missing[:3]}: "
+                f"every run must be evaluated on the same suite"
+            )
         matrices[algo] = table.to_numpy()
     return matrices
 
@@ -128,8 +135,9 @@ def poi(x: np.ndarray, y: np.ndarray) -> float:
     """rliable's probability of improvement, vectorised: per terrain, over every (run of x, run
     of y) pair, P(x > y) + P(x = y) / 2; the mean over terrains."""
     pairs = x[:, None, :], y[None, :, :]
-    per_terrain = (pairs[0] > pairs[1]).mean(axis=(0, 1)) + \
-        0.5 * (pairs[0] == pairs[1]).mean(axis=(0, 1))
+    per_terrain = (pairs[0] > pairs[1]).mean(axis=(0, 1)) + 0.5 * (pairs[0] == pairs[1]).mean(
+        axis=(0, 1)
+    )
     return float(per_terrain.mean())
 
 
@@ -154,15 +162,23 @@ def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.
         matrices = score_matrices(episodes, score)
         with seeded(seed):
             points, intervals = rliable()[0].get_interval_estimates(
-                matrices, iqm, task_bootstrap=True, reps=reps,
-                confidence_interval_size=CONFIDENCE)
+                matrices, iqm, task_bootstrap=True, reps=reps, confidence_interval_size=CONFIDENCE
+            )
         for algo, matrix in matrices.items():
-            rows.append({"algo": algo, "score": score, "runs": matrix.shape[0],
-                         "terrains": matrix.shape[1], "iqm": float(points[algo][0]),
-                         "ci_low": float(intervals[algo][0][0]),
-                         "ci_high": float(intervals[algo][1][0]),
-                         "resampled": resampled([matrix.shape[0]]), "reps": reps,
-                         "seed": seed})
+            rows.append(
+                {
+                    "algo": algo,
+                    "score": score,
+                    "runs": matrix.shape[0],
+                    "terrains": matrix.shape[1],
+                    "iqm": float(points[algo][0]),
+                    "ci_low": float(intervals[algo][0][0]),
+                    "ci_high": float(intervals[algo][1][0]),
+                    "resampled": resampled([matrix.shape[0]]),
+                    "reps": reps,
+                    "seed": seed,
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -182,13 +198,15 @@ def _pair_bootstrap():
     return TerrainsAndRuns
 
 
-def poi_interval(x: np.ndarray, y: np.ndarray, reps: int = REPS, seed: int = SEED
-                 ) -> tuple[float, float, float]:
+def poi_interval(
+    x: np.ndarray, y: np.ndarray, reps: int = REPS, seed: int = SEED
+) -> tuple[float, float, float]:
     """P(X > Y) (rliable's) and its 95 % interval over runs and terrains."""
     point = float(rliable()[1].probability_of_improvement(x, y))
     with seeded(seed):
-        low, high = _pair_bootstrap()(x, y).conf_int(_poi_array, reps=reps, size=CONFIDENCE,
-                                                     method="percentile")
+        low, high = _pair_bootstrap()(x, y).conf_int(
+            _poi_array, reps=reps, size=CONFIDENCE, method="percentile"
+        )
     return point, float(low[0]), float(high[0])
 
 
@@ -201,11 +219,37 @@ def poi_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.
         for y, x in itertools.combinations(matrices, 2):
             point, low, high = poi_interval(matrices[x], matrices[y], reps, seed)
             runs = (matrices[x].shape[0], matrices[y].shape[0])
-            rows.append({"x": x, "y": y, "score": score, "poi": point, "ci_low": low,
-                         "ci_high": high, "runs_x": runs[0], "runs_y": runs[1],
-                         "resampled": resampled(runs, (x, y)), "reps": reps, "seed": seed})
-    return pd.DataFrame(rows, columns=["x", "y", "score", "poi", "ci_low", "ci_high", "runs_x",
-                                       "runs_y", "resampled", "reps", "seed"])
+            rows.append(
+                {
+                    "x": x,
+                    "y": y,
+                    "score": score,
+                    "poi": point,
+                    "ci_low": low,
+                    "ci_high": high,
+                    "runs_x": runs[0],
+                    "runs_y": runs[1],
+                    "resampled": resampled(runs, (x, y)),
+                    "reps": reps,
+                    "seed": seed,
+                }
+            )
+    return pd.DataFrame(
+        rows,
+        columns=[
+            "x",
+            "y",
+            "score",
+            "poi",
+            "ci_low",
+            "ci_high",
+            "runs_x",
+            "runs_y",
+            "resampled",
+            "reps",
+            "seed",
+        ],
+    )
 
 
 def _interval(value: float, low: float, high: float, scale: float, digits: int) -> str:
@@ -220,8 +264,9 @@ def shown_iqm(table: pd.DataFrame) -> pd.DataFrame:
         row = {"algorithm": algo, "runs": int(mine.runs.iloc[0])}
         for score, scale, digits in (("success", 100, 1), ("return", 1, 1)):
             r = mine.loc[score]
-            row[f"{LABELS[score]} IQM [95 % CI]"] = _interval(r.iqm, r.ci_low, r.ci_high, scale,
-                                                              digits)
+            row[f"{LABELS[score]} IQM [95 % CI]"] = _interval(
+                r.iqm, r.ci_low, r.ci_high, scale, digits
+            )
         row["interval over"] = mine.resampled.iloc[0]
         rows.append(row)
     return pd.DataFrame(rows)
@@ -244,24 +289,42 @@ def shown_poi(table: pd.DataFrame) -> pd.DataFrame:
 def notes(iqm_rows: pd.DataFrame, reps: int, seed: int) -> list[str]:
     """What the numbers are, and where one run leaves the intervals to the terrains alone."""
     terrains = int(iqm_rows.terrains.max()) if len(iqm_rows) else 0
-    lines = [f"IQM: interquartile mean over runs x {terrains} terrains (each entry a run's mean "
-             f"over its episodes on one terrain); 95 % CI: percentile stratified bootstrap over "
-             f"runs (within each terrain) and terrains, {reps} resamples, seed {seed} "
-             f"(rliable, Agarwal et al. 2021; analysis/stats.py)."]
+    lines = [
+        f"IQM: interquartile mean over runs x {terrains} terrains (each entry a run's mean "
+        f"over its episodes on one terrain); 95 % CI: percentile stratified bootstrap over "
+        f"runs (within each terrain) and terrains, {reps} resamples, seed {seed} "
+        f"(rliable, Agarwal et al. 2021; analysis/stats.py)."
+    ]
     single = in_order(iqm_rows[iqm_rows.runs == 1].algo)
     if single:
-        lines.append(f"One run only ({', '.join(single)}): its intervals come from the terrains "
-                     f"only (how the score varies over this suite's terrains), not from seeds.")
+        lines.append(
+            f"One run only ({', '.join(single)}): its intervals come from the terrains "
+            f"only (how the score varies over this suite's terrains), not from seeds."
+        )
     return lines
 
 
-def _plot(table: pd.DataFrame, labels: list[str], value: str, colours: list[str], ax,
-          scale: float, reference: float | None = None) -> None:
+def _plot(
+    table: pd.DataFrame,
+    labels: list[str],
+    value: str,
+    colours: list[str],
+    ax,
+    scale: float,
+    reference: float | None = None,
+) -> None:
     y = np.arange(len(labels))[::-1]
     values = table[value].to_numpy() * scale
     low, high = table.ci_low.to_numpy() * scale, table.ci_high.to_numpy() * scale
-    ax.errorbar(values, y, xerr=[values - low, high - values], fmt="none", ecolor=colours,
-                elinewidth=6, alpha=0.5)
+    ax.errorbar(
+        values,
+        y,
+        xerr=[values - low, high - values],
+        fmt="none",
+        ecolor=colours,
+        elinewidth=6,
+        alpha=0.5,
+    )
     ax.scatter(values, y, color=colours, zorder=3, marker="|", s=200, linewidths=2)
     if reference is not None:
         ax.axvline(reference, color="grey", linestyle="--", linewidth=1)
@@ -275,9 +338,14 @@ def plot_iqm(table: pd.DataFrame, title: str, path: Path) -> Path:
     for ax, score in zip(axes, METRICS):
         rows = table[table.score == score]
         algos = list(rows.algo)
-        _plot(rows, [f"{a} ({r})" for a, r in zip(algos, rows.runs)], "iqm",
-              [ALGO_COLOURS.get(a, "black") for a in algos], ax,
-              100 if score == "success" else 1)
+        _plot(
+            rows,
+            [f"{a} ({r})" for a, r in zip(algos, rows.runs)],
+            "iqm",
+            [ALGO_COLOURS.get(a, "black") for a in algos],
+            ax,
+            100 if score == "success" else 1,
+        )
         ax.set_xlabel(f"IQM of the {LABELS[score]}")
     fig.suptitle(title, fontsize="medium")
     fig.tight_layout()
@@ -292,8 +360,15 @@ def plot_poi(table: pd.DataFrame, title: str, path: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(10, 0.5 * len(pairs) + 1.6))
     for ax, score in zip(axes, METRICS):
         rows = table[table.score == score]
-        _plot(rows, [f"{x} > {y}" for x, y in zip(rows.x, rows.y)], "poi",
-              [ALGO_COLOURS.get(x, "black") for x in rows.x], ax, 1, reference=0.5)
+        _plot(
+            rows,
+            [f"{x} > {y}" for x, y in zip(rows.x, rows.y)],
+            "poi",
+            [ALGO_COLOURS.get(x, "black") for x in rows.x],
+            ax,
+            1,
+            reference=0.5,
+        )
         ax.set_xlim(-0.02, 1.02)
         ax.set_xlabel(f"P(X > Y), {LABELS[score].removesuffix(' (%)')}")
     fig.suptitle(title, fontsize="medium")
@@ -310,21 +385,41 @@ def latex_text(text: str) -> str:
     return text
 
 
-def write_stats(episodes: pd.DataFrame, out: Path, suite: str, scale: str,
-                to_markdown: Callable[[pd.DataFrame], str], reps: int = REPS,
-                seed: int = SEED) -> list[Path]:
+def write_stats(
+    episodes: pd.DataFrame,
+    out: Path,
+    suite: str,
+    scale: str,
+    to_markdown: Callable[[pd.DataFrame], str],
+    reps: int = REPS,
+    seed: int = SEED,
+) -> list[Path]:
     """out/iqm_<suite>.{csv,md,tex,png} and out/poi_<suite>.{csv,md,tex,png} (no PoI files for
     one algorithm); prints the Markdown."""
     out.mkdir(parents=True, exist_ok=True)
     at = f" on suite {suite} (course scale {scale})"
     iqm_rows = iqm_table(episodes, reps, seed)
     said = notes(iqm_rows, reps, seed)
-    outputs = [("iqm", iqm_rows, shown_iqm(iqm_rows),
-                f"IQM of the success rate and of the return, 95 % CI{at}", plot_iqm)]
+    outputs = [
+        (
+            "iqm",
+            iqm_rows,
+            shown_iqm(iqm_rows),
+            f"IQM of the success rate and of the return, 95 % CI{at}",
+            plot_iqm,
+        )
+    ]
     if iqm_rows.algo.nunique() > 1:
         poi_rows = poi_table(episodes, reps, seed)
-        outputs.append(("poi", poi_rows, shown_poi(poi_rows),
-                        f"Probability of improvement P(X > Y), 95 % CI{at}", plot_poi))
+        outputs.append(
+            (
+                "poi",
+                poi_rows,
+                shown_poi(poi_rows),
+                f"Probability of improvement P(X > Y), 95 % CI{at}",
+                plot_poi,
+            )
+        )
     written = []
     for name, raw, shown, title, plot in outputs:
         stem = out / f"{name}_{suite}"
@@ -332,8 +427,12 @@ def write_stats(episodes: pd.DataFrame, out: Path, suite: str, scale: str,
         markdown = to_markdown(shown)
         text = "\n".join(said)
         stem.with_suffix(".md").write_text(f"{title}\n\n{markdown}\n\n{text}\n")
-        latex = shown.to_latex(index=False, escape=True, caption=latex_text(f"{title}. {text}"),
-                               label=f"tab:{name}_{suite}")
+        latex = shown.to_latex(
+            index=False,
+            escape=True,
+            caption=latex_text(f"{title}. {text}"),
+            label=f"tab:{name}_{suite}",
+        )
         stem.with_suffix(".tex").write_text(latex.replace(" > ", " $>$ "))
         plot(raw, title, stem.with_suffix(".png"))
         print(f"\n{title}\n{markdown}")

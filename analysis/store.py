@@ -3,6 +3,7 @@
 The store is epoet's (`sqlite:///<project root>/mlflow.db`); MLFLOW_TRACKING_URI overrides it.
 An analysis never writes training data: a missing store is an error, not a new empty one.
 """
+
 from __future__ import annotations
 
 import sys
@@ -14,17 +15,22 @@ from mlflow.exceptions import MlflowException
 from omegaconf import OmegaConf
 
 from epoet.config import CONF_DIR
-from epoet.eval.agents import AgentError
 from epoet.core.errors import first_line
+from epoet.eval.agents import AgentError
 from epoet.eval.keys import Logged, logged_evaluation
 from epoet.eval.suite import Suite, SuiteError
 from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path
 
-ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")   # table and legend order
+ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")  # table and legend order
 POET_ALGOS = ("epoet", "epoet_sac")
 BASELINE_ALGOS = ("ppo", "sac", "vmpo")
-ALGO_COLOURS = {"ppo": "tab:blue", "sac": "tab:orange", "vmpo": "tab:green",
-                "epoet": "tab:red", "epoet_sac": "tab:purple"}
+ALGO_COLOURS = {
+    "ppo": "tab:blue",
+    "sac": "tab:orange",
+    "vmpo": "tab:green",
+    "epoet": "tab:red",
+    "epoet_sac": "tab:purple",
+}
 
 
 def default_experiment() -> str:
@@ -50,13 +56,20 @@ def connect(tracking_uri: str | None = None) -> tuple[MlflowClient, str]:
     uri = resolve_tracking_uri(tracking_uri)
     db = sqlite_path(uri)
     if db is not None and not db.is_file():
-        raise AnalysisError(f"there is no MLflow store at {db}: train a run first "
-                            "or point MLFLOW_TRACKING_URI at a store.")
+        raise AnalysisError(
+            f"there is no MLflow store at {db}: train a run first "
+            "or point MLFLOW_TRACKING_URI at a store."
+        )
     return open_store(uri), uri
 
 
-def select_runs(client: MlflowClient, uri: str, experiment: str, run_ids: Sequence[str] = (),
-                algos: Sequence[str] = ALGOS) -> list[Run]:
+def select_runs(
+    client: MlflowClient,
+    uri: str,
+    experiment: str,
+    run_ids: Sequence[str] = (),
+    algos: Sequence[str] = ALGOS,
+) -> list[Run]:
     """The given runs, else the experiment's FINISHED runs of `algos`, oldest first.
 
     A sweep's parent run has no algo tag and is never selected.
@@ -71,18 +84,26 @@ def select_runs(client: MlflowClient, uri: str, experiment: str, run_ids: Sequen
         for run in runs:
             algo = run.data.tags.get("algo")
             if algo not in algos:
-                raise AnalysisError(f"run {run.info.run_id} has algo tag {algo!r}; expected "
-                                    f"one of {', '.join(algos)}.")
+                raise AnalysisError(
+                    f"run {run.info.run_id} has algo tag {algo!r}; expected "
+                    f"one of {', '.join(algos)}."
+                )
         return runs
     exp = client.get_experiment_by_name(experiment)
     if exp is None:
-        raise AnalysisError(f"the MLflow store {uri} has no experiment named {experiment!r}: "
-                            f"train first (e.g. make paper BUDGET=smoke SEEDS=1).")
+        raise AnalysisError(
+            f"the MLflow store {uri} has no experiment named {experiment!r}: "
+            f"train first (e.g. make paper BUDGET=smoke SEEDS=1)."
+        )
     runs, token = [], None
     while True:
-        page = client.search_runs([exp.experiment_id], "attributes.status = 'FINISHED'",
-                                  max_results=1000, order_by=["attributes.start_time ASC"],
-                                  page_token=token)
+        page = client.search_runs(
+            [exp.experiment_id],
+            "attributes.status = 'FINISHED'",
+            max_results=1000,
+            order_by=["attributes.start_time ASC"],
+            page_token=token,
+        )
         runs.extend(r for r in page if r.data.tags.get("algo") in algos)
         token = page.token
         if not token:
@@ -112,9 +133,11 @@ def unevaluated(runs: Sequence[Run], suite: Suite) -> list[Run]:
 def require_runs(runs: list[Run], experiment: str, uri: str) -> list[Run]:
     """The runs, or AnalysisError saying what to run first."""
     if not runs:
-        raise AnalysisError(f"experiment {experiment!r} in {uri} has no finished runs: train "
-                            f"first, e.g. `python -m epoet algo=epoet` or "
-                            f"`make paper BUDGET=smoke SEEDS=1`.")
+        raise AnalysisError(
+            f"experiment {experiment!r} in {uri} has no finished runs: train "
+            f"first, e.g. `python -m epoet algo=epoet` or "
+            f"`make paper BUDGET=smoke SEEDS=1`."
+        )
     return runs
 
 

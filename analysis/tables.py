@@ -27,6 +27,7 @@ store: a FINISHED run without an evaluation on the suite (its `eval_suite/<suite
 not the suite's fingerprint) is an error that names the command evaluating it
 (pipeline/paper.py evaluates for `make paper`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,8 +41,18 @@ from mlflow.entities import Run
 
 from analysis.records import one_course_scale, record_episodes
 from analysis.stats import write_stats
-from analysis.store import (AnalysisError, connect, default_experiment, evaluation_of, in_order,
-                            require_runs, run_command, seed_of, select_runs, unevaluated)
+from analysis.store import (
+    AnalysisError,
+    connect,
+    default_experiment,
+    evaluation_of,
+    in_order,
+    require_runs,
+    run_command,
+    seed_of,
+    select_runs,
+    unevaluated,
+)
 from epoet.eval.keys import SHIPPED_NAME
 from epoet.eval.suite import LEVELS, Suite, load_suite
 from epoet.tracking import StoredRun
@@ -61,7 +72,8 @@ def require_evaluations(runs: Sequence[Run], loaded: Suite, suite: str | None) -
             f"{len(missing)} run(s) have no evaluation on suite {loaded.name} "
             f"({loaded.fingerprint}): {names}{more}; "
             f"evaluate each with `python -m epoet.eval.evaluate run=<run id>{suite_arg}`, e.g. "
-            f"run={missing[0].info.run_id} (`make paper` evaluates the runs it trains)")
+            f"run={missing[0].info.run_id} (`make paper` evaluates the runs it trains)"
+        )
 
 
 def episodes_of(client: MlflowClient, runs: Sequence[Run], suite: Suite) -> pd.DataFrame:
@@ -71,8 +83,9 @@ def episodes_of(client: MlflowClient, runs: Sequence[Run], suite: Suite) -> pd.D
     with tempfile.TemporaryDirectory(prefix="epoet-tables-") as tmp:
         for run in runs:
             folder = evaluation_of(run, suite).artifacts
-            path = StoredRun(client, run).download(f"{folder}/episodes.csv",
-                                                   Path(tmp) / run.info.run_id)
+            path = StoredRun(client, run).download(
+                f"{folder}/episodes.csv", Path(tmp) / run.info.run_id
+            )
             frame = pd.read_csv(path)
             frame.insert(0, "run_id", run.info.run_id)
             frame.insert(1, "algo", run.data.tags["algo"])
@@ -90,8 +103,9 @@ def table1(episodes: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for algo in in_order(episodes.algo):
         mine = episodes[episodes.algo == algo]
-        per_run = {level: mine[mine.level == level].groupby("run_id").solved.mean()
-                   for level in LEVELS}
+        per_run = {
+            level: mine[mine.level == level].groupby("run_id").solved.mean() for level in LEVELS
+        }
         per_run["total"] = mine.groupby("run_id").solved.mean()
         row = {"algo": algo, "runs": mine.run_id.nunique()}
         for column, rates in per_run.items():
@@ -108,10 +122,16 @@ def table2(episodes: pd.DataFrame) -> pd.DataFrame:
         if mine.empty:
             continue
         returns = mine["return"]
-        rows.append({"algo": algo, "runs": mine.run_id.nunique(), "episodes": len(mine),
-                     "return_mean": float(returns.mean()),
-                     "return_std": float(returns.std(ddof=1)) if len(mine) > 1 else float("nan"),
-                     "return_max": float(returns.max())})
+        rows.append(
+            {
+                "algo": algo,
+                "runs": mine.run_id.nunique(),
+                "episodes": len(mine),
+                "return_mean": float(returns.mean()),
+                "return_std": float(returns.std(ddof=1)) if len(mine) > 1 else float("nan"),
+                "return_max": float(returns.max()),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -122,13 +142,27 @@ def _pm(mean: float, std: float, scale: float, digits: int) -> str:
 
 def formatted(t1: pd.DataFrame, t2: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The tables as shown: success rates in percent, mean ± std."""
-    shown1 = pd.DataFrame({"algorithm": t1.algo, "runs": t1.runs, **{
-        column: [_pm(m, s, 100, 1) for m, s in zip(t1[f"{column}_mean"], t1[f"{column}_std"])]
-        for column in (*LEVELS, "total")}})
-    shown2 = pd.DataFrame({"algorithm": t2.algo, "runs": t2.runs, "episodes": t2.episodes,
-                           "average return": [_pm(m, s, 1, 1) for m, s in
-                                              zip(t2.return_mean, t2.return_std)],
-                           "maximum return": [f"{v:.1f}" for v in t2.return_max]})
+    shown1 = pd.DataFrame(
+        {
+            "algorithm": t1.algo,
+            "runs": t1.runs,
+            **{
+                column: [
+                    _pm(m, s, 100, 1) for m, s in zip(t1[f"{column}_mean"], t1[f"{column}_std"])
+                ]
+                for column in (*LEVELS, "total")
+            },
+        }
+    )
+    shown2 = pd.DataFrame(
+        {
+            "algorithm": t2.algo,
+            "runs": t2.runs,
+            "episodes": t2.episodes,
+            "average return": [_pm(m, s, 1, 1) for m, s in zip(t2.return_mean, t2.return_std)],
+            "maximum return": [f"{v:.1f}" for v in t2.return_max],
+        }
+    )
     return shown1, shown2
 
 
@@ -148,23 +182,27 @@ def course_scale(runs: Sequence[Run], suite: Suite) -> str:
     return one_course_scale({r.info.run_id: evaluation_of(r, suite).course_scale for r in runs})
 
 
-def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1",
-                 suite: str = SHIPPED_NAME) -> list[Path]:
+def write_tables(
+    episodes: pd.DataFrame, out: Path, scale: str = "1", suite: str = SHIPPED_NAME
+) -> list[Path]:
     """Tables 1 and 2 of the episodes on the suite named `suite`, as out/table<k>_<suite>.*"""
     out.mkdir(parents=True, exist_ok=True)
     t1, t2 = table1(episodes), table2(episodes)
     shown1, shown2 = formatted(t1, t2)
     written = []
     at = f" on suite {suite} (course scale {scale})"
-    titles = {"table1": f"Table 1: success rate (%) by difficulty, mean ± std over runs{at}",
-              "table2": f"Table 2: return over the easy and medium terrains{at}"}
+    titles = {
+        "table1": f"Table 1: success rate (%) by difficulty, mean ± std over runs{at}",
+        "table2": f"Table 2: return over the easy and medium terrains{at}",
+    }
     for name, raw, shown in (("table1", t1, shown1), ("table2", t2, shown2)):
         stem = f"{name}_{suite}"
         raw.to_csv(out / f"{stem}.csv", index=False)
         markdown = to_markdown(shown)
         (out / f"{stem}.md").write_text(f"{titles[name]}\n\n{markdown}\n")
-        (out / f"{stem}.tex").write_text(shown.to_latex(index=False, caption=titles[name],
-                                                        label=f"tab:{stem}"))
+        (out / f"{stem}.tex").write_text(
+            shown.to_latex(index=False, caption=titles[name], label=f"tab:{stem}")
+        )
         print(f"\n{titles[name]}\n{markdown}")
         written += [out / f"{stem}.{ext}" for ext in ("csv", "md", "tex")]
     written += write_stats(episodes, out, suite, scale, to_markdown)
@@ -172,14 +210,20 @@ def write_tables(episodes: pd.DataFrame, out: Path, scale: str = "1",
     return written
 
 
-def make_tables(experiment: str, out: Path, suite: str | None = None,
-                run_ids: Sequence[str] = (), tracking_uri: str | None = None) -> list[Path]:
+def make_tables(
+    experiment: str,
+    out: Path,
+    suite: str | None = None,
+    run_ids: Sequence[str] = (),
+    tracking_uri: str | None = None,
+) -> list[Path]:
     client, uri = connect(tracking_uri)
     runs = require_runs(select_runs(client, uri, experiment, run_ids), experiment, uri)
     loaded = load_suite(suite)
     require_evaluations(runs, loaded, suite)
-    return write_tables(episodes_of(client, runs, loaded), out, course_scale(runs, loaded),
-                        loaded.name)
+    return write_tables(
+        episodes_of(client, runs, loaded), out, course_scale(runs, loaded), loaded.name
+    )
 
 
 def tables_from_records(records: Path, out: Path, suite: str | None = None) -> list[Path]:
@@ -187,8 +231,10 @@ def tables_from_records(records: Path, out: Path, suite: str | None = None) -> l
     loaded = load_suite(suite)
     episodes, scale, left_out = record_episodes(records, loaded)
     if left_out:
-        print(f"left out {len(left_out)} record(s) without an evaluation on suite "
-              f"{loaded.name}: {', '.join(left_out)}")
+        print(
+            f"left out {len(left_out)} record(s) without an evaluation on suite "
+            f"{loaded.name}: {', '.join(left_out)}"
+        )
     return write_tables(episodes, out, scale, loaded.name)
 
 
@@ -196,20 +242,41 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.tables",
         description="Success-rate and return tables (paper Tables 1-2), IQM and probability of "
-                    "improvement from the evaluations in the MLflow store or in records.")
-    parser.add_argument("--experiment", default=default_experiment(),
-                        help="MLflow experiment whose FINISHED runs are tabled (default: the "
-                             "runs' default, tracking.experiment)")
-    parser.add_argument("--out", type=Path, default=Path("results"),
-                        help="folder for the Markdown, LaTeX and CSV files (default: results)")
-    parser.add_argument("--suite", default=None,
-                        help="suite name (shipped, paper) or suite folder whose evaluations "
-                             "are tabled (default: shipped)")
-    parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID",
-                        help="table these runs instead of the experiment's")
-    parser.add_argument("--records", type=Path, default=None, metavar="FOLDER",
-                        help="table the evaluation records in FOLDER (python -m "
-                             "pipeline.records writes them) instead of the store")
+        "improvement from the evaluations in the MLflow store or in records.",
+    )
+    parser.add_argument(
+        "--experiment",
+        default=default_experiment(),
+        help="MLflow experiment whose FINISHED runs are tabled (default: the "
+        "runs' default, tracking.experiment)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results"),
+        help="folder for the Markdown, LaTeX and CSV files (default: results)",
+    )
+    parser.add_argument(
+        "--suite",
+        default=None,
+        help="suite name (shipped, paper) or suite folder whose evaluations "
+        "are tabled (default: shipped)",
+    )
+    parser.add_argument(
+        "--run",
+        nargs="+",
+        default=[],
+        metavar="RUN_ID",
+        help="table these runs instead of the experiment's",
+    )
+    parser.add_argument(
+        "--records",
+        type=Path,
+        default=None,
+        metavar="FOLDER",
+        help="table the evaluation records in FOLDER (python -m "
+        "pipeline.records writes them) instead of the store",
+    )
     return parser.parse_args(argv)
 
 

@@ -1,4 +1,5 @@
 """`python -m epoet`: the Hydra entry point (see README for the commands)."""
+
 from __future__ import annotations
 
 import sys
@@ -8,11 +9,12 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from epoet.config import CONF_DIR, run_hydra_app
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.core.cli import fail
-from epoet.config import CONF_DIR, run_hydra_app
-from epoet.core.schema import ConfigError
 from epoet.core.lifecycle import Stopped
+from epoet.core.schema import ConfigError
+
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def _app(cfg: DictConfig) -> None:
@@ -29,12 +31,10 @@ def _app(cfg: DictConfig) -> None:
     except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
         fail(err)
     except Stopped as stop:  # SIGINT / SIGTERM: the checkpoint is written
-        print(f"epoet: {stop}; checkpoint saved, continue with resume={run_dir}",
-              file=sys.stderr)
+        print(f"epoet: {stop}; checkpoint saved, continue with resume={run_dir}", file=sys.stderr)
         sys.exit(stop.exit_code)
     except KeyboardInterrupt:  # a second Ctrl-C: stopped at once
-        hint = (f"; continue with resume={run_dir}" if (run_dir / CHECKPOINT_NAME).exists()
-                else "")
+        hint = f"; continue with resume={run_dir}" if (run_dir / CHECKPOINT_NAME).exists() else ""
         print(f"epoet: interrupted{hint}", file=sys.stderr)
         sys.exit(130)
 

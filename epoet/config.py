@@ -8,6 +8,7 @@ type fails at composition. `validate` builds the dataclass tree with `OmegaConf.
 which runs each `__post_init__` range check before any work starts; every failure is one
 `ConfigError` (epoet.core.schema) sentence naming the key a user types.
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -34,6 +35,7 @@ from epoet.poet.config import PoetConfig
 from epoet.rl.config import PpoConfig, SacConfig, VmpoConfig
 from epoet.terrain.config import TerrainConfig
 
+
 @dataclass
 class BudgetConfig:
     """How much compute, never which algorithm: what every run reads. Paper values are the
@@ -53,14 +55,16 @@ class BudgetConfig:
     episode_steps: int
     eval_episodes: int
     score_scale: float
-    integrator: str                  # agent.integrator follows it
-    max_height_step: float           # +S per iteration (terrain.max_height_step follows it)
-    hours: Optional[float]           # wall-clock stop: hours of training over resumes; null: none
+    integrator: str  # agent.integrator follows it
+    max_height_step: float  # +S per iteration (terrain.max_height_step follows it)
+    hours: Optional[float]  # wall-clock stop: hours of training over resumes; null: none
 
     def __post_init__(self) -> None:
         positive(self, "episode_steps", "eval_episodes", "score_scale")
-        check(self.hours is None or self.hours > 0,
-              f"budget.hours must be > 0 or null, got {self.hours}.")
+        check(
+            self.hours is None or self.hours > 0,
+            f"budget.hours must be > 0 or null, got {self.hours}.",
+        )
 
     def time_is_up(self, seconds: float) -> bool:
         """Whether `seconds` of training (summed over resumes) have used up `hours`."""
@@ -72,7 +76,7 @@ class PoetBudgetConfig(BudgetConfig):
     """The compute of ePOET and ePOET-SAC: iterations of the loop and ES pairs per step."""
 
     iterations: int
-    n_pairs: int                     # mirrored pairs per ES step (2 episodes each)
+    n_pairs: int  # mirrored pairs per ES step (2 episodes each)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -84,7 +88,7 @@ class BaselineBudgetConfig(BudgetConfig):
     """The compute of the RL baselines: environment frames."""
 
     frames: int
-    eval_every: int                  # frames between deterministic evaluations
+    eval_every: int  # frames between deterministic evaluations
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -98,20 +102,26 @@ class WorkersConfig:
     KEY: ClassVar[str] = "workers"
 
     backend: str
-    num: Optional[int]               # None: one worker per available core (Ray: per cluster CPU)
-    batch: int                       # robots per process (fits the cache: bench/rollout_throughput)
-    address: Optional[str] = None    # ray: a running cluster's address; None starts a local Ray
+    num: Optional[int]  # None: one worker per available core (Ray: per cluster CPU)
+    batch: int  # robots per process (fits the cache: bench/rollout_throughput)
+    address: Optional[str] = None  # ray: a running cluster's address; None starts a local Ray
 
     def __post_init__(self) -> None:
-        check(self.backend in ("local", "ray"),
-              f"workers.backend must be 'local' or 'ray', got {self.backend!r}.")
+        check(
+            self.backend in ("local", "ray"),
+            f"workers.backend must be 'local' or 'ray', got {self.backend!r}.",
+        )
         check(self.num is None or self.num > 0, f"workers.num must be > 0, got {self.num}.")
         positive(self, "batch")
-        check(self.address is None or self.backend == "ray",
-              "workers.address is the Ray cluster to join, so it needs workers=ray.")
-        check(self.backend != "ray" or importlib.util.find_spec("ray") is not None,
-              "workers=ray needs Ray, the 'distributed' extra: "
-              "pip install -c constraints.txt -e '.[distributed]'.")
+        check(
+            self.address is None or self.backend == "ray",
+            "workers.address is the Ray cluster to join, so it needs workers=ray.",
+        )
+        check(
+            self.backend != "ray" or importlib.util.find_spec("ray") is not None,
+            "workers=ray needs Ray, the 'distributed' extra: "
+            "pip install -c constraints.txt -e '.[distributed]'.",
+        )
 
 
 @dataclass
@@ -133,28 +143,32 @@ class Config:
 
     KEY: ClassVar[str] = ""
 
-    algo: Any                        # one of ALGO_SCHEMAS (its YAML names its schema and runner)
+    algo: Any  # one of ALGO_SCHEMAS (its YAML names its schema and runner)
     agent: AgentConfig
     terrain: TerrainConfig
-    budget: BudgetConfig             # the algorithm's YAML picks its family's (its compute's unit)
+    budget: BudgetConfig  # the algorithm's YAML picks its family's (its compute's unit)
     workers: WorkersConfig
     tracking: TrackingConfig
     seed: int
-    checkpoint_every: int            # ES iterations, or collector batches (baselines), per checkpoint
-    agent_choice: str                # best | final: which parameters of each pair a run exports
-    evaluate: bool                   # evaluate the exported agent on the suite at the end
-    resume: Optional[str]            # a run folder or checkpoint file to continue; "auto": this
-                                     # job's own folder if it has a checkpoint (run.py)
+    checkpoint_every: int  # ES iterations, or collector batches (baselines), per checkpoint
+    agent_choice: str  # best | final: which parameters of each pair a run exports
+    evaluate: bool  # evaluate the exported agent on the suite at the end
+    resume: Optional[str]  # a run folder or checkpoint file to continue; "auto": this
+    # job's own folder if it has a checkpoint (run.py)
 
     def __post_init__(self) -> None:
         check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
         positive(self, "checkpoint_every")
-        check(self.agent_choice in ("best", "final"),
-              f"agent_choice must be 'best' or 'final', got {self.agent_choice!r}.")
+        check(
+            self.agent_choice in ("best", "final"),
+            f"agent_choice must be 'best' or 'final', got {self.agent_choice!r}.",
+        )
         # One source of truth for the episode length: the budget (it also scales thresholds).
-        check(self.agent.max_episode_steps == self.budget.episode_steps,
-              f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
-              f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.")
+        check(
+            self.agent.max_episode_steps == self.budget.episode_steps,
+            f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
+            f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.",
+        )
         self.algo.check_run(self)  # what the algorithm needs of the other settings
 
     def unused_keys(self) -> tuple[str, ...]:
@@ -164,6 +178,7 @@ class Config:
 
 
 # --- the commands around a trained agent: the suite, evaluate, render, gallery ---------------
+
 
 @dataclass
 class SuiteConfig:
@@ -175,22 +190,24 @@ class SuiteConfig:
     KEY: ClassVar[str] = ""
 
     terrain: TerrainConfig
-    agent: AgentConfig               # the course (start_x .. finish_x) the roughness is read along
-    episode_ratio: float             # evaluation episodes last this x the agent's training ones
+    agent: AgentConfig  # the course (start_x .. finish_x) the roughness is read along
+    episode_ratio: float  # evaluation episodes last this x the agent's training ones
     seed: int
-    children: int                    # children per round (lineages)
-    max_heights: list[float]         # S of each round, metres: one round per entry
-    max_tries: int                   # mutations tried per child before taking the closest
-    out: Optional[str]               # None: the shipped suite folder
-    check: bool                      # regenerate and compare with `out`, write nothing
+    children: int  # children per round (lineages)
+    max_heights: list[float]  # S of each round, metres: one round per entry
+    max_tries: int  # mutations tried per child before taking the closest
+    out: Optional[str]  # None: the shipped suite folder
+    check: bool  # regenerate and compare with `out`, write nothing
 
     def __post_init__(self) -> None:
         non_negative(self, "seed")
         positive(self, "children", "max_tries", "episode_ratio")
-        check(len(self.max_heights) > 0 and all(0 < s <= self.terrain.max_height_limit
-                                                 for s in self.max_heights),
-              f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "
-              f"{self.terrain.max_height_limit}], got {self.max_heights}.")
+        check(
+            len(self.max_heights) > 0
+            and all(0 < s <= self.terrain.max_height_limit for s in self.max_heights),
+            f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "
+            f"{self.terrain.max_height_limit}], got {self.max_heights}.",
+        )
 
 
 @dataclass
@@ -199,11 +216,11 @@ class AgentCommandConfig:
 
     KEY: ClassVar[str] = ""
 
-    run: Optional[str]               # MLflow run id, run folder or policy file
-    agent: AgentConfig               # episode rules for a bare policy file (a run brings its own)
+    run: Optional[str]  # MLflow run id, run folder or policy file
+    agent: AgentConfig  # episode rules for a bare policy file (a run brings its own)
     tracking: TrackingConfig
-    suite: Optional[str]             # None: the shipped suite
-    seed: int                        # keys the episodes' starts
+    suite: Optional[str]  # None: the shipped suite
+    seed: int  # keys the episodes' starts
 
     def __post_init__(self) -> None:
         check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
@@ -214,29 +231,31 @@ class AgentCommandConfig:
 class EvaluateConfig(AgentCommandConfig):
     """`python -m epoet.eval.evaluate`: a trained agent on the evaluation suite."""
 
-    episodes: int                    # per terrain
-    solve_score: float               # "solved": finish line and this return (x the run's scale)
-    action_samples: int              # actions kept per episode, for t-SNE
-    processes: Optional[int]         # None: one per available core ("workers" is a config group)
-    out: Optional[str]               # results folder; None: <run folder>/evaluation or ./evaluation
+    episodes: int  # per terrain
+    solve_score: float  # "solved": finish line and this return (x the run's scale)
+    action_samples: int  # actions kept per episode, for t-SNE
+    processes: Optional[int]  # None: one per available core ("workers" is a config group)
+    out: Optional[str]  # results folder; None: <run folder>/evaluation or ./evaluation
 
     def __post_init__(self) -> None:
         super().__post_init__()
         positive(self, "episodes")
         non_negative(self, "action_samples")
-        check(self.processes is None or self.processes > 0,
-              f"processes must be > 0 or null, got {self.processes}.")
+        check(
+            self.processes is None or self.processes > 0,
+            f"processes must be > 0 or null, got {self.processes}.",
+        )
 
 
 @dataclass
 class RenderConfig(AgentCommandConfig):
     """`python -m epoet.eval.render`: an mp4 of a trained agent on one terrain."""
 
-    terrain: Optional[str]           # a suite terrain's name or a terrain .npz file
-    steps: Optional[int]             # None: the run's episode length
+    terrain: Optional[str]  # a suite terrain's name or a terrain .npz file
+    steps: Optional[int]  # None: the run's episode length
     width: int
     height: int
-    out: Optional[str]               # None: videos/<run>_<terrain>.mp4
+    out: Optional[str]  # None: videos/<run>_<terrain>.mp4
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -268,9 +287,9 @@ class ReferenceConfig:
 
     KEY: ClassVar[str] = ""
 
-    source: Optional[str]            # a checkout of github.com/ml-tue/ePOET_3D
-    out: Optional[str]               # None: the shipped folder, epoet/reference
-    check: bool                      # convert and compare with `out`, write nothing
+    source: Optional[str]  # a checkout of github.com/ml-tue/ePOET_3D
+    out: Optional[str]  # None: the shipped folder, epoet/reference
+    check: bool  # convert and compare with `out`, write nothing
 
     def __post_init__(self) -> None:
         check(bool(self.source), "source is required: source=<a checkout of ml-tue/ePOET_3D>.")
@@ -279,8 +298,13 @@ class ReferenceConfig:
 # --- composition and validation -------------------------------------------------------------------
 
 # conf/algo/<name>.yaml -> its schema
-ALGO_SCHEMAS: dict[str, type] = {"epoet": PoetConfig, "epoet_sac": EpoetSacConfig,
-                                 "ppo": PpoConfig, "sac": SacConfig, "vmpo": VmpoConfig}
+ALGO_SCHEMAS: dict[str, type] = {
+    "epoet": PoetConfig,
+    "epoet_sac": EpoetSacConfig,
+    "ppo": PpoConfig,
+    "sac": SacConfig,
+    "vmpo": VmpoConfig,
+}
 
 
 def register_configs() -> None:
@@ -372,13 +396,22 @@ def task_configs(agent: Any = None, terrain: Any = None) -> tuple[AgentConfig, T
         return agent, terrain
     terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
     kind = terrain.get("kind", "bowl")
-    base = compose(["budget=paper", f"terrain={kind}" if (CONF_DIR / "terrain" / f"{kind}.yaml")
-                    .exists() else "terrain=bowl"])
+    base = compose(
+        [
+            "budget=paper",
+            f"terrain={kind}"
+            if (CONF_DIR / "terrain" / f"{kind}.yaml").exists()
+            else "terrain=bowl",
+        ]
+    )
     OmegaConf.resolve(base)  # agent.max_episode_steps interpolates the budget's episode length
 
     def build(value: Any, node: DictConfig, schema: type) -> Any:
-        return value if isinstance(value, schema) else \
-            OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
+        return (
+            value
+            if isinstance(value, schema)
+            else OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
+        )
 
     return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
 

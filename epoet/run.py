@@ -4,6 +4,7 @@ Data flow is one way: config -> components -> runner -> tracker. Everything that
 input (config ranges, an unsupported combination, the tracking store, the checkpoint to resume)
 fails here, in one sentence, before any long work starts.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -14,24 +15,31 @@ from typing import TYPE_CHECKING, Any, Callable, cast
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.config import Config, compose, validate
-from epoet.core.files import atomic_write
+from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.core.compute import default_workers
+from epoet.core.files import atomic_write
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import ACT_DIM, OBS_DIM
 
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
 
-AUTO = "auto"     # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
-DONE = "DONE"     # written into the run folder when a run finished (holds its MLflow run id)
+AUTO = "auto"  # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
+DONE = "DONE"  # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
 # (`algo._target_` says where the algorithm's code lives, not how it runs: checkpoints from
 # before the key existed resume.)
-RESUMABLE = ("resume", "workers", "tracking", "checkpoint_every", "budget.iterations",
-             "budget.hours", "algo._target_")
+RESUMABLE = (
+    "resume",
+    "workers",
+    "tracking",
+    "checkpoint_every",
+    "budget.iterations",
+    "budget.hours",
+    "algo._target_",
+)
 
 Runner = Callable[[Config, "Tracker", Path, "dict[str, Any] | None"], Any]
 
@@ -58,9 +66,11 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
         first = reproduce or algo["adjust_interval"] * algo["iterations_before_transfer"]
         later = algo.pop("later_reproduce_interval") or first
         # in transfer intervals; an interval that is not a multiple shows as a changed setting
-        algo.update(iterations_before_transfer=every,
-                    adjust_interval=first // every if first % every == 0 else first / every,
-                    later_adjust_interval=later // every if later % every == 0 else later / every)
+        algo.update(
+            iterations_before_transfer=every,
+            adjust_interval=first // every if first % every == 0 else first / every,
+            later_adjust_interval=later // every if later % every == 0 else later / every,
+        )
         if "frames_per_iteration" in algo:
             algo["frames_per_iteration"] = sac_frames or algo["frames_per_iteration"]
     else:  # the baselines: frames
@@ -75,10 +85,14 @@ def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
     predates counts as null (its run had none of it), so such a run resumes with that setting
     at null, where it would otherwise show as changed whatever the user sets."""
     from epoet.tracking import flatten
+
     old, new = flatten(saved_config(saved)), flatten(current)
-    keys = sorted(k for k in old.keys() | new.keys()
-                  if old.get(k, "None") != new.get(k, "None")
-                  and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE))
+    keys = sorted(
+        k
+        for k in old.keys() | new.keys()
+        if old.get(k, "None") != new.get(k, "None")
+        and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE)
+    )
     return [f"{k} ({old.get(k, 'None')} -> {new.get(k, 'None')})" for k in keys]
 
 
@@ -87,10 +101,12 @@ def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict
     resolve to), without the settings it never reads (`Config.unused_keys`) and without `resume`
     (where a run continues, not a setting of it)."""
     from epoet.tracking import flatten
+
     params = flatten({k: v for k, v in resolved.items() if k != "resume"})
     unused = cfg.unused_keys()
-    params = {k: v for k, v in params.items()
-              if not any(k == u or k.startswith(f"{u}.") for u in unused)}
+    params = {
+        k: v for k, v in params.items() if not any(k == u or k.startswith(f"{u}.") for u in unused)
+    }
     params["tracking.uri"] = tracking_uri
     if cfg.workers.num is None and cfg.workers.address is None:
         # one worker (ES) or torch thread (baselines) per core; a Ray cluster brings its own
@@ -123,42 +139,61 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         # `make paper` calls the same sweep again after an interruption: finished jobs are
         # skipped, interrupted ones continue from their checkpoint, the rest start.
         if (run_dir / DONE).is_file():
-            print(f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; "
-                  f"skipped", flush=True)
+            print(
+                f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped",
+                flush=True,
+            )
             return None
         resume_from = run_dir if (run_dir / CHECKPOINT_NAME).is_file() else None
     if resume_from:
         path = find_checkpoint(resume_from)
         resume = load_checkpoint(path)
         if resume.get("algo") != cfg.algo.name:
-            raise CheckpointError(f"checkpoint {path} is from algo={resume.get('algo')}, so it "
-                                  f"cannot resume algo={cfg.algo.name}.")
+            raise CheckpointError(
+                f"checkpoint {path} is from algo={resume.get('algo')}, so it "
+                f"cannot resume algo={cfg.algo.name}."
+            )
         changed = config_changes(resume["config"], dataclasses.asdict(cfg))
         if changed:
             raise CheckpointError(
                 f"checkpoint {path} was made with a different config ({', '.join(changed)}); "
-                f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change).")
+                f"repeat the run's overrides (only {', '.join(RESUMABLE)} may change)."
+            )
     if cfg.workers.address is not None:
         # the optional extra, on demand
         from epoet.rollout.backends.ray_cluster import check_address
+
         check_address(cfg.workers.address)
     if resume is None:
         check_inputs(cfg)
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
+
     run_dir.mkdir(parents=True, exist_ok=True)
     resolved = cast(dict[str, Any], OmegaConf.to_container(raw, resolve=True))  # a DictConfig's
-    tags = {"algo": cfg.algo.name, "terrain": cfg.terrain.kind, "agent": cfg.agent.name,
-            "seed": str(cfg.seed), "budget": cfg.budget.name}
+    tags = {
+        "algo": cfg.algo.name,
+        "terrain": cfg.terrain.kind,
+        "agent": cfg.agent.name,
+        "seed": str(cfg.seed),
+        "budget": cfg.budget.name,
+    }
     with MlflowTracker(cfg.tracking.uri, cfg.tracking.experiment) as tracker:
         params = run_params(cfg, resolved, tracker.tracking_uri)
-        tracker.start(run_name=f"{cfg.algo.name}-s{cfg.seed}", params=params,
-                      tags=tags, parent_run_id=parent_run_id(),
-                      resume_run_id=resume["run_id"] if resume else None)
+        tracker.start(
+            run_name=f"{cfg.algo.name}-s{cfg.seed}",
+            params=params,
+            tags=tags,
+            parent_run_id=parent_run_id(),
+            resume_run_id=resume["run_id"] if resume else None,
+        )
         if resume is None:
             tracker.log_dict(resolved, "config.yaml")
-        print(f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
-              f"run_id={tracker.run_id} dir={run_dir}", flush=True)
+        print(
+            f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
+            f"run_id={tracker.run_id} dir={run_dir}",
+            flush=True,
+        )
         with StopOnSignal():
             result = runner_for(cfg)(cfg, tracker, run_dir, resume)
         log_agent_model(tracker, run_dir)
@@ -167,8 +202,17 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
     assert tracker.run_id is not None  # start() set it
     with atomic_write(run_dir / DONE) as f:  # after the run and its evaluation are done
         f.write(f"{tracker.run_id}\n".encode())
-    print("\n".join(ending(cfg, run_dir, StoredRun.open(tracker.run_id, tracker.tracking_uri),
-                           in_sweep=parent_run_id() is not None)), flush=True)
+    print(
+        "\n".join(
+            ending(
+                cfg,
+                run_dir,
+                StoredRun.open(tracker.run_id, tracker.tracking_uri),
+                in_sweep=parent_run_id() is not None,
+            )
+        ),
+        flush=True,
+    )
     return result
 
 
@@ -176,31 +220,40 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
     """What a finished run says last: its headline numbers and, outside a sweep (whose parent
     prints a line per job), where its outputs are and the commands that look at them."""
     from epoet.eval.keys import RESULTS, SHIPPED_NAME, suite_metric
+
     m = stored.metrics
     numbers = f"score {m['score']:.1f} (best {m['best_score']:.1f})" if "score" in m else ""
     if (solved := suite_metric(m, SHIPPED_NAME, "success_rate")) is not None:
-        numbers += (f", solved {solved:.1%} of the {SHIPPED_NAME} suite (mean return "
-                    f"{suite_metric(m, SHIPPED_NAME, 'return_mean'):.1f})")
+        numbers += (
+            f", solved {solved:.1%} of the {SHIPPED_NAME} suite (mean return "
+            f"{suite_metric(m, SHIPPED_NAME, 'return_mean'):.1f})"
+        )
     seconds = m.get("elapsed", 0.0)
     took = f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
-    head = (f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} done after "
-            f"{took} of training: {numbers}")
+    head = (
+        f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} done after "
+        f"{took} of training: {numbers}"
+    )
     if in_sweep:
         return [head]
     from epoet.eval.suite import example_terrain
-    return [head,
-            f"  outputs:  {run_dir} (checkpoint, exported agent"
-            f"{f', {RESULTS}/{SHIPPED_NAME}/' if cfg.evaluate else ''}); MLflow run "
-            f"{stored.run_id}",
-            f"  runs:     {stored.ui_hint()}",
-            f"  evaluate: python -m epoet.eval.evaluate run={run_dir}",
-            f"  render:   python -m epoet.eval.render run={run_dir} terrain={example_terrain()}"]
+
+    return [
+        head,
+        f"  outputs:  {run_dir} (checkpoint, exported agent"
+        f"{f', {RESULTS}/{SHIPPED_NAME}/' if cfg.evaluate else ''}); MLflow run "
+        f"{stored.run_id}",
+        f"  runs:     {stored.ui_hint()}",
+        f"  evaluate: python -m epoet.eval.evaluate run={run_dir}",
+        f"  render:   python -m epoet.eval.render run={run_dir} terrain={example_terrain()}",
+    ]
 
 
 def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:
     """The exported agent (as `agent_choice` picked it, what evaluation uses) as the run's MLflow
     model `agent` (epoet.eval.agent_model)."""
     from epoet.eval.agents import policy_in
+
     found = policy_in(run_dir)
     if found is None:
         raise RuntimeError(f"the run exported no agent into {run_dir}.")  # a runner's bug
@@ -221,14 +274,19 @@ def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     from epoet.eval.evaluate import evaluate_run
     from epoet.eval.keys import RESULTS, SHIPPED_NAME
     from epoet.eval.suite import SuiteError
-    overrides = [f"run={run_dir}", f"episodes={cfg.budget.eval_episodes}",
-                 f"suite={SHIPPED_NAME}", f"out={run_dir / RESULTS / SHIPPED_NAME}"]
+
+    overrides = [
+        f"run={run_dir}",
+        f"episodes={cfg.budget.eval_episodes}",
+        f"suite={SHIPPED_NAME}",
+        f"out={run_dir / RESULTS / SHIPPED_NAME}",
+    ]
     overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
     overrides += [f"processes={cfg.workers.num}"] if cfg.workers.num else []
     try:
         evaluate_run(validate(compose(overrides, config_name="evaluate")), progress=False)
     except (AgentError, SuiteError) as err:
-        raise EvaluationError(f"{cfg.algo.name} seed={cfg.seed} trained, but its evaluation "
-                              f"failed: {err} (retry: python -m epoet.eval.evaluate run={run_dir})"
-                              ) from err
-
+        raise EvaluationError(
+            f"{cfg.algo.name} seed={cfg.seed} trained, but its evaluation "
+            f"failed: {err} (retry: python -m epoet.eval.evaluate run={run_dir})"
+        ) from err

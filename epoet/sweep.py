@@ -4,6 +4,7 @@ The parent run id travels to the jobs in env EPOET_PARENT_RUN_ID (read by
 `epoet.tracking.parent_run_id`): environment variables reach in-process jobs (basic launcher) and
 are inherited by launcher worker processes created after `on_multirun_start`.
 """
+
 from __future__ import annotations
 
 import atexit
@@ -40,19 +41,22 @@ class MlflowSweepCallback(Callback):
         overrides = list(config.hydra.overrides.task)
         params = sweep_params(overrides)
         from epoet.tracking import PARENT_RUN_ENV, MlflowTracker
+
         tracker = MlflowTracker(self.tracking_uri, self.experiment)
         text = " ".join(overrides)
         name = f"sweep {text}" if text else f"sweep {config.hydra.job.name}"
         run_id = tracker.start(
             run_name=name[:250],  # MLflow's SQL schema holds 250 characters; the tag has it all
             params=params,
-            tags={"sweep_dir": os.path.abspath(str(config.hydra.sweep.dir)),
-                  "sweep_overrides": text,
-                  # what the sweep spans ("algos", not the jobs' "algo": analysis selects
-                  # runs by their algo tag, and the parent is no run of one algorithm)
-                  "algos": params.get("algo", str(OmegaConf.select(config, "algo.name"))),
-                  "budget": params.get("budget", str(OmegaConf.select(config, "budget.name"))),
-                  "seeds": params.get("seed", str(OmegaConf.select(config, "seed")))},
+            tags={
+                "sweep_dir": os.path.abspath(str(config.hydra.sweep.dir)),
+                "sweep_overrides": text,
+                # what the sweep spans ("algos", not the jobs' "algo": analysis selects
+                # runs by their algo tag, and the parent is no run of one algorithm)
+                "algos": params.get("algo", str(OmegaConf.select(config, "algo.name"))),
+                "budget": params.get("budget", str(OmegaConf.select(config, "budget.name"))),
+                "seeds": params.get("seed", str(OmegaConf.select(config, "seed"))),
+            },
         )
         self._tracker = tracker
         os.environ[PARENT_RUN_ENV] = run_id
@@ -72,6 +76,7 @@ class MlflowSweepCallback(Callback):
     def _close(self, status: str) -> None:
         """Close the parent once; called by `on_multirun_end` or, failing that, at exit."""
         from epoet.tracking import PARENT_RUN_ENV
+
         atexit.unregister(self._close)
         os.environ.pop(PARENT_RUN_ENV, None)
         tracker, self._tracker = self._tracker, None
@@ -94,13 +99,17 @@ def job_lines(children: list[Run]) -> list[str]:
     lines = []
     for run in children:
         tags = run.data.tags
-        numbers = "".join(f" {label}={value:.1f}" for label, key in (("score", "score"),
-                                                                      ("best", "best_score"))
-                          if (value := run.data.metrics.get(key)) is not None)
+        numbers = "".join(
+            f" {label}={value:.1f}"
+            for label, key in (("score", "score"), ("best", "best_score"))
+            if (value := run.data.metrics.get(key)) is not None
+        )
         if (success := suite_metric(run.data.metrics, SHIPPED_NAME, "success_rate")) is not None:
             numbers += f" solved={success:.0%}"
-        lines.append(f"[sweep] {tags.get('algo', '?')} seed={tags.get('seed', '?')} "
-                     f"{run.info.status}{numbers} run_id={run.info.run_id}")
+        lines.append(
+            f"[sweep] {tags.get('algo', '?')} seed={tags.get('seed', '?')} "
+            f"{run.info.status}{numbers} run_id={run.info.run_id}"
+        )
     return lines
 
 
@@ -115,9 +124,13 @@ def sweep_summary(children: list[Run]) -> dict[str, float]:
     summary: dict[str, float] = {}
     for algo, runs in groups.items():
         summary[f"sweep/{algo}/finished"] = float(len(runs))
-        for name, found in (("score", [r.data.metrics.get("score") for r in runs]),
-                            ("success_rate", [suite_metric(r.data.metrics, SHIPPED_NAME,
-                                                           "success_rate") for r in runs])):
+        for name, found in (
+            ("score", [r.data.metrics.get("score") for r in runs]),
+            (
+                "success_rate",
+                [suite_metric(r.data.metrics, SHIPPED_NAME, "success_rate") for r in runs],
+            ),
+        ):
             values = [v for v in found if v is not None]
             if values:
                 summary[f"sweep/{algo}/{name}_mean"] = float(np.mean(values))

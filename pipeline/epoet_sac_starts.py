@@ -21,6 +21,7 @@ SAC baseline trained here first, `algo=sac budget=workstation seed=1` into
 
 Overrides after the options go to every ePOET-SAC job (e.g. `budget.hours=0.25`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,18 +49,40 @@ def starts(sac_run: str) -> dict[str, str]:
 
 def sac_command() -> list[str]:
     """The SAC baseline that the `ours` start loads (evaluated like any run of ours)."""
-    return [sys.executable, "-m", "epoet", "algo=sac", "budget=workstation", "seed=1",
-            f"tracking.experiment={NAME}-sac", "resume=auto", f"hydra.run.dir={SAC_RUN}"]
+    return [
+        sys.executable,
+        "-m",
+        "epoet",
+        "algo=sac",
+        "budget=workstation",
+        "seed=1",
+        f"tracking.experiment={NAME}-sac",
+        "resume=auto",
+        f"hydra.run.dir={SAC_RUN}",
+    ]
 
 
-def train_command(start: str, sac_init: str, seeds: str, jobs: int,
-                  overrides: Sequence[str]) -> list[str]:
+def train_command(
+    start: str, sac_init: str, seeds: str, jobs: int, overrides: Sequence[str]
+) -> list[str]:
     """One start's multirun over the seeds; `overrides` last, so they win."""
-    return [sys.executable, "-m", "epoet", "-m", "algo=epoet_sac", "budget=workstation",
-            f"seed={seeds}", f"algo.sac_init={sac_init}", *parallel_overrides(jobs, default_workers()),
-            f"tracking.experiment={NAME}-{start}", "resume=auto", "evaluate=false",
-            f"hydra.sweep.dir={Path('multirun') / NAME / start}",
-            "hydra.sweep.subdir=${algo.name}_s${seed}", *overrides]
+    return [
+        sys.executable,
+        "-m",
+        "epoet",
+        "-m",
+        "algo=epoet_sac",
+        "budget=workstation",
+        f"seed={seeds}",
+        f"algo.sac_init={sac_init}",
+        *parallel_overrides(jobs, default_workers()),
+        f"tracking.experiment={NAME}-{start}",
+        "resume=auto",
+        "evaluate=false",
+        f"hydra.sweep.dir={Path('multirun') / NAME / start}",
+        "hydra.sweep.subdir=${algo.name}_s${seed}",
+        *overrides,
+    ]
 
 
 def _total(client, run_id: str, key: str) -> float:
@@ -74,46 +97,76 @@ def _listed(client, run_id: str, key: str) -> str:
 def summary_table(suites: Sequence[str]) -> str:
     """starts.md: one row per start and seed."""
     client, uri = connect()
-    head = ["start", "seed", "minutes", "iterations", "joined actor (it)", "mapped agent (it)",
-            "crossover replaced", "transfers out of joined", "admitted", "ANNECS", "best score",
-            *[f"{s}: success, return" for s in suites]]
+    head = [
+        "start",
+        "seed",
+        "minutes",
+        "iterations",
+        "joined actor (it)",
+        "mapped agent (it)",
+        "crossover replaced",
+        "transfers out of joined",
+        "admitted",
+        "ANNECS",
+        "best score",
+        *[f"{s}: success, return" for s in suites],
+    ]
     rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for start in ("cold", "ours", "authors"):
         experiment = f"{NAME}-{start}"
-        runs = (select_runs(client, uri, experiment, algos=("epoet_sac",))
-                if client.get_experiment_by_name(experiment) else [])
+        runs = (
+            select_runs(client, uri, experiment, algos=("epoet_sac",))
+            if client.get_experiment_by_name(experiment)
+            else []
+        )
         if not runs:
-            rows.append("| " + " | ".join([start, "-", "not run yet", *["-"] * (len(head) - 3)])
-                        + " |")
+            rows.append(
+                "| " + " | ".join([start, "-", "not run yet", *["-"] * (len(head) - 3)]) + " |"
+            )
         for run in sorted(runs, key=lambda r: int(seed_of(r) or 0)):
             rid, metrics = run.info.run_id, run.data.metrics
             steps = history(client, rid, "score")
-            cells = [start, seed_of(run), f"{metrics.get('elapsed', 0.0) / 60:.1f}",
-                     str(steps[-1][0] + 1 if steps else 0),
-                     _listed(client, rid, "join/sac_score"),
-                     _listed(client, rid, "join/mapped_score"),
-                     f"{_total(client, rid, 'replaced'):.0f}",
-                     f"{_total(client, rid, 'transfers/from_joined'):.0f}",
-                     f"{_total(client, rid, 'admitted'):.0f}",
-                     f"{metrics.get('annecs', 0.0):.0f}", f"{metrics.get('best_score', 0.0):.0f}"]
+            cells = [
+                start,
+                seed_of(run),
+                f"{metrics.get('elapsed', 0.0) / 60:.1f}",
+                str(steps[-1][0] + 1 if steps else 0),
+                _listed(client, rid, "join/sac_score"),
+                _listed(client, rid, "join/mapped_score"),
+                f"{_total(client, rid, 'replaced'):.0f}",
+                f"{_total(client, rid, 'transfers/from_joined'):.0f}",
+                f"{_total(client, rid, 'admitted'):.0f}",
+                f"{metrics.get('annecs', 0.0):.0f}",
+                f"{metrics.get('best_score', 0.0):.0f}",
+            ]
             for suite in suites:
                 rate = suite_metric(metrics, suite, "success_rate")
                 ret = suite_metric(metrics, suite, "return_mean")
                 cells.append("-" if rate is None else f"{rate:.2f}, {ret:.0f}")
             rows.append("| " + " | ".join(cells) + " |")
-    sac = select_runs(client, uri, f"{NAME}-sac", algos=("sac",)) if client.get_experiment_by_name(
-        f"{NAME}-sac") else []
-    note = "".join(f"\nThe SAC run of ours (`ours`): {r.data.metrics.get('elapsed', 0.0) / 60:.0f} "
-                   f"minutes ({r.info.run_name}, {r.info.run_id}).\n" for r in sac[-1:])
+    sac = (
+        select_runs(client, uri, f"{NAME}-sac", algos=("sac",))
+        if client.get_experiment_by_name(f"{NAME}-sac")
+        else []
+    )
+    note = "".join(
+        f"\nThe SAC run of ours (`ours`): {r.data.metrics.get('elapsed', 0.0) / 60:.0f} "
+        f"minutes ({r.info.run_name}, {r.info.run_id}).\n"
+        for r in sac[-1:]
+    )
     return "\n".join(rows) + "\n" + note
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.epoet_sac_starts",
-                                     description=__doc__.split("\n")[0])
-    parser.add_argument("--sac-run", default=None,
-                        help="the SAC run the `ours` start loads (run folder or MLflow run id; "
-                             f"default: train one into {SAC_RUN})")
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.epoet_sac_starts", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument(
+        "--sac-run",
+        default=None,
+        help="the SAC run the `ours` start loads (run folder or MLflow run id; "
+        f"default: train one into {SAC_RUN})",
+    )
     parser.add_argument("--seeds", default="1,2,3")
     parser.add_argument("--jobs", type=int, default=1, help="training jobs at a time")
     parser.add_argument("--suites", default=f"{SHIPPED_NAME},{PAPER_NAME}")
@@ -137,8 +190,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         command = train_command(start, sac_init, args.seeds, args.jobs, args.overrides)
         print(f"[{NAME}] {start}: {' '.join(command[1:])}", flush=True)
         if (code := subprocess.run(command).returncode) != 0:
-            print(f"error: the {start} runs stopped with exit code {code}; run the same command "
-                  f"again to continue where they stopped.", file=sys.stderr)
+            print(
+                f"error: the {start} runs stopped with exit code {code}; run the same command "
+                f"again to continue where they stopped.",
+                file=sys.stderr,
+            )
             return code
 
     def analyse() -> None:

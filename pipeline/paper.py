@@ -15,6 +15,7 @@
 4. with `--records <folder>`, exports every evaluated run as evaluation records there
    (`pipeline.records`), so the tables can be rebuilt without the store.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,29 +42,51 @@ def parallel_overrides(jobs: int, cores: int) -> list[str]:
     its share of the cores as workers, so jobs x workers <= cores; none for one job."""
     if jobs == 1:
         return []
-    return ["hydra/launcher=joblib", f"hydra.launcher.n_jobs={jobs}",
-            f"workers.num={max(1, cores // jobs)}"]
+    return [
+        "hydra/launcher=joblib",
+        f"hydra.launcher.n_jobs={jobs}",
+        f"workers.num={max(1, cores // jobs)}",
+    ]
 
 
-def train_command(budget: str, seeds: str, algos: Sequence[str], experiment: str,
-                  sweep_dir: Path, jobs: int = 1, overrides: Sequence[str] = ()) -> list[str]:
+def train_command(
+    budget: str,
+    seeds: str,
+    algos: Sequence[str],
+    experiment: str,
+    sweep_dir: Path,
+    jobs: int = 1,
+    overrides: Sequence[str] = (),
+) -> list[str]:
     """The training multirun; `overrides` come last, so they win over the budget's values."""
-    return [sys.executable, "-m", "epoet", "-m", f"algo={','.join(algos)}", f"seed={seeds}",
-            *parallel_overrides(jobs, default_workers()),
-            f"budget={budget}", f"tracking.experiment={experiment}", "resume=auto",
-            # step 2 evaluates every run on the chosen suite with the chosen episode count
-            "evaluate=false",
-            f"hydra.sweep.dir={sweep_dir}", "hydra.sweep.subdir=${algo.name}_s${seed}",
-            *overrides]
+    return [
+        sys.executable,
+        "-m",
+        "epoet",
+        "-m",
+        f"algo={','.join(algos)}",
+        f"seed={seeds}",
+        *parallel_overrides(jobs, default_workers()),
+        f"budget={budget}",
+        f"tracking.experiment={experiment}",
+        "resume=auto",
+        # step 2 evaluates every run on the chosen suite with the chosen episode count
+        "evaluate=false",
+        f"hydra.sweep.dir={sweep_dir}",
+        "hydra.sweep.subdir=${algo.name}_s${seed}",
+        *overrides,
+    ]
 
 
-def evaluate_missing(experiment: str, out: Path, suites: Sequence[str | None],
-                     episodes: int | None) -> None:
+def evaluate_missing(
+    experiment: str, out: Path, suites: Sequence[str | None], episodes: int | None
+) -> None:
     """Evaluate (and log) every FINISHED run of `experiment` that has no evaluation yet on each
     of `suites` (None: the shipped suite), all through one process pool; local copies of the
     results go to out/evaluations/<run id>/<suite name>. Each evaluation is tagged with the
     commit that made it (`eval_commit/<suite name>`)."""
     from epoet.tracking import git_commit
+
     client, uri = connect()
     runs = require_runs(select_runs(client, uri, experiment), experiment, uri)
     configs = []
@@ -72,15 +95,33 @@ def evaluate_missing(experiment: str, out: Path, suites: Sequence[str | None],
         missing = unevaluated(runs, loaded)
         if not missing:
             continue
-        print(f"[paper] evaluating {len(missing)} run(s) that have no evaluation on suite "
-              f"{loaded.name} ({loaded.fingerprint}): "
-              f"{', '.join(r.info.run_name for r in missing)}", flush=True)
-        overrides = [f"tracking.uri={uri}"] + ([f"suite={suite}"] if suite else []) + (
-            [f"episodes={episodes}"] if episodes else [])
-        configs += [(loaded.name, validate(compose(
-            [f"run={run.info.run_id}",
-             f"out={out / 'evaluations' / run.info.run_id / loaded.name}", *overrides],
-            config_name="evaluate"))) for run in missing]
+        print(
+            f"[paper] evaluating {len(missing)} run(s) that have no evaluation on suite "
+            f"{loaded.name} ({loaded.fingerprint}): "
+            f"{', '.join(r.info.run_name for r in missing)}",
+            flush=True,
+        )
+        overrides = (
+            [f"tracking.uri={uri}"]
+            + ([f"suite={suite}"] if suite else [])
+            + ([f"episodes={episodes}"] if episodes else [])
+        )
+        configs += [
+            (
+                loaded.name,
+                validate(
+                    compose(
+                        [
+                            f"run={run.info.run_id}",
+                            f"out={out / 'evaluations' / run.info.run_id / loaded.name}",
+                            *overrides,
+                        ],
+                        config_name="evaluate",
+                    )
+                ),
+            )
+            for run in missing
+        ]
     if not configs:
         return
     commit = git_commit()
@@ -92,26 +133,42 @@ def evaluate_missing(experiment: str, out: Path, suites: Sequence[str | None],
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.paper", description=__doc__.split(
-        "\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.paper", description=__doc__.split("\n")[0]
+    )
     parser.add_argument("--budget", default="laptop")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
     parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
-    parser.add_argument("--suites", "--suite", default=SUITES,
-                        help="comma-separated suite names (shipped, paper) or folders that every "
-                             f"run is evaluated and tabled on (default: {SUITES})")
-    parser.add_argument("--episodes", type=int, default=None,
-                        help="evaluation episodes per terrain (default: 5)")
-    parser.add_argument("--jobs", type=int, default=1,
-                        help="training jobs at a time; each gets cores / jobs workers "
-                             "(default 1)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="results folder (default: results/paper-<budget>)")
-    parser.add_argument("--records", type=Path, default=None, metavar="FOLDER",
-                        help="also export every evaluated run as evaluation records into "
-                             "FOLDER (python -m pipeline.records), e.g. docs/results/<name>")
-    parser.add_argument("overrides", nargs="*",
-                        help="Hydra overrides for every training job, e.g. budget.hours=0.4")
+    parser.add_argument(
+        "--suites",
+        "--suite",
+        default=SUITES,
+        help="comma-separated suite names (shipped, paper) or folders that every "
+        f"run is evaluated and tabled on (default: {SUITES})",
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=None, help="evaluation episodes per terrain (default: 5)"
+    )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="training jobs at a time; each gets cores / jobs workers (default 1)",
+    )
+    parser.add_argument(
+        "--out", type=Path, default=None, help="results folder (default: results/paper-<budget>)"
+    )
+    parser.add_argument(
+        "--records",
+        type=Path,
+        default=None,
+        metavar="FOLDER",
+        help="also export every evaluated run as evaluation records into "
+        "FOLDER (python -m pipeline.records), e.g. docs/results/<name>",
+    )
+    parser.add_argument(
+        "overrides", nargs="*", help="Hydra overrides for every training job, e.g. budget.hours=0.4"
+    )
     return parser.parse_args(argv)
 
 
@@ -119,30 +176,48 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     algos = [a for a in args.algos.split(",") if a]
     budgets = sorted(p.stem for p in (CONF_DIR / "budget").glob("*.yaml"))
-    problems = ([f"unknown budget {args.budget!r} (available: {', '.join(budgets)})"]
-                if args.budget not in budgets else [])
-    problems += [f"unknown algorithm {a!r} (available: {', '.join(ALGOS)})"
-                 for a in algos if a not in ALGOS]
+    problems = (
+        [f"unknown budget {args.budget!r} (available: {', '.join(budgets)})"]
+        if args.budget not in budgets
+        else []
+    )
+    problems += [
+        f"unknown algorithm {a!r} (available: {', '.join(ALGOS)})" for a in algos if a not in ALGOS
+    ]
     suites = [s for s in args.suites.split(",") if s]
     if not suites:
         problems.append(f"--suites names no suite, got {args.suites!r}")
     if not all(s.strip().isdigit() for s in args.seeds.split(",")):
         problems.append(f"seeds must be comma-separated integers, got {args.seeds!r}")
     if not 1 <= args.jobs <= default_workers():
-        problems.append(f"--jobs must be between 1 and the {default_workers()} available "
-                        f"cores, got {args.jobs}")
+        problems.append(
+            f"--jobs must be between 1 and the {default_workers()} available cores, got {args.jobs}"
+        )
     if problems:
         print(f"error: {problems[0]}.", file=sys.stderr)
         return 2
     experiment = f"paper-{args.budget}"
     out = args.out or Path("results") / experiment
-    command = train_command(args.budget, args.seeds, algos, experiment,
-                            Path("multirun") / experiment, args.jobs, args.overrides)
-    print(f"[paper] training {len(algos)} algorithms x seeds {args.seeds} at budget "
-          f"{args.budget} (finished jobs are skipped):\n  {' '.join(command[1:])}", flush=True)
+    command = train_command(
+        args.budget,
+        args.seeds,
+        algos,
+        experiment,
+        Path("multirun") / experiment,
+        args.jobs,
+        args.overrides,
+    )
+    print(
+        f"[paper] training {len(algos)} algorithms x seeds {args.seeds} at budget "
+        f"{args.budget} (finished jobs are skipped):\n  {' '.join(command[1:])}",
+        flush=True,
+    )
     if (code := subprocess.run(command).returncode) != 0:
-        print(f"error: training stopped with exit code {code}; run the same command again to "
-              f"continue where it stopped.", file=sys.stderr)
+        print(
+            f"error: training stopped with exit code {code}; run the same command again to "
+            f"continue where it stopped.",
+            file=sys.stderr,
+        )
         return code
 
     def analyse() -> None:
@@ -155,8 +230,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if code := run_command(analyse):
         return code
-    print(f"[paper] tables in {out}/, figures in {out / 'figures'}/"
-          + (f", records in {args.records}/" if args.records is not None else ""))
+    print(
+        f"[paper] tables in {out}/, figures in {out / 'figures'}/"
+        + (f", records in {args.records}/" if args.records is not None else "")
+    )
     return 0
 
 

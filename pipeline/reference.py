@@ -13,6 +13,7 @@ authors' published agents (epoet/reference/) on the paper's suite, tabled like r
    tables without the store.
 The paper reports neither VMPO nor which niche makes an algorithm's row; both are shown.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,19 +38,34 @@ def evaluate_reference(out: Path, suite: str, episodes: int) -> list[str]:
     loaded = load_suite(suite)
     runs = {name: resolve_run(PREFIX + name) for name in names()}  # made in the store if new
     client, uri = connect()
-    ids = {name: run.stored.run_id for name, run in runs.items()
-           if run.stored is not None}  # every one: resolve_run stores reference agents
-    missing = [name for name, run_id in ids.items()
-               if evaluation_on(client.get_run(run_id), loaded) is None]
+    ids = {
+        name: run.stored.run_id for name, run in runs.items() if run.stored is not None
+    }  # every one: resolve_run stores reference agents
+    missing = [
+        name
+        for name, run_id in ids.items()
+        if evaluation_on(client.get_run(run_id), loaded) is None
+    ]
     if missing:
-        print(f"[reference] evaluating {len(missing)} agent(s) on suite {loaded.name}, "
-              f"{episodes} episodes per terrain: {', '.join(missing)}", flush=True)
+        print(
+            f"[reference] evaluating {len(missing)} agent(s) on suite {loaded.name}, "
+            f"{episodes} episodes per terrain: {', '.join(missing)}",
+            flush=True,
+        )
         with evaluation_pool(default_workers()) as pool:
             for name in missing:
-                cfg = validate(compose([f"run={PREFIX}{name}", f"suite={suite}",
-                                        f"episodes={episodes}", f"tracking.uri={uri}",
-                                        f"out={out / 'evaluations' / name.replace('/', '_')}"],
-                                       config_name="evaluate"))
+                cfg = validate(
+                    compose(
+                        [
+                            f"run={PREFIX}{name}",
+                            f"suite={suite}",
+                            f"episodes={episodes}",
+                            f"tracking.uri={uri}",
+                            f"out={out / 'evaluations' / name.replace('/', '_')}",
+                        ],
+                        config_name="evaluate",
+                    )
+                )
                 evaluate_run(cfg, pool=pool)
     return list(ids.values())
 
@@ -74,9 +90,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--suite", default="paper", help="suite name or folder (default: paper)")
     parser.add_argument("--episodes", type=int, default=5, help="episodes per terrain (5)")
     parser.add_argument("--out", type=Path, default=Path("results") / "reference")
-    parser.add_argument("--records", type=Path, default=None, metavar="FOLDER",
-                        help="also export every agent's run as an evaluation record into "
-                             "FOLDER, e.g. docs/results/reference")
+    parser.add_argument(
+        "--records",
+        type=Path,
+        default=None,
+        metavar="FOLDER",
+        help="also export every agent's run as an evaluation record into "
+        "FOLDER, e.g. docs/results/reference",
+    )
     args = parser.parse_args(argv)
 
     def run() -> None:
@@ -84,13 +105,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         out = args.out / load_suite(args.suite).name
         make_tables(EXPERIMENT, out, args.suite, run_ids)
         client, _ = connect()
-        episodes = episodes_of(client, [client.get_run(r) for r in run_ids],
-                               load_suite(args.suite))
+        episodes = episodes_of(client, [client.get_run(r) for r in run_ids], load_suite(args.suite))
         shown = agent_rows(episodes)
         shown.to_csv(out / "agents.csv", index=False)
-        (out / "agents.md").write_text(f"Every authors' agent on suite {args.suite}: success "
-                                       f"rate (%) by level, return over the easy and medium "
-                                       f"terrains\n\n{to_markdown(shown)}\n")
+        (out / "agents.md").write_text(
+            f"Every authors' agent on suite {args.suite}: success "
+            f"rate (%) by level, return over the easy and medium "
+            f"terrains\n\n{to_markdown(shown)}\n"
+        )
         print(f"\n{to_markdown(shown)}\n\nwrote {out / 'agents.md'}")
         if args.records is not None:
             export(EXPERIMENT, args.records, run_ids=run_ids)

@@ -1,4 +1,5 @@
 """Shared fixtures: small configs and terrains that exercise the real code paths quickly."""
+
 from __future__ import annotations
 
 import json
@@ -9,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
+from epoet.config import compose as compose_config
 from epoet.config import load
 from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
-from epoet.config import compose as compose_config
 from epoet.rollout.policy import policy_sizes
 from epoet.terrain import Terrain
+from epoet.terrain.config import TerrainConfig
 
 torch.set_num_threads(1)
 
@@ -22,9 +23,19 @@ torch.set_num_threads(1)
 # cores), in that order. `make test` gives each worker whole files (--dist loadfile) in collection
 # order (--no-loadscope-reorder), so these go first and the short files fill the gaps at the
 # end: both workers finish at about the same time.
-LONGEST_FIRST = ("test_evaluation.py", "test_baselines.py", "test_scale_out.py",
-                 "test_epoet_sac.py", "test_bad_input.py", "test_faults.py", "test_poet.py",
-                 "test_render.py", "test_bad_agents.py", "test_analysis.py", "test_golden.py")
+LONGEST_FIRST = (
+    "test_evaluation.py",
+    "test_baselines.py",
+    "test_scale_out.py",
+    "test_epoet_sac.py",
+    "test_bad_input.py",
+    "test_faults.py",
+    "test_poet.py",
+    "test_render.py",
+    "test_bad_agents.py",
+    "test_analysis.py",
+    "test_golden.py",
+)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
@@ -38,8 +49,9 @@ ES_SIZES = policy_sizes(load([]).algo.es.hidden)
 
 @pytest.fixture
 def terrain_cfg() -> TerrainConfig:
-    return replace(load(["budget=paper"]).terrain, grid=40, size=40.0, max_height=0.3,
-                   bowl_weight=0.3)
+    return replace(
+        load(["budget=paper"]).terrain, grid=40, size=40.0, max_height=0.3, bowl_weight=0.3
+    )
 
 
 @pytest.fixture
@@ -64,10 +76,12 @@ def compose():
     """Compose the real Hydra config (as `python -m epoet` would) from overrides; without the
     end-of-run suite evaluation unless a test asks for it (tests/test_evaluation.py checks it),
     so each training test pays for its training only."""
+
     def compose_training(overrides=(), config_name: str = "config"):
         if config_name == "config" and not any(o.startswith("evaluate=") for o in overrides):
             overrides = [*overrides, "evaluate=false"]
         return compose_config(overrides, config_name)
+
     return compose_training
 
 
@@ -84,9 +98,21 @@ def one_terrain_suite(folder: Path, episode_steps: int, episode_ratio: float) ->
     terrain and a 12 m course made for `episode_steps`-step training episodes."""
     folder.mkdir()
     np.savez(folder / "heights.npz", bumps=np.random.default_rng(0).uniform(0.0, 1.0, (40, 40)))
-    (folder / "suite.json").write_text(json.dumps({
-        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
-        "course": {"start_x": -6.0, "finish_x": 6.0, "half_width": 0.35,
-                   "episode_steps": episode_steps, "episode_ratio": episode_ratio},
-        "terrains": [{"name": "bumps", "max_height": 0.2}]}))
+    (folder / "suite.json").write_text(
+        json.dumps(
+            {
+                "format": "epoet-suite/2",
+                "size": 20.0,
+                "grid": 40,
+                "course": {
+                    "start_x": -6.0,
+                    "finish_x": 6.0,
+                    "half_width": 0.35,
+                    "episode_steps": episode_steps,
+                    "episode_ratio": episode_ratio,
+                },
+                "terrains": [{"name": "bumps", "max_height": 0.2}],
+            }
+        )
+    )
     return folder

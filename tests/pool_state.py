@@ -1,5 +1,6 @@
 """What "the same loop state" means for the ePOET and ePOET-SAC tests: every entry of two
 checkpoints' `poet` states equal, wall time aside."""
+
 from __future__ import annotations
 
 import dataclasses

@@ -1,4 +1,5 @@
 """Counting a run's processes from outside it (tests/test_faults.py, bench/fault_soak.py)."""
+
 from __future__ import annotations
 
 from pathlib import Path

@@ -1,4 +1,5 @@
 """Learning curves from a real MLflow store: ePOET smoke runs and tracked baseline runs."""
+
 from __future__ import annotations
 
 import os
@@ -24,8 +25,13 @@ def _is_png(path: Path) -> bool:
     return path.is_file() and path.read_bytes()[:8] == PNG_MAGIC
 
 
-def _tracked(algo: str | None, seed: int, evals: list[tuple[int, float]],
-             status: str = "FINISHED", parent: str | None = None) -> str:
+def _tracked(
+    algo: str | None,
+    seed: int,
+    evals: list[tuple[int, float]],
+    status: str = "FINISHED",
+    parent: str | None = None,
+) -> str:
     """A run in the store with `eval/return_mean` at the given frames; algo None = sweep parent."""
     tags = {} if algo is None else {"algo": algo, "seed": str(seed), "budget": "smoke"}
     with MlflowTracker(None, "epoet") as tracker:
@@ -36,8 +42,9 @@ def _tracked(algo: str | None, seed: int, evals: list[tuple[int, float]],
     return run_id
 
 
-def test_epoet_curves_equal_the_metric_history(compose, mlflow_uri: str, tmp_path: Path,
-                                               capsys: pytest.CaptureFixture) -> None:
+def test_epoet_curves_equal_the_metric_history(
+    compose, mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     for seed in (0, 1):
         run(compose(SMOKE + [f"seed={seed}"]), tmp_path / f"s{seed}")
     out = tmp_path / "figures"
@@ -51,8 +58,10 @@ def test_epoet_curves_equal_the_metric_history(compose, mlflow_uri: str, tmp_pat
     table = pd.read_csv(out / "epoet_curves.csv", dtype={"run_id": str})
     assert list(table.columns) == EPOET_COLUMNS
     client = mlflow.MlflowClient(mlflow_uri)
-    runs = {r.info.run_id: r for r in
-            client.search_runs([client.get_experiment_by_name("epoet").experiment_id])}
+    runs = {
+        r.info.run_id: r
+        for r in client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
+    }
     assert set(table.run_id) == set(runs) and len(runs) == 2
     assert sorted(table.groupby("run_id").seed.first()) == [0, 1]
     assert set(table.algo) == {"epoet"}
@@ -61,12 +70,14 @@ def test_epoet_curves_equal_the_metric_history(compose, mlflow_uri: str, tmp_pat
         assert list(pair0.iteration) == [0, 1, 2]
     for (run_id, pair), rows in table.groupby(["run_id", "pair"]):
         logged = client.get_metric_history(run_id, f"pair{pair}/return_mean")
-        assert [(m.step, m.value) for m in sorted(logged, key=lambda m: m.step)] == \
-            list(zip(rows.iteration, rows.return_mean))
+        assert [(m.step, m.value) for m in sorted(logged, key=lambda m: m.step)] == list(
+            zip(rows.iteration, rows.return_mean)
+        )
 
 
 def test_baseline_curves_skip_parents_unfinished_runs_and_resumed_duplicates(
-        mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     parent = _tracked(None, 0, [(0, 99.0)])
     ppo = _tracked("ppo", 1, [(0, 1.0), (200, 2.5), (400, 4.0)], parent=parent)
     sac = _tracked("sac", 2, [(0, -1.0), (200, 3.0)], parent=parent)
@@ -83,12 +94,18 @@ def test_baseline_curves_skip_parents_unfinished_runs_and_resumed_duplicates(
     table = pd.read_csv(out / "baseline_curves.csv", dtype={"run_id": str})
     assert list(table.columns) == BASELINE_COLUMNS
     got = {(r.run_id, r.algo, r.seed, r.frames, r.return_mean) for r in table.itertuples()}
-    assert got == {(ppo, "ppo", 1, 0, 1.0), (ppo, "ppo", 1, 200, 2.5), (ppo, "ppo", 1, 400, 4.0),
-                   (sac, "sac", 2, 0, -1.0), (sac, "sac", 2, 200, 5.0)}
+    assert got == {
+        (ppo, "ppo", 1, 0, 1.0),
+        (ppo, "ppo", 1, 200, 2.5),
+        (ppo, "ppo", 1, 400, 4.0),
+        (sac, "sac", 2, 0, -1.0),
+        (sac, "sac", 2, 200, 5.0),
+    }
 
 
-def test_run_selection_and_unknown_run(mlflow_uri: str, tmp_path: Path,
-                                       capsys: pytest.CaptureFixture) -> None:
+def test_run_selection_and_unknown_run(
+    mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     ppo = _tracked("ppo", 1, [(0, 1.0), (200, 2.0)])
     _tracked("sac", 2, [(0, 3.0)])
     failed = _tracked("vmpo", 3, [(0, 7.0)], status="FAILED")
@@ -104,8 +121,8 @@ def test_run_selection_and_unknown_run(mlflow_uri: str, tmp_path: Path,
 
 
 def test_store_without_usable_runs_exits_2_in_one_line(
-        mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture,
-        monkeypatch: pytest.MonkeyPatch) -> None:
+    mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
     missing = tmp_path / "nowhere.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{missing}")
     capsys.readouterr()
@@ -116,8 +133,14 @@ def test_store_without_usable_runs_exits_2_in_one_line(
     monkeypatch.setenv("MLFLOW_TRACKING_URI", mlflow_uri)
     _tracked(None, 0, [(0, 1.0)])  # only a sweep parent: nothing to plot
     env = {**os.environ, "MLFLOW_TRACKING_URI": mlflow_uri}
-    out = subprocess.run([sys.executable, "-m", "analysis.curves", "--out", str(tmp_path / "f")],
-                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "analysis.curves", "--out", str(tmp_path / "f")],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "no ePOET runs" in lines[0], out.stderr
@@ -129,6 +152,7 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
     from analysis.store import AnalysisError
     from analysis.tables import course_scale
     from epoet.eval.suite import load_suite
+
     suite = load_suite()
     client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
     exp = client.create_experiment("scales")
@@ -150,11 +174,13 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
 
 
 def test_tables_only_read_the_store_and_name_the_command_for_unevaluated_runs(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A finished run with no evaluation on the suite is one sentence naming the run and the
     command, and nothing is evaluated, logged or written."""
     from analysis.store import AnalysisError
     from analysis.tables import make_tables
+
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     run_id = _tracked("ppo", 1, [(0, 1.0)])
@@ -173,9 +199,13 @@ def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
     """JOBS=k: k jobs at a time through the joblib launcher, k x workers <= cores."""
     from pipeline.paper import main as paper_main
     from pipeline.paper import parallel_overrides
+
     assert parallel_overrides(1, 2) == []
-    assert parallel_overrides(2, 2) == ["hydra/launcher=joblib", "hydra.launcher.n_jobs=2",
-                                        "workers.num=1"]
+    assert parallel_overrides(2, 2) == [
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+        "workers.num=1",
+    ]
     assert parallel_overrides(2, 8)[-1] == "workers.num=4"
     assert paper_main(["--budget", "smoke", "--jobs", "0"]) == 2
     assert "--jobs must be between 1" in capsys.readouterr().err
@@ -184,7 +214,14 @@ def test_make_paper_jobs_split_the_cores(capsys: pytest.CaptureFixture) -> None:
 def test_make_paper_overrides_reach_every_job_last() -> None:
     """OVERRIDES=...: appended after the budget, so a value such as budget.hours wins over it."""
     from pipeline.paper import train_command
-    command = train_command("workstation", "1", ["epoet", "sac"], "paper-workstation",
-                            Path("multirun/x"), overrides=["budget.hours=0.4"])
+
+    command = train_command(
+        "workstation",
+        "1",
+        ["epoet", "sac"],
+        "paper-workstation",
+        Path("multirun/x"),
+        overrides=["budget.hours=0.4"],
+    )
     assert command[-1] == "budget.hours=0.4"
     assert command.index("budget=workstation") < command.index("budget.hours=0.4")

@@ -8,6 +8,7 @@ and those under `if TYPE_CHECKING:` too (a type-only circle or upward import sti
 module leans on another). Imports inside functions are deferred on purpose (optional extras,
 heavy imports) and count for the wing rule, not for cycles.
 """
+
 from __future__ import annotations
 
 import ast
@@ -21,8 +22,17 @@ MAX_LINES = 400
 # Lowest first; a module may import its own wing and the wings before it.
 WINGS: list[tuple[str, tuple[str, ...]]] = [
     ("core", ("epoet.core",)),
-    ("schemas", ("epoet.envs.config", "epoet.terrain.config", "epoet.es.config",
-                 "epoet.poet.config", "epoet.epoet_sac.config", "epoet.rl.config")),
+    (
+        "schemas",
+        (
+            "epoet.envs.config",
+            "epoet.terrain.config",
+            "epoet.es.config",
+            "epoet.poet.config",
+            "epoet.epoet_sac.config",
+            "epoet.rl.config",
+        ),
+    ),
     ("config", ("epoet.config",)),
     ("tracking", ("epoet.tracking",)),
     ("run state", ("epoet.run_state",)),
@@ -42,8 +52,11 @@ def _module(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-MODULES = {_module(p): p for d in ("epoet", "analysis", "pipeline")
-           for p in sorted((ROOT / d).rglob("*.py"))}
+MODULES = {
+    _module(p): p
+    for d in ("epoet", "analysis", "pipeline")
+    for p in sorted((ROOT / d).rglob("*.py"))
+}
 
 
 def _wing(module: str) -> int:
@@ -69,9 +82,11 @@ def _imports(path: Path, *, deferred: bool) -> set[str]:
         if isinstance(node, ast.Import):
             found.update(a.name for a in node.names if a.name in MODULES)
         elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
-            found.update(name for name in (node.module,
-                                           *(f"{node.module}.{a.name}" for a in node.names))
-                         if name in MODULES)
+            found.update(
+                name
+                for name in (node.module, *(f"{node.module}.{a.name}" for a in node.names))
+                if name in MODULES
+            )
         for child in children:
             visit(child)
 
@@ -91,7 +106,7 @@ def test_no_import_cycle() -> None:
 
     def walk(module: str, path: list[str]) -> None:
         if module in path:
-            pytest.fail("import cycle: " + " -> ".join(path[path.index(module):] + [module]))
+            pytest.fail("import cycle: " + " -> ".join(path[path.index(module) :] + [module]))
         if module in done:
             return
         for imported in sorted(graph[module]):
@@ -105,15 +120,23 @@ def test_no_import_cycle() -> None:
 def test_core_imports_nothing_else_of_the_package() -> None:
     """The ground floor: run-level code (checkpointing a run, reporting its stop) lives above it,
     in epoet/run_state.py, and test helpers in tests/."""
-    outside = [f"{m} imports {i}" for m, p in MODULES.items() if _wing(m) == 0
-               for i in sorted(_imports(p, deferred=True)) if _wing(i) != 0]
+    outside = [
+        f"{m} imports {i}"
+        for m, p in MODULES.items()
+        if _wing(m) == 0
+        for i in sorted(_imports(p, deferred=True))
+        if _wing(i) != 0
+    ]
     assert not outside, "\n".join(outside)
 
 
 def test_no_wing_imports_a_higher_one() -> None:
-    upward = [f"{m} ({WINGS[_wing(m)][0]}) imports {i} ({WINGS[_wing(i)][0]})"
-              for m, p in MODULES.items() for i in sorted(_imports(p, deferred=True))
-              if _wing(i) > _wing(m)]
+    upward = [
+        f"{m} ({WINGS[_wing(m)][0]}) imports {i} ({WINGS[_wing(i)][0]})"
+        for m, p in MODULES.items()
+        for i in sorted(_imports(p, deferred=True))
+        if _wing(i) > _wing(m)
+    ]
     assert not upward, "\n".join(upward)
 
 

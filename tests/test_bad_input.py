@@ -5,6 +5,7 @@ run's checkpoint and MLflow run stay as they were, no other run is finished or d
 The evaluation and analysis commands' rows are tested where those commands are
 (tests/test_evaluation.py::test_bad_inputs_are_one_line_errors, tests/test_analysis.py).
 """
+
 from __future__ import annotations
 
 import os
@@ -14,10 +15,16 @@ from pathlib import Path
 
 import mlflow
 import pytest
+
 from conftest import without_evaluation
 
-SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40",
-         "budget.iterations=1"]
+SMOKE = [
+    "budget=smoke",
+    "workers.num=1",
+    "algo.es.hidden=[8]",
+    "terrain.grid=40",
+    "budget.iterations=1",
+]
 
 # (row id, overrides ({good}: the good run's folder, {tmp}: a scratch folder), stderr must hold)
 ROWS = [
@@ -29,52 +36,88 @@ ROWS = [
     ("unknown tracking", ["tracking=foo"], "Could not find 'tracking/foo'"),
     ("unknown launcher", ["hydra/launcher=foo"], "Could not find 'hydra/launcher/foo'"),
     ("unknown key", ["budget.iteration=3"], "Key 'iteration' not in"),
-    ("another algorithm's budget key", ["algo=ppo", "budget.n_pairs=4"],
-     "Key 'n_pairs' not in 'BaselineBudgetConfig'"),
-    ("wrong type", ["seed=abc"],
-     "seed=abc: Value 'abc' of type 'str' could not be converted to Integer"),
+    (
+        "another algorithm's budget key",
+        ["algo=ppo", "budget.n_pairs=4"],
+        "Key 'n_pairs' not in 'BaselineBudgetConfig'",
+    ),
+    (
+        "wrong type",
+        ["seed=abc"],
+        "seed=abc: Value 'abc' of type 'str' could not be converted to Integer",
+    ),
     ("out of range", ["budget.n_pairs=-1"], "budget.n_pairs must be > 0"),
     ("no workers", ["workers.num=0"], "workers.num must be > 0"),
     # the key typed, not the one that follows it (agent.max_episode_steps: ${budget...})
-    ("episode length", ["budget.episode_steps=0"],
-     "budget.episode_steps (agent.max_episode_steps) must be > 0"),
+    (
+        "episode length",
+        ["budget.episode_steps=0"],
+        "budget.episode_steps (agent.max_episode_steps) must be > 0",
+    ),
     ("terrain for ePOET", ["terrain=bowl"], "needs terrain=cppn"),
-    ("ePOET-SAC buffer", ["algo=epoet_sac", "algo.sac.buffer_size=8"],
-     "algo.sac.buffer_size (8) must hold at least one batch"),
-    ("ePOET-SAC start from another algorithm's run", ["algo=epoet_sac", "algo.sac_init={good}"],
-     "is an algo=epoet run; a warm start takes the actor and critics of an algo=sac run"),
-    ("ePOET-SAC start from the authors' PPO", ["algo=epoet_sac", "algo.sac_init=reference:ppo/0"],
-     "is the authors' ppo agent; a warm start takes a SAC actor with its critics"),
-    ("ePOET-SAC start of other layer sizes", ["algo=epoet_sac", "algo.sac.hidden=[64,64]"],
-     "has a [256, 256] relu actor, but algo.sac.hidden=[64, 64]"),
+    (
+        "ePOET-SAC buffer",
+        ["algo=epoet_sac", "algo.sac.buffer_size=8"],
+        "algo.sac.buffer_size (8) must hold at least one batch",
+    ),
+    (
+        "ePOET-SAC start from another algorithm's run",
+        ["algo=epoet_sac", "algo.sac_init={good}"],
+        "is an algo=epoet run; a warm start takes the actor and critics of an algo=sac run",
+    ),
+    (
+        "ePOET-SAC start from the authors' PPO",
+        ["algo=epoet_sac", "algo.sac_init=reference:ppo/0"],
+        "is the authors' ppo agent; a warm start takes a SAC actor with its critics",
+    ),
+    (
+        "ePOET-SAC start of other layer sizes",
+        ["algo=epoet_sac", "algo.sac.hidden=[64,64]"],
+        "has a [256, 256] relu actor, but algo.sac.hidden=[64, 64]",
+    ),
     ("ray for a baseline", ["algo=ppo", "workers=ray"], "use workers=local"),
     ("address without ray", ["workers.address=127.0.0.1:6379"], "needs workers=ray"),
-    ("unreachable ray", ["workers=ray", "workers.address=127.0.0.1:9"],
-     "no Ray cluster answers at workers.address=127.0.0.1:9"),
+    (
+        "unreachable ray",
+        ["workers=ray", "workers.address=127.0.0.1:9"],
+        "no Ray cluster answers at workers.address=127.0.0.1:9",
+    ),
     ("resume missing", ["resume={tmp}/missing"], "does not exist"),
     # the good checkpoint cut in half (the test writes it)
-    ("resume corrupt", ["resume={tmp}/corrupt.pkl"],
-     "checkpoint {tmp}/corrupt.pkl is truncated or padded: payload is"),
-    ("resume other algo", ["algo=epoet_sac", "resume={good}"],
-     "is from algo=epoet, so it cannot resume algo=epoet_sac"),
+    (
+        "resume corrupt",
+        ["resume={tmp}/corrupt.pkl"],
+        "checkpoint {tmp}/corrupt.pkl is truncated or padded: payload is",
+    ),
+    (
+        "resume other algo",
+        ["algo=epoet_sac", "resume={good}"],
+        "is from algo=epoet, so it cannot resume algo=epoet_sac",
+    ),
     ("resume changed config", ["resume={good}", "seed=1"], "seed (0 -> 1)"),
     ("unreachable tracking", ["tracking.uri=http://127.0.0.1:9"], "http://127.0.0.1:9"),
-    ("store in a missing folder", ["tracking.uri=sqlite:///{tmp}/nowhere/m.db"],
-     "does not exist"),
+    ("store in a missing folder", ["tracking.uri=sqlite:///{tmp}/nowhere/m.db"], "does not exist"),
     ("output folder not a folder", ["hydra.run.dir={tmp}/a_file/run"], "Not a directory"),
 ]
 
 
 def _epoet(args: list[str], cwd: Path, uri: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "epoet", *without_evaluation(args)], cwd=cwd,
-                            env={**os.environ, "MLFLOW_TRACKING_URI": uri},
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "epoet", *without_evaluation(args)],
+        cwd=cwd,
+        env={**os.environ, "MLFLOW_TRACKING_URI": uri},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _runs(uri: str) -> dict[str, str]:
     client = mlflow.MlflowClient(uri)
-    return {r.info.run_id: r.info.status
-            for r in client.search_runs([e.experiment_id for e in client.search_experiments()])}
+    return {
+        r.info.run_id: r.info.status
+        for r in client.search_runs([e.experiment_id for e in client.search_experiments()])
+    }
 
 
 @pytest.fixture(scope="module")
@@ -101,8 +144,11 @@ def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) ->
         if not any(a.startswith("hydra.run.dir") for a in args):
             args.append(f"hydra.run.dir={tmp / 'bad' / str(i)}")
         # a baseline's config has neither ES settings nor an ES budget (iterations, pairs)
-        base = SMOKE if "algo=ppo" not in args else [
-            a for a in SMOKE if not a.startswith(("algo.es", "budget.iterations"))]
+        base = (
+            SMOKE
+            if "algo=ppo" not in args
+            else [a for a in SMOKE if not a.startswith(("algo.es", "budget.iterations"))]
+        )
         procs[name] = _epoet([*base, *args], tmp, uri)
     for name, _, message in ROWS:
         _, err = procs[name].communicate(timeout=300)
@@ -117,8 +163,12 @@ def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) ->
 
 def _mount(point: Path, options: str) -> None:
     point.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)],
-                      capture_output=True).returncode != 0:
+    if (
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(point)], capture_output=True
+        ).returncode
+        != 0
+    ):
         pytest.skip("mounting a tmpfs needs CAP_SYS_ADMIN")
 
 
@@ -136,8 +186,15 @@ def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> 
         assert _runs(uri) == before
 
         # The default network: a checkpoint (~110 kB) larger than the disk.
-        proc = _epoet([*[a for a in SMOKE if not a.startswith("algo.es")], "checkpoint_every=1",
-                       f"hydra.run.dir={full}/run"], tmp, uri)
+        proc = _epoet(
+            [
+                *[a for a in SMOKE if not a.startswith("algo.es")],
+                "checkpoint_every=1",
+                f"hydra.run.dir={full}/run",
+            ],
+            tmp,
+            uri,
+        )
         _, err = proc.communicate(timeout=300)
         assert proc.returncode == 2 and err.strip().splitlines() == [err.strip()], err[-2000:]
         assert "cannot save checkpoint" in err and "No space left on device" in err

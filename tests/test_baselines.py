@@ -3,6 +3,7 @@
 Everything is real (TorchRL collectors, losses and replay buffers, the MuJoCo env, an MLflow
 sqlite store in tmp_path); sizes are tiny: 30-step episodes, batches of 60 frames, small grids.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,10 +17,10 @@ from omegaconf import DictConfig
 from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
-from epoet.core.checkpoint import CheckpointError, load_checkpoint
-from epoet.config import validate
-from epoet.core.schema import ConfigError
 from epoet.config import compose as compose_config
+from epoet.config import validate
+from epoet.core.checkpoint import CheckpointError, load_checkpoint
+from epoet.core.schema import ConfigError
 from epoet.rl import sac
 from epoet.rl.env import RunningObsNorm, hexapod, make_env, obs_norm_of
 from epoet.rl.harness import batch_plan
@@ -28,14 +29,27 @@ from epoet.run import run
 from epoet.tracking import MlflowTracker
 
 # 30-step episodes, 60-frame batches, 4 batches, evaluations every 2 batches
-TINY = ["budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
-        "budget.frames=240", "budget.eval_every=120", "budget.eval_episodes=1",
-        "algo.frames_per_batch=60", "checkpoint_every=2", "evaluate=false"]
+TINY = [
+    "budget=smoke",
+    "workers.num=1",
+    "terrain.grid=40",
+    "budget.episode_steps=30",
+    "budget.frames=240",
+    "budget.eval_every=120",
+    "budget.eval_episodes=1",
+    "algo.frames_per_batch=60",
+    "checkpoint_every=2",
+    "evaluate=false",
+]
 SIZES = {
     "ppo": ["algo.epochs=2", "algo.minibatch=30"],
     "vmpo": ["algo.epochs=2", "algo.minibatch=30"],
-    "sac": ["algo.hidden=[32,32]", "algo.batch_size=32", "algo.updates_per_batch=8",
-            "algo.init_random_frames=60"],
+    "sac": [
+        "algo.hidden=[32,32]",
+        "algo.batch_size=32",
+        "algo.updates_per_batch=8",
+        "algo.init_random_frames=60",
+    ],
 }
 # metrics each algorithm must report besides the loop's own
 ALGO_METRICS = {
@@ -74,13 +88,22 @@ def test_smoke_run_logs_to_mlflow_and_exports_a_rebuildable_policy(algo, store, 
     assert mlflow_run.info.status == "FINISHED"
     assert mlflow_run.data.tags["algo"] == algo and mlflow_run.data.tags["terrain"] == "bowl"
     metrics = mlflow_run.data.metrics
-    for key in ["train/episode_return", "train/episode_length", "train/finish_rate",
-                "eval/return_mean", "eval/finish_rate", "final/return_mean", "frames", "fps",
-                *ALGO_METRICS[algo]]:
+    for key in [
+        "train/episode_return",
+        "train/episode_length",
+        "train/finish_rate",
+        "eval/return_mean",
+        "eval/finish_rate",
+        "final/return_mean",
+        "frames",
+        "fps",
+        *ALGO_METRICS[algo],
+    ]:
         assert key in metrics, key
     assert metrics["frames"] == 240
-    assert [m.step for m in store.get_metric_history(mlflow_run.info.run_id,
-                                                     "eval/return_mean")] == [0, 120, 240]
+    assert [
+        m.step for m in store.get_metric_history(mlflow_run.info.run_id, "eval/return_mean")
+    ] == [0, 120, 240]
     assert "policy.pt" in {a.path for a in store.list_artifacts(mlflow_run.info.run_id)}
 
     # the exported policy, rebuilt with plain torch, acts as the trained actor
@@ -117,8 +140,9 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
         run(compose_config(overrides), tmp_path / "killed")
     monkeypatch.setattr(learner_type, "learn", learn)
     assert load_checkpoint(tmp_path / "killed")["loop"]["batches"] == 2
-    resumed = run(compose_config([*overrides, f"resume={tmp_path / 'killed'}"]),
-                  tmp_path / "killed")
+    resumed = run(
+        compose_config([*overrides, f"resume={tmp_path / 'killed'}"]), tmp_path / "killed"
+    )
 
     assert resumed.frames == straight.frames == 240
     ours, theirs = resumed.learner.loss.state_dict(), straight.learner.loss.state_dict()
@@ -129,8 +153,10 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_pat
     for key in ("obs_loc", "obs_scale"):
         assert (a[key] is None and b[key] is None) or torch.equal(a[key], b[key])
     # one MLflow run, continued: its frame counter went on from the checkpoint to the end
-    runs = store.search_runs([store.get_experiment_by_name("epoet").experiment_id],
-                             order_by=["attributes.start_time ASC"])
+    runs = store.search_runs(
+        [store.get_experiment_by_name("epoet").experiment_id],
+        order_by=["attributes.start_time ASC"],
+    )
     assert len(runs) == 2
     killed_run = runs[1]  # the straight run started first
     assert killed_run.info.status == "FINISHED"
@@ -144,30 +170,50 @@ def test_sac_learns_on_flat_terrain(store, tmp_path):
     and a small initial temperature make the signal -- walking forward, keeping straight -- quick
     to learn; seeds 1, 2, 3 gave final returns 15.5, 23.9, 13.0 against initial -1.0, 1.0, 0.8.
     """
-    raw = compose_config([
-        "algo=sac", "budget=smoke", "workers.num=1", "terrain.grid=40", "seed=1",
-        "terrain.max_height=0", "terrain.max_height_step=0", "agent.spawn_yaw=0",
-        "budget.episode_steps=50", "budget.frames=6000", "budget.eval_every=6000",
-        "budget.eval_episodes=5", "algo.frames_per_batch=500", "algo.updates_per_batch=500",
-        "algo.init_random_frames=500", "algo.hidden=[64,64]", "algo.batch_size=128",
-        "algo.gamma=0.9", "algo.alpha_init=0.05"])
+    raw = compose_config(
+        [
+            "algo=sac",
+            "budget=smoke",
+            "workers.num=1",
+            "terrain.grid=40",
+            "seed=1",
+            "terrain.max_height=0",
+            "terrain.max_height_step=0",
+            "agent.spawn_yaw=0",
+            "budget.episode_steps=50",
+            "budget.frames=6000",
+            "budget.eval_every=6000",
+            "budget.eval_episodes=5",
+            "algo.frames_per_batch=500",
+            "algo.updates_per_batch=500",
+            "algo.init_random_frames=500",
+            "algo.hidden=[64,64]",
+            "algo.batch_size=128",
+            "algo.gamma=0.9",
+            "algo.alpha_init=0.05",
+        ]
+    )
     with MlflowTracker(None, "sac-flat") as tracker:
         run_id = tracker.start("sac-flat")
         sac.train(validate(raw), tracker, tmp_path, None)
-    returns = sorted((m.step, m.value) for m in store.get_metric_history(run_id,
-                                                                         "eval/return_mean"))
+    returns = sorted(
+        (m.step, m.value) for m in store.get_metric_history(run_id, "eval/return_mean")
+    )
     (_, before), (_, after) = returns
     assert after > before + 5.0, returns
 
 
-@pytest.mark.parametrize("overrides, message", [
-    (["algo=ppo", "algo.clip=-1"], "algo.clip must be > 0"),
-    (["algo=sac", "algo.batch_size=0"], "algo.batch_size must be > 0"),
-    (["algo=vmpo", "algo.top_fraction=1.5"], "algo.top_fraction must be in (0, 1]"),
-    (["algo=ppo", "algo.frames_per_batch=0"], "algo.frames_per_batch must be > 0"),
-    (["algo=sac", "algo.activation=sigmoid"], "algo.activation must be one of"),
-    (["algo=sac", "algo.buffer_size=10"], "algo.buffer_size (10) must hold at least one batch"),
-])
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["algo=ppo", "algo.clip=-1"], "algo.clip must be > 0"),
+        (["algo=sac", "algo.batch_size=0"], "algo.batch_size must be > 0"),
+        (["algo=vmpo", "algo.top_fraction=1.5"], "algo.top_fraction must be in (0, 1]"),
+        (["algo=ppo", "algo.frames_per_batch=0"], "algo.frames_per_batch must be > 0"),
+        (["algo=sac", "algo.activation=sigmoid"], "algo.activation must be one of"),
+        (["algo=sac", "algo.buffer_size=10"], "algo.buffer_size (10) must hold at least one batch"),
+    ],
+)
 def test_bad_config_fails_at_start_up(overrides, message, store, tmp_path):
     with pytest.raises(ConfigError) as err:
         run(compose_config(overrides), tmp_path / "run")
@@ -205,10 +251,12 @@ def test_running_obs_norm_matches_the_data_and_survives_tiny_spreads():
     from torchrl.envs import ObservationNorm
 
     gen = torch.Generator().manual_seed(0)
-    data = torch.randn(1000, 3, generator=gen) * torch.tensor([2.0, 1e-3, 0.0]) \
-        + torch.tensor([-1.0, 1e2, 5.0])
-    norm = ObservationNorm(loc=torch.zeros(3), scale=torch.ones(3), in_keys=["observation"],
-                           standard_normal=True)
+    data = torch.randn(1000, 3, generator=gen) * torch.tensor([2.0, 1e-3, 0.0]) + torch.tensor(
+        [-1.0, 1e2, 5.0]
+    )
+    norm = ObservationNorm(
+        loc=torch.zeros(3), scale=torch.ones(3), in_keys=["observation"], standard_normal=True
+    )
     stats = RunningObsNorm(norm)
     for chunk in data.split(137):
         stats.update(chunk)
@@ -216,8 +264,11 @@ def test_running_obs_norm_matches_the_data_and_survives_tiny_spreads():
     np.testing.assert_allclose(stats.mean.numpy(), ref.mean(0), rtol=1e-12)
     np.testing.assert_allclose(norm.scale.numpy(), np.sqrt(ref.var(0) + 1e-8), rtol=1e-5)
     assert torch.isfinite(norm.scale).all() and (norm.scale > 0).all()
-    restored = RunningObsNorm(ObservationNorm(loc=torch.zeros(3), scale=torch.ones(3),
-                                              in_keys=["observation"], standard_normal=True))
+    restored = RunningObsNorm(
+        ObservationNorm(
+            loc=torch.zeros(3), scale=torch.ones(3), in_keys=["observation"], standard_normal=True
+        )
+    )
     restored.load_state_dict(stats.state_dict())
     assert torch.equal(restored.transform.loc, norm.loc)
     assert torch.equal(restored.transform.scale, norm.scale)
@@ -238,4 +289,5 @@ def test_training_env_draws_a_new_terrain_per_episode_on_the_height_schedule(ter
     assert len({t.id for t in seen}) == 4
     # set_seed's reset was episode 0, so the four resets above are episodes 1..4
     assert [t.max_height for t in seen] == pytest.approx(
-        [min(0.1 + 0.3 * i, limit) for i in range(1, 5)])
+        [min(0.1 + 0.3 * i, limit) for i in range(1, 5)]
+    )

@@ -1,5 +1,6 @@
 """Checkpoints: exact round trip, atomic replacement, one-sentence errors for bad files, and the
 configs of older checkpoints read in today's layout."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -94,13 +95,16 @@ def test_missing_file_and_empty_run_folder_are_named(tmp_path):
         load_checkpoint(tmp_path)
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda b: b[: len(b) // 2], "truncated"),
-    (lambda b: b[:10], "shorter than its header"),
-    (lambda b: b[:-1] + bytes([b[-1] ^ 0xFF]), "CRC mismatch"),
-    (lambda b: b"NOTEPOET" + b[8:], "not an epoet checkpoint"),
-    (lambda b: b[:8] + (99).to_bytes(4, "little") + b[12:], "format version 99"),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda b: b[: len(b) // 2], "truncated"),
+        (lambda b: b[:10], "shorter than its header"),
+        (lambda b: b[:-1] + bytes([b[-1] ^ 0xFF]), "CRC mismatch"),
+        (lambda b: b"NOTEPOET" + b[8:], "not an epoet checkpoint"),
+        (lambda b: b[:8] + (99).to_bytes(4, "little") + b[12:], "format version 99"),
+    ],
+)
 def test_damaged_files_raise_checkpoint_error(tmp_path, damage, message):
     path = tmp_path / CHECKPOINT_NAME
     save_checkpoint(path, {"theta": np.arange(1000.0)})
@@ -118,9 +122,14 @@ def test_state_must_be_a_dict(tmp_path):
 # the algorithm x budget values lived in conf/algo_budget/ (written by that code, commit 28f1848),
 # each with today's overrides for the same run (ePOET-SAC then had no SAC warm start).
 BEFORE_ALGO_BUDGET = Path(__file__).with_name("configs_before_algo_budget.json")
-TODAY = {"algo=epoet budget=smoke algo.later_reproduce_interval=15":
-         ["algo=epoet", "budget=smoke", "algo.later_adjust_interval=1"],
-         "algo=epoet_sac budget=laptop": ["algo=epoet_sac", "budget=laptop", "algo.sac_init=null"]}
+TODAY = {
+    "algo=epoet budget=smoke algo.later_reproduce_interval=15": [
+        "algo=epoet",
+        "budget=smoke",
+        "algo.later_adjust_interval=1",
+    ],
+    "algo=epoet_sac budget=laptop": ["algo=epoet_sac", "budget=laptop", "algo.sac_init=null"],
+}
 
 
 @pytest.mark.parametrize("overrides", sorted(json.loads(BEFORE_ALGO_BUDGET.read_text())))

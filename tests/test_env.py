@@ -1,4 +1,5 @@
 """The hexapod task: gymnasium/TorchRL conformance, reward formulas, contacts, spawn, episode end."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -10,13 +11,12 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from epoet.core.schema import ConfigError
-from epoet.terrain.config import TerrainConfig
 from epoet.envs import ENV_ID
 from epoet.envs.hexapod_env import HexapodEnv, make_hexapod
 from epoet.envs.model import TerrainMismatchError, action_to_targets, layout
-from epoet.envs.task import (REWARD_TERMS, EpisodeState, HexapodTask, heading_deviation,
-                             roll_pitch)
+from epoet.envs.task import REWARD_TERMS, EpisodeState, HexapodTask, heading_deviation, roll_pitch
 from epoet.terrain import Terrain, make_terrain
+from epoet.terrain.config import TerrainConfig
 
 
 @pytest.mark.parametrize("kind", ["bowl", "cppn"])
@@ -58,14 +58,18 @@ def test_reward_terms_match_reference_formulas() -> None:
     env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
     task = HexapodTask(env.agent_cfg, layout(env.model), 10.0)
     rng = np.random.default_rng(0)
-    qpos = np.zeros((1, 25)); qvel = np.zeros((1, 24)); sensordata = np.zeros((1, 24))
+    qpos = np.zeros((1, 25))
+    qvel = np.zeros((1, 24))
+    sensordata = np.zeros((1, 24))
     yaw, tilt = 0.3, 0.1
     quat = np.array([np.cos(yaw / 2), np.sin(tilt / 2), 0.0, np.sin(yaw / 2)])
     qpos[0, :7] = [1.0, 0.2, 0.15, *(quat / np.linalg.norm(quat))]
     qvel[0, :3] = [0.3, -0.1, 0.05]
     sensordata[0, 6:] = rng.normal(0, 5, 18)
     state = EpisodeState.zeros(1)
-    state.prev_heading[:] = 0.5; state.prev_y[:] = -0.3; state.best_x[:] = 0.0
+    state.prev_heading[:] = 0.5
+    state.prev_y[:] = -0.3
+    state.best_x[:] = 0.0
     reward, terminated, truncated, terms = task.step(qpos, qvel, sensordata, state)
     terms = dict(zip(REWARD_TERMS, terms[0]))
 
@@ -74,10 +78,16 @@ def test_reward_terms_match_reference_formulas() -> None:
     dev = 2 * np.arccos(abs(q[0]))
     roll = np.arctan2(2 * (q[0] * q[1] + q[2] * q[3]), 1 - 2 * (q[1] ** 2 + q[2] ** 2))
     pitch = np.arcsin(2 * (q[0] * q[2] - q[3] * q[1]))
-    r_vel = (1 / (abs(vx - 0.4) + 1) - 1 / 1.4) / (1 + 30 * vy ** 2)
+    r_vel = (1 / (abs(vx - 0.4) + 1) - 1 / 1.4) / (1 + 30 * vy**2)
     r_pos = 6 * r_vel + 10 * (0.5 - dev) + 10 * (0.3 - 0.2)
-    r_neg = (0.1 * 0.2 ** 2 + 0.1 * dev ** 2 + 0.5 * pitch ** 2 + 0.5 * roll ** 2
-             + 1e-4 * np.mean(sensordata[0, 6:] ** 2) + 0.7 * vz ** 2)
+    r_neg = (
+        0.1 * 0.2**2
+        + 0.1 * dev**2
+        + 0.5 * pitch**2
+        + 0.5 * roll**2
+        + 1e-4 * np.mean(sensordata[0, 6:] ** 2)
+        + 0.7 * vz**2
+    )
     assert reward[0] == pytest.approx(r_pos - r_neg, rel=1e-12)
     assert terms["velocity"] == pytest.approx(6 * r_vel)
     assert terms["penalty"] == pytest.approx(-r_neg)
@@ -90,11 +100,15 @@ def test_reward_terms_match_reference_formulas() -> None:
 def test_a_blown_up_row_ends_without_reward_and_leaves_the_others_alone() -> None:
     env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
     task = HexapodTask(replace(env.agent_cfg, finish_x=0.5), layout(env.model), 10.0)
-    qpos = np.zeros((4, 25)); qpos[:, 3] = 1.0; qpos[:, 2] = 0.2; qpos[:, 0] = 1.0
-    qvel = np.full((4, 24), 0.1); sd = np.ones((4, 24))
-    qpos[1, 5] = np.nan      # NaN
-    qvel[2, 7] = 1e11        # beyond mjMAXVAL
-    qpos[3, 8] = np.inf      # infinite
+    qpos = np.zeros((4, 25))
+    qpos[:, 3] = 1.0
+    qpos[:, 2] = 0.2
+    qpos[:, 0] = 1.0
+    qvel = np.full((4, 24), 0.1)
+    sd = np.ones((4, 24))
+    qpos[1, 5] = np.nan  # NaN
+    qvel[2, 7] = 1e11  # beyond mjMAXVAL
+    qpos[3, 8] = np.inf  # infinite
     state = EpisodeState.zeros(4)
     reward, terminated, truncated, _ = task.step(qpos, qvel, sd, state)
     np.testing.assert_array_equal(state.unstable, [False, True, True, True])
@@ -115,8 +129,11 @@ def test_a_blown_up_row_ends_without_reward_and_leaves_the_others_alone() -> Non
 def test_finish_bonus_paid_once() -> None:
     env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
     task = HexapodTask(replace(env.agent_cfg, finish_x=6.0), layout(env.model), 10.0)
-    qpos = np.zeros((1, 25)); qpos[0, 3] = 1.0; qpos[0, 2] = 0.1
-    qvel = np.zeros((1, 24)); sd = np.zeros((1, 24))
+    qpos = np.zeros((1, 25))
+    qpos[0, 3] = 1.0
+    qpos[0, 2] = 0.1
+    qvel = np.zeros((1, 24))
+    sd = np.zeros((1, 24))
     state = EpisodeState.zeros(1)
     qpos[0, 0] = 5.9
     bonus = REWARD_TERMS.index("bonus")
@@ -143,23 +160,25 @@ def _settle(env: HexapodEnv, action: np.ndarray, steps: int) -> np.ndarray:
 
 
 def test_contacts_standing_and_lifted_leg(flat: Terrain) -> None:
-    env = make_hexapod(agent={"spawn_yaw": 0.0, "spawn_vel_std": 0.0},
-                     terrain={"kind": "bowl", "grid": 40})
+    env = make_hexapod(
+        agent={"spawn_yaw": 0.0, "spawn_vel_std": 0.0}, terrain={"kind": "bowl", "grid": 40}
+    )
     env.reset(seed=0, options={"terrain": flat})
     stand = np.zeros(18)
-    stand[1::3] = 0.2   # femurs slightly down: body lifted on six feet
+    stand[1::3] = 0.2  # femurs slightly down: body lifted on six feet
     obs = _settle(env, stand, 60)
     np.testing.assert_array_equal(obs[47:53], np.ones(6))
     lifted = stand.copy()
-    lifted[1] = -1.0    # front-left femur fully up
+    lifted[1] = -1.0  # front-left femur fully up
     obs = _settle(env, lifted, 40)
     assert obs[47] == 0.0, "the lifted front-left foot must not report contact"
     assert obs[48:53].sum() >= 4, "the other feet stay on the ground"
 
 
 @pytest.mark.parametrize("integrator", ["rk4", "implicitfast"])
-def test_contact_flags_describe_the_state_after_the_step(integrator: str,
-                                                         terrain_cfg: TerrainConfig) -> None:
+def test_contact_flags_describe_the_state_after_the_step(
+    integrator: str, terrain_cfg: TerrainConfig
+) -> None:
     """Joint angles and contact flags describe one instant: the state the step ended in."""
     env = make_hexapod(agent={"integrator": integrator, "spawn_yaw": 0.0}, terrain=terrain_cfg)
     obs, _ = env.reset(seed=1)
@@ -196,7 +215,7 @@ def test_robot_geoms_never_collide_with_each_other(terrain_cfg: TerrainConfig) -
     data.qpos[3] = 1.0
     data.qpos[7:] = np.tile([0.0, 0.3, 2.0], 6)
     mujoco.mj_forward(model, data)
-    pairs = [(c.geom1, c.geom2) for c in data.contact[:data.ncon]]
+    pairs = [(c.geom1, c.geom2) for c in data.contact[: data.ncon]]
     assert pairs and all(terrain in pair for pair in pairs)
 
 
@@ -213,8 +232,9 @@ def test_spawn_above_local_ground_on_rough_terrain(terrain_cfg: TerrainConfig) -
 
 
 def test_no_progress_rule_ends_episode(flat: Terrain) -> None:
-    env = make_hexapod(agent={"no_progress_steps": 15, "spawn_vel_std": 0.0},
-                     terrain={"kind": "bowl", "grid": 40})
+    env = make_hexapod(
+        agent={"no_progress_steps": 15, "spawn_vel_std": 0.0}, terrain={"kind": "bowl", "grid": 40}
+    )
     env.reset(seed=0, options={"terrain": flat})
     for step in range(1, 300):
         _, _, terminated, truncated, info = env.step(np.zeros(18))  # standing still
@@ -261,7 +281,7 @@ def test_roughness_is_patch_variance(terrain_cfg: TerrainConfig) -> None:
     r, c = 20, 10
     x = (c / (terrain.grid - 1) * 2 - 1) * terrain_cfg.size / 2
     y = (r / (terrain.grid - 1) * 2 - 1) * terrain_cfg.size / 2
-    expected = (terrain.heightmap[r - 2:r + 3, c - 2:c + 3] * terrain.max_height).var()
+    expected = (terrain.heightmap[r - 2 : r + 3, c - 2 : c + 3] * terrain.max_height).var()
     assert env.ground.roughness(x, y)[0] == pytest.approx(expected)
 
 

@@ -1,6 +1,7 @@
 """ePOET-SAC on the real engine, worker pool, SAC learner and tracker: the shared replay, the
 join's schedule, crossover, the mapping's fidelity, warm starts (`algo.sac_init`), one set of
 observation statistics for the pool and the learner, and exact resume."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,34 +10,50 @@ import mlflow
 import numpy as np
 import pytest
 import torch
-from pool_state import assert_same_state
 from tensordict import TensorDictBase
 
-from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
+from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
-from epoet.rollout.evaluators import make_evaluator
+from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.replay_mix import ReplayMix
-from epoet.poet.runner import layer_sizes
-from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.epoet_sac.runner import warm_start_of
+from epoet.poet.runner import layer_sizes
 from epoet.rl.env import episode_metrics, hexapod
 from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
+from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.policy import forward
 from epoet.run import run
+from pool_state import assert_same_state
 
 # Small everything, a cold start; transfer every iteration, so joins come at t mod 4 = 2 (2, 6,
 # ...), and reproduce at the paper's 75.
-SMOKE = ["algo=epoet_sac", "budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40",
-         "algo.iterations_before_transfer=1", "algo.adjust_interval=75",
-         "algo.frames_per_iteration=60",
-         "algo.updates_per_frame=0.5", "algo.sac.hidden=[32,32]", "algo.sac.batch_size=32",
-         "algo.sac.init_random_frames=60", "algo.distill.states=256", "algo.distill.epochs=3",
-         "algo.distill.batch=64", "checkpoint_every=1", "workers.num=1", "algo.sac_init=null"]
+SMOKE = [
+    "algo=epoet_sac",
+    "budget=smoke",
+    "algo.es.hidden=[8]",
+    "terrain.grid=40",
+    "algo.iterations_before_transfer=1",
+    "algo.adjust_interval=75",
+    "algo.frames_per_iteration=60",
+    "algo.updates_per_frame=0.5",
+    "algo.sac.hidden=[32,32]",
+    "algo.sac.batch_size=32",
+    "algo.sac.init_random_frames=60",
+    "algo.distill.states=256",
+    "algo.distill.epochs=3",
+    "algo.distill.batch=64",
+    "checkpoint_every=1",
+    "workers.num=1",
+    "algo.sac_init=null",
+]
 # The authors' SAC (256-256) as the start, with the pool's observation statistics.
-AUTHORS = ["algo.sac.hidden=[256,256]", "algo.sac_init=reference:sac/42",
-           "algo.es.obs_norm_episodes=1"]
+AUTHORS = [
+    "algo.sac.hidden=[256,256]",
+    "algo.sac_init=reference:sac/42",
+    "algo.es.obs_norm_episodes=1",
+]
 
 
 def smoke(*overrides: str) -> list[str]:
@@ -63,8 +80,11 @@ def test_es_transitions_from_the_worker_processes_reach_the_replay_buffer() -> N
     assert stored["observation"].dtype == torch.float32
     # rewards enter times the reward scale; they add up to the recorded episodes' returns
     returns = sum(e.returns[:3].sum() for e in episodes)
-    np.testing.assert_allclose(stored["next", "reward"].double().sum().item(),
-                               loop.cfg.sac.reward_scale * returns, rtol=1e-4)
+    np.testing.assert_allclose(
+        stored["next", "reward"].double().sum().item(),
+        loop.cfg.sac.reward_scale * returns,
+        rtol=1e-4,
+    )
     loop.close()
 
 
@@ -102,7 +122,7 @@ def test_crossover_with_itself_replaces_nothing() -> None:
         loop.poet.evaluate_pairs(0)
         theta = loop.pool.active[0].theta.copy()
         outcome = loop.crossover_with(loop.pool.active, theta, 0)
-    (old, new), = outcome.values()
+    ((old, new),) = outcome.values()
     assert old == new and not loop.replaced
     np.testing.assert_array_equal(loop.pool.active[0].theta, theta)
     loop.close()
@@ -113,7 +133,8 @@ def _metric(client: mlflow.MlflowClient, run_id: str, key: str) -> dict[int, flo
 
 
 def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_improvement(
-        compose, mlflow_uri: str, tmp_path: Path) -> None:
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
     poet = run(compose(SMOKE + ["budget.iterations=7"]), tmp_path / "run")
     client = mlflow.MlflowClient(mlflow_uri)
     (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
@@ -138,10 +159,25 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
         for step, replaced in _metric(client, run_id, key).items():
             assert ((env, step) in archived) == bool(replaced)
     # the learner's metrics, the buffer's mix and the wall-time split are tracked
-    for key in ("sac/loss_qvalue", "sac/loss_actor", "sac/alpha", "sac/entropy",
-                "sac/buffer_size", "sac/es_transitions", "sac/own_transitions", "sac/es_share",
-                "sac/score", "join/sac_score", "join/mapped_score", "gen0/score", "gen1/score",
-                "time/optimize", "time/sac", "time/join", "transfers/from_joined"):
+    for key in (
+        "sac/loss_qvalue",
+        "sac/loss_actor",
+        "sac/alpha",
+        "sac/entropy",
+        "sac/buffer_size",
+        "sac/es_transitions",
+        "sac/own_transitions",
+        "sac/es_share",
+        "sac/score",
+        "join/sac_score",
+        "join/mapped_score",
+        "gen0/score",
+        "gen1/score",
+        "time/optimize",
+        "time/sac",
+        "time/join",
+        "transfers/from_joined",
+    ):
         assert key in r.data.metrics, key
     transfers = _metric(client, run_id, "transfers")
     for step, out_of_joined in _metric(client, run_id, "transfers/from_joined").items():
@@ -165,18 +201,22 @@ def _flat(state: dict) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("start", [[], AUTHORS], ids=["cold", "authors_normalised"])
-def test_resume_ends_in_the_uninterrupted_state(start: list[str], compose, mlflow_uri: str,
-                                                tmp_path: Path) -> None:
+def test_resume_ends_in_the_uninterrupted_state(
+    start: list[str], compose, mlflow_uri: str, tmp_path: Path
+) -> None:
     """Killed after iteration 2 (a join), resumed to 5 (a join at 6 is not reached): the pool,
     the SAC networks, optimiser and replay buffer equal an uninterrupted run's; with a warm start
     and normalisation also the observation statistics and the learner's copy of them (the
     resumed run reads no warm start: its checkpoint holds the learner)."""
     run(compose(smoke(*start, "budget.iterations=5")), tmp_path / "straight")
     run(compose(smoke(*start, "budget.iterations=3")), tmp_path / "killed")
-    run(compose(smoke(*start, "budget.iterations=5", f"resume={tmp_path / 'killed'}")),
-        tmp_path / "resumed")
-    a, b = (load_checkpoint(tmp_path / d / "checkpoint.pkl")["poet"] for d in
-            ("straight", "resumed"))
+    run(
+        compose(smoke(*start, "budget.iterations=5", f"resume={tmp_path / 'killed'}")),
+        tmp_path / "resumed",
+    )
+    a, b = (
+        load_checkpoint(tmp_path / d / "checkpoint.pkl")["poet"] for d in ("straight", "resumed")
+    )
     assert a["iteration"] == b["iteration"] == 5 and a["env_steps"] == b["env_steps"]
     assert a["join_of"] == b["join_of"] and len(a["join_of"]) == 1 and a["mix"] == b["mix"]
     assert any(k.startswith("replay.") for k in _flat(a["sac"]))  # the SAC state has its replay
@@ -196,11 +236,19 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
     the episodes' spread hid it (mean gaps 26.0 and 26.0 over 6 mapping seeds each). Closer,
     not a set factor closer: the gaps of 3 mapping seeds spread widely (on a second machine,
     whose float32 SAC updates differ in the last bits, 20.8 vs 41.4: a factor of 0.503)."""
-    loop, evaluator = _loop(["budget.episode_steps=150", "budget.eval_episodes=3",
-                             "algo.distill.states=4096",
-                             "algo.distill.epochs=20", "algo.sac.hidden=[64,64]",
-                             "algo.es.hidden=[40,40]", "budget.n_pairs=8",
-                             "terrain.max_height=0.0", "terrain.max_height_step=0.0"])
+    loop, evaluator = _loop(
+        [
+            "budget.episode_steps=150",
+            "budget.eval_episodes=3",
+            "algo.distill.states=4096",
+            "algo.distill.epochs=20",
+            "algo.sac.hidden=[64,64]",
+            "algo.es.hidden=[40,40]",
+            "budget.n_pairs=8",
+            "terrain.max_height=0.0",
+            "terrain.max_height_step=0.0",
+        ]
+    )
     gaps = {"distill": [], "random": []}
     root = loop.pool.active[0]
     with evaluator:
@@ -208,8 +256,16 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
         loop.add_to_replay(episodes)
         rng = np.random.default_rng(0)
         teacher = rng.normal(0.0, 0.5, root.theta.shape)
-        distill_into_actor(loop.actor_net, teacher, loop.replay_states(1),
-                           loop.service.layer_sizes, epochs=30, batch=128, lr=1e-3, seed=0)
+        distill_into_actor(
+            loop.actor_net,
+            teacher,
+            loop.replay_states(1),
+            loop.service.layer_sizes,
+            epochs=30,
+            batch=128,
+            lr=1e-3,
+            seed=0,
+        )
         terrain = loop.service.terrain(root.env, 0)
         for mapping in gaps:
             for t in range(3):
@@ -219,12 +275,15 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
     assert np.mean(gaps["distill"]) < np.mean(gaps["random"]), gaps
 
 
-@pytest.mark.parametrize("override, message", [
-    ("algo.mapping=copy", "algo.mapping must be one of"),
-    ("algo.sac_terrain=flat", "algo.sac_terrain must be one of"),
-    ("algo.sac.tau=2", "algo.sac.tau must be in"),
-    ("algo.frames_per_iteration=0", "algo.frames_per_iteration must be > 0"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("algo.mapping=copy", "algo.mapping must be one of"),
+        ("algo.sac_terrain=flat", "algo.sac_terrain must be one of"),
+        ("algo.sac.tau=2", "algo.sac.tau must be in"),
+        ("algo.frames_per_iteration=0", "algo.frames_per_iteration must be > 0"),
+    ],
+)
 def test_bad_settings_fail_in_one_sentence(override: str, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         load(["algo=epoet_sac", override])
@@ -238,8 +297,7 @@ def _actions(loop: EpoetSac, obs: np.ndarray) -> np.ndarray:
         return torch.tanh(loop.actor_net(torch.as_tensor(obs, dtype=torch.float32))[0]).numpy()
 
 
-def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(
-        tmp_path: Path) -> None:
+def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(tmp_path: Path) -> None:
     """algo.sac_init=reference:sac/42: the learner's actor acts as the shipped policy file on
     observations of real episodes, its scales are the authors' exp(clamp(log_std, -20, 2)), its
     critics and target critics are the shipped ones, and it collects with its actor from the
@@ -271,8 +329,9 @@ def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(
     def q_values(on: EpoetSac) -> torch.Tensor:
         loss = on.learner.loss
         with torch.no_grad():
-            return loss.critics(loss.critic_input(torch.as_tensor(obs)),
-                                torch.as_tensor(policy(obs)))
+            return loss.critics(
+                loss.critic_input(torch.as_tensor(obs)), torch.as_tensor(policy(obs))
+            )
 
     q_before = q_values(loop)
     loop.sync_obs_statistics()
@@ -283,8 +342,11 @@ def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(
     assert not torch.allclose(first, spec["0.weight"])  # re-expressed for the statistics
     np.testing.assert_allclose(_actions(loop, obs), policy(obs), atol=1e-4)
     torch.testing.assert_close(q_values(loop), q_before, rtol=1e-4, atol=1e-3)
-    exported = load_policy(export_policy(tmp_path / "sac_policy.pt", loop.learner.actor,
-                                         loop.sac_env, [256, 256], "relu"))
+    exported = load_policy(
+        export_policy(
+            tmp_path / "sac_policy.pt", loop.learner.actor, loop.sac_env, [256, 256], "relu"
+        )
+    )
     assert torch.load(tmp_path / "sac_policy.pt", weights_only=True)["obs_loc"] is None
     np.testing.assert_allclose(exported(obs), policy(obs), atol=1e-4)
     loop.close()
@@ -292,16 +354,32 @@ def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(
 
 
 def test_a_warm_start_from_our_sac_run_loads_its_actor_and_critics(
-        compose, mlflow_uri: str, tmp_path: Path) -> None:
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
     """A SAC run of ours as algo.sac_init, by run folder (its critics.pt, or for an older run
     its checkpoint's critics) and by MLflow run id (its artifacts): the learner's actor acts as
     the run's exported policy and its critics are the run's."""
     folder = tmp_path / "sac"
-    run(compose(["algo=sac", "budget=smoke", "workers.num=1", "terrain.grid=40",
-                 "budget.episode_steps=30", "budget.frames=120", "budget.eval_every=120",
-                 "budget.eval_episodes=1", "algo.frames_per_batch=60", "algo.hidden=[32,32]",
-                 "algo.batch_size=32", "algo.updates_per_batch=8",
-                 "algo.init_random_frames=60"]), folder)
+    run(
+        compose(
+            [
+                "algo=sac",
+                "budget=smoke",
+                "workers.num=1",
+                "terrain.grid=40",
+                "budget.episode_steps=30",
+                "budget.frames=120",
+                "budget.eval_every=120",
+                "budget.eval_episodes=1",
+                "algo.frames_per_batch=60",
+                "algo.hidden=[32,32]",
+                "algo.batch_size=32",
+                "algo.updates_per_batch=8",
+                "algo.init_random_frames=60",
+            ]
+        ),
+        folder,
+    )
     client = mlflow.MlflowClient(mlflow_uri)
     (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
     assert CRITICS_FILE in {a.path for a in client.list_artifacts(r.info.run_id)}
@@ -327,8 +405,9 @@ def test_the_join_and_the_transfer_cross_in_the_pools_standardised_space() -> No
     observations: folded with the pool's statistics (what the workers run) it acts as the SAC
     actor on raw states, with the distillation's reported error. And the transfer step teaches
     the actor the raw-observation agent the workers run, not the unfolded vector."""
-    loop, evaluator = _loop(["algo.es.obs_norm_episodes=1", "algo.distill.epochs=20",
-                             "algo.distill.states=1024"])
+    loop, evaluator = _loop(
+        ["algo.es.obs_norm_episodes=1", "algo.distill.epochs=20", "algo.distill.states=1024"]
+    )
     service, root = loop.service, loop.pool.active[0]
     with evaluator:
         _, episodes = loop.poet.es_step(0, record=4)
@@ -354,14 +433,19 @@ def test_the_starts_command_runs_each_start_at_the_workstation_budget() -> None:
     """`python -m pipeline.epoet_sac_starts` (README "ePOET-SAC"): each start's jobs compose to
     the workstation budget with normalisation on and that start, overrides last."""
     from pipeline.epoet_sac_starts import starts, train_command
+
     expected = {"cold": None, "ours": "/runs/sac_s1", "authors": "reference:sac/42"}
     for start, sac_init in starts("/runs/sac_s1").items():
         command = train_command(start, sac_init, "1,2,3", 1, ["budget.hours=0.25"])
         assert command[3:5] == ["-m", "algo=epoet_sac"] and "seed=1,2,3" in command
         job = [a for a in command[4:] if not a.startswith(("hydra.", "seed="))]
         cfg = load([*job, "seed=2"])
-        assert (cfg.budget.name, cfg.algo.sac_init, cfg.algo.es.obs_norm_episodes,
-                cfg.budget.hours) == ("workstation", expected[start], 1, 0.25)
+        assert (
+            cfg.budget.name,
+            cfg.algo.sac_init,
+            cfg.algo.es.obs_norm_episodes,
+            cfg.budget.hours,
+        ) == ("workstation", expected[start], 1, 0.25)
 
 
 def test_sacs_frames_cut_episodes_as_torchrls_rollout_did() -> None:
@@ -381,7 +465,8 @@ def test_sacs_frames_cut_episodes_as_torchrls_rollout_did() -> None:
     for i in range(50):
         assert int(nxt["step_count"][i]) == i - start + 1
         assert float(nxt["episode_reward"][i]) == pytest.approx(
-            float(nxt["reward"][start:i + 1].sum()), rel=1e-5, abs=1e-4)
+            float(nxt["reward"][start : i + 1].sum()), rel=1e-5, abs=1e-4
+        )
         if i + 1 < 50 and not done[i]:
             assert torch.equal(data["observation"][i + 1], nxt["observation"][i])
         if done[i]:
@@ -392,23 +477,32 @@ def test_sacs_frames_cut_episodes_as_torchrls_rollout_did() -> None:
     loop.close()
 
 
-def test_the_starts_table_reports_what_each_runs_joins_did(compose, mlflow_uri: str,
-                                                          tmp_path: Path) -> None:
+def test_the_starts_table_reports_what_each_runs_joins_did(
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
     """starts.md (pipeline.epoet_sac_starts) from two real runs: per start and seed the joined
     actor's and mapped agent's scores at each join, the replacements, transfers out of joined
     pairs and admissions summed over the run; a start not run yet says so."""
     from pipeline.epoet_sac_starts import NAME, summary_table
+
     for start, init in (("cold", "null"), ("authors", "reference:sac/42")):
-        run(compose(smoke("budget.iterations=3", f"algo.sac_init={init}",
-                          "algo.sac.hidden=[256,256]", f"tracking.experiment={NAME}-{start}")),
-            tmp_path / start)
+        run(
+            compose(
+                smoke(
+                    "budget.iterations=3",
+                    f"algo.sac_init={init}",
+                    "algo.sac.hidden=[256,256]",
+                    f"tracking.experiment={NAME}-{start}",
+                )
+            ),
+            tmp_path / start,
+        )
     table = summary_table(["shipped"]).splitlines()
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in table[2:] if line}
     assert set(rows) == {"cold", "ours", "authors"} and "not run yet" in rows["ours"]
     client = mlflow.MlflowClient(mlflow_uri)
     for start in ("cold", "authors"):
-        (r,) = client.search_runs(
-            [client.get_experiment_by_name(f"{NAME}-{start}").experiment_id])
+        (r,) = client.search_runs([client.get_experiment_by_name(f"{NAME}-{start}").experiment_id])
         cells = rows[start]
         assert cells[1] == "0" and cells[3] == "3"  # seed, iterations
         (score,) = _metric(client, r.info.run_id, "join/sac_score").values()

@@ -1,21 +1,29 @@
 """The ES policy (compiled MLP) and the OpenAI-ES optimiser."""
+
 from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import ES_SIZES
 
+from conftest import ES_SIZES
 from epoet.config import load
 from epoet.es.optimizer import OpenAIES, adam_step, centered_ranks, es_gradient
+from epoet.rollout.policy import (
+    forward,
+    forward_rows,
+    init_params,
+    num_params,
+    sizes_array,
+    unflatten,
+)
 from epoet.rollout.populations import mirrored_population, noise
-from epoet.rollout.policy import (forward, forward_rows, init_params, num_params,
-                                  sizes_array, unflatten)
 
 SMALL = (5, 4, 3)  # a 2-layer net keeps policy tests tiny
 ES = load(["budget=paper"]).algo.es  # the paper's ES settings
 
 
 # ---------------------------------------------------------------- policy
+
 
 def test_num_params_of_paper_policy_and_custom_sizes():
     assert num_params(ES_SIZES) == 4538
@@ -91,23 +99,28 @@ def test_forward_rows_rows_do_not_depend_on_each_other():
     forward_rows(params, sizes_array(SMALL), obs, after)
     np.testing.assert_array_equal(after[[0, 2]], before[[0, 2]])
     assert not np.allclose(after[1], before[1])
-    np.testing.assert_allclose(after[1], forward(params[1], obs[1].astype(np.float64), SMALL),
-                               rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        after[1], forward(params[1], obs[1].astype(np.float64), SMALL), rtol=0, atol=1e-15
+    )
 
 
-@pytest.mark.parametrize("call", [
-    lambda: forward(np.zeros(10), np.zeros(53), ES_SIZES),
-    lambda: forward(init_params(0, ES_SIZES), np.zeros(52), ES_SIZES),
-    lambda: forward(np.zeros((2, num_params(SMALL))), np.zeros(5), SMALL),
-    lambda: sizes_array((53,)),
-    lambda: num_params((53,)),
-])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: forward(np.zeros(10), np.zeros(53), ES_SIZES),
+        lambda: forward(init_params(0, ES_SIZES), np.zeros(52), ES_SIZES),
+        lambda: forward(np.zeros((2, num_params(SMALL))), np.zeros(5), SMALL),
+        lambda: sizes_array((53,)),
+        lambda: num_params((53,)),
+    ],
+)
 def test_policy_bad_input_raises_value_error(call):
     with pytest.raises(ValueError):
         call()
 
 
 # ---------------------------------------------------------------- ES pieces
+
 
 def test_noise_is_a_function_of_the_seed():
     np.testing.assert_array_equal(noise(7, 5), np.random.default_rng(7).standard_normal(5))
@@ -160,8 +173,9 @@ def test_tell_applies_adam_on_minus_g_plus_l2_theta_then_decays():
 
 
 def test_schedules_stop_at_their_floors():
-    cfg = replace(ES, lr=0.01, lr_decay=0.5, lr_floor=0.004, sigma=0.02, sigma_decay=0.5,
-                  sigma_floor=0.008)
+    cfg = replace(
+        ES, lr=0.01, lr_decay=0.5, lr_floor=0.004, sigma=0.02, sigma_decay=0.5, sigma_floor=0.008
+    )
     es = OpenAIES(np.zeros(3), 0, cfg, n_pairs=1)
     for _ in range(3):
         es.tell(es.sample_seeds(), [1.0], [0.0])
@@ -184,8 +198,10 @@ def test_es_climbs_a_quadratic():
 
 
 def _equal_states(a: dict, b: dict) -> bool:
-    return all(np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k]
-               for k in a) and a.keys() == b.keys()
+    return (
+        all(np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k] for k in a)
+        and a.keys() == b.keys()
+    )
 
 
 def _advance(es: OpenAIES, steps: int) -> None:
@@ -193,7 +209,7 @@ def _advance(es: OpenAIES, steps: int) -> None:
     for _ in range(steps):
         seeds = es.sample_seeds()
         returns = _quadratic(mirrored_population(es.theta, seeds, es.sigma), target)
-        es.tell(seeds, returns[:es.n_pairs], returns[es.n_pairs:])
+        es.tell(seeds, returns[: es.n_pairs], returns[es.n_pairs :])
 
 
 def test_propose_changes_nothing_and_equals_tell():
@@ -213,8 +229,9 @@ def test_propose_from_a_candidate_theta_uses_this_pairs_adam_state():
     candidate = np.array([1.0, -1.0, 0.5, 0.0])
     seeds, pos, neg = [1, 2, 3], np.array([1.0, 4.0, 2.0]), np.array([3.0, 0.0, 5.0])
     g = es_gradient(seeds, pos, neg, es.sigma, 4)
-    expected, *_ = adam_step(candidate, -g + 0.01 * candidate, es.m, es.v, es.t, es.lr,
-                             0.9, 0.999, 1e-8)
+    expected, *_ = adam_step(
+        candidate, -g + 0.01 * candidate, es.m, es.v, es.t, es.lr, 0.9, 0.999, 1e-8
+    )
     np.testing.assert_array_equal(es.propose(seeds, pos, neg, theta=candidate), expected)
 
 
@@ -228,15 +245,19 @@ def test_an_sgd_proposal_ignores_the_adam_state_and_the_decayed_lr():
     fresh.sigma = used.sigma
     assert used.lr < ES.lr and used.t == 3
     proposal = used.propose(seeds, pos, neg, theta=candidate, step="sgd")
-    np.testing.assert_array_equal(proposal, fresh.propose(seeds, pos, neg, theta=candidate,
-                                                          step="sgd"))
+    np.testing.assert_array_equal(
+        proposal, fresh.propose(seeds, pos, neg, theta=candidate, step="sgd")
+    )
     assert not np.array_equal(proposal, used.propose(seeds, pos, neg, theta=candidate))
     # Without the L2 term the step is the initial lr times the gradient itself (Adam's first
     # step would instead move every coordinate by about lr).
     no_l2 = OpenAIES(np.zeros(4), 2, replace(ES, l2_coeff=0.0), n_pairs=3)
     g = es_gradient(seeds, pos, neg, no_l2.sigma, 4)
-    np.testing.assert_allclose(no_l2.propose(seeds, pos, neg, theta=candidate, step="sgd")
-                               - candidate, ES.lr * g, rtol=1e-12)
+    np.testing.assert_allclose(
+        no_l2.propose(seeds, pos, neg, theta=candidate, step="sgd") - candidate,
+        ES.lr * g,
+        rtol=1e-12,
+    )
 
 
 def test_reset_restores_initial_lr_sigma_and_adam_state():
@@ -270,17 +291,27 @@ def test_seed_stream_is_a_function_of_the_seed():
     assert not np.array_equal(a.sample_seeds(), s)
 
 
-@pytest.mark.parametrize("call, message", [
-    (lambda: OpenAIES(np.zeros((3, 2)), 0, ES, n_pairs=1), "theta"),
-    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=2).tell([1, 2], [0.0, 1.0], [0.0]),
-     "one value per seed"),
-    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).tell([1], [np.nan], [0.0]), "finite"),
-    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).propose([1], [0.0], [1.0],
-                                                          theta=np.zeros(4)),
-     "parameters"),
-    (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).load_state_dict({"theta": np.zeros(3)}),
-     "missing"),
-])
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: OpenAIES(np.zeros((3, 2)), 0, ES, n_pairs=1), "theta"),
+        (
+            lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=2).tell([1, 2], [0.0, 1.0], [0.0]),
+            "one value per seed",
+        ),
+        (lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).tell([1], [np.nan], [0.0]), "finite"),
+        (
+            lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).propose(
+                [1], [0.0], [1.0], theta=np.zeros(4)
+            ),
+            "parameters",
+        ),
+        (
+            lambda: OpenAIES(np.zeros(3), 0, ES, n_pairs=1).load_state_dict({"theta": np.zeros(3)}),
+            "missing",
+        ),
+    ],
+)
 def test_optimizer_bad_input_raises_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message):
         call()

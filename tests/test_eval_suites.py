@@ -1,6 +1,7 @@
 """One run, several suites: each evaluation is keyed by its suite's name in the run (metrics,
 tags, artifacts, local results), tables are per suite, a repeated evaluation logs each metric
 once, and runs logged with the old unkeyed names are still read."""
+
 from __future__ import annotations
 
 import json
@@ -17,8 +18,14 @@ from epoet.eval.evaluate import COLUMNS, evaluate_run
 from epoet.eval.suite import SHIPPED, load_suite
 
 # one ES iteration of a tiny ePOET: an MLflow run with an exported agent, in seconds
-SMOKE = ["algo=epoet", "budget=smoke", "workers.num=1", "algo.es.hidden=[8]",
-         "budget.iterations=1", "evaluate=false"]
+SMOKE = [
+    "algo=epoet",
+    "budget=smoke",
+    "workers.num=1",
+    "algo.es.hidden=[8]",
+    "budget.iterations=1",
+    "evaluate=false",
+]
 STATS = ("success_rate", "return_mean", "forward_distance_mean", "finish_rate")
 
 
@@ -40,6 +47,7 @@ def trained(tmp_path_factory):
     """(store uri, run folder, MLflow run id) of one tiny trained run, not yet evaluated."""
     from epoet.core.checkpoint import load_checkpoint
     from epoet.run import run
+
     tmp = tmp_path_factory.mktemp("trained")
     uri = f"sqlite:///{tmp}/mlflow.db"
     with pytest.MonkeyPatch.context() as patch:
@@ -49,20 +57,33 @@ def trained(tmp_path_factory):
 
 
 def evaluate_cfg(uri: str, run_dir: Path, suite: str, episodes: int = 1):
-    return validate(compose([f"run={run_dir}", f"suite={suite}", f"episodes={episodes}",
-                             "processes=1", f"tracking.uri={uri}"], config_name="evaluate"))
+    return validate(
+        compose(
+            [
+                f"run={run_dir}",
+                f"suite={suite}",
+                f"episodes={episodes}",
+                "processes=1",
+                f"tracking.uri={uri}",
+            ],
+            config_name="evaluate",
+        )
+    )
 
 
-def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, monkeypatch,
-                                                           capsys):
+def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, monkeypatch, capsys):
     from analysis.tables import make_tables
     from epoet.eval.evaluate import main
+
     uri, run_dir, run_id = trained
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     alpha = subset_suite(tmp_path / "alpha", [("easy", 0), ("medium", 0)])
     # the paper suite (the other engineer's data may or may not be there): other terrains
-    monkeypatch.setitem(suite_module.SUITES, "paper",
-                        subset_suite(tmp_path / "paper_data", [("easy", 1), ("medium", 1)]))
+    monkeypatch.setitem(
+        suite_module.SUITES,
+        "paper",
+        subset_suite(tmp_path / "paper_data", [("easy", 1), ("medium", 1)]),
+    )
     printed = {}
     for name, arg in (("alpha", str(alpha)), ("paper", "paper")):
         main([f"run={run_dir}", f"suite={arg}", "episodes=1", "processes=1"])
@@ -78,17 +99,23 @@ def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, mo
         terrains = sorted(t.name for t in suite.terrains)
         # the artifacts: this suite's episodes only
         listed = {a.path for a in client.list_artifacts(run_id, f"evaluation/{name}")}
-        assert listed == {f"evaluation/{name}/{f}"
-                          for f in ("episodes.csv", "actions.npz", "summary.json")}
-        csv = pd.read_csv(client.download_artifacts(run_id, f"evaluation/{name}/episodes.csv",
-                                                    str(tmp_path / "dl" / name)))
+        assert listed == {
+            f"evaluation/{name}/{f}" for f in ("episodes.csv", "actions.npz", "summary.json")
+        }
+        csv = pd.read_csv(
+            client.download_artifacts(
+                run_id, f"evaluation/{name}/episodes.csv", str(tmp_path / "dl" / name)
+            )
+        )
         assert sorted(csv.terrain) == terrains
         # the metrics: of this suite's episodes, per level of this suite
         for stat in STATS:
             assert f"suite/{name}/{stat}" in record.metrics, (name, stat)
         assert record.metrics[f"suite/{name}/return_mean"] == pytest.approx(csv["return"].mean())
         assert {k for k in record.metrics if k.startswith(f"suite/{name}/success_rate_")} == {
-            f"suite/{name}/success_rate_easy", f"suite/{name}/success_rate_medium"}
+            f"suite/{name}/success_rate_easy",
+            f"suite/{name}/success_rate_medium",
+        }
         # the tags
         assert record.tags[f"eval_suite/{name}"] == suite.fingerprint
         assert record.tags[f"eval_episodes/{name}"] == "1"
@@ -102,7 +129,8 @@ def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, mo
         assert render.split("terrain=")[1].split()[0] in terrains
     assert render.endswith(" suite=paper")
     assert next(li for li in printed["alpha"].splitlines() if "render:" in li).endswith(
-        f" suite={alpha}")
+        f" suite={alpha}"
+    )
 
     # the tables of each suite read that suite's episodes
     returns = {}
@@ -117,7 +145,7 @@ def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, mo
         title = (tmp_path / "results" / f"table1_{name}.md").read_text().splitlines()[0]
         assert f"on suite {name} " in title
         returns[name] = table2.return_mean
-    assert returns["alpha"] != returns["paper"]   # other terrains, so other returns
+    assert returns["alpha"] != returns["paper"]  # other terrains, so other returns
 
 
 def test_a_repeated_evaluation_logs_each_metric_once(trained, tmp_path):
@@ -132,12 +160,12 @@ def test_a_repeated_evaluation_logs_each_metric_once(trained, tmp_path):
     for key, value in first.metrics.items():
         points = client.get_metric_history(run_id, key)
         assert [(p.step, p.value) for p in points] == [(0, value)], key
-    more, _, _ = evaluate_run(evaluate_cfg(uri, run_dir, str(gamma), episodes=2),
-                              progress=False)
+    more, _, _ = evaluate_run(evaluate_cfg(uri, run_dir, str(gamma), episodes=2), progress=False)
     key = "suite/gamma/return_mean"
     assert more.metrics[key] != first.metrics[key]
     assert sorted(p.value for p in client.get_metric_history(run_id, key)) == sorted(
-        [first.metrics[key], more.metrics[key]])
+        [first.metrics[key], more.metrics[key]]
+    )
     assert client.get_run(run_id).data.metrics[key] == more.metrics[key]  # the latest wins
 
 
@@ -148,6 +176,7 @@ def test_runs_logged_with_the_unkeyed_names_are_read_as_before(tmp_path):
     from analysis.store import AnalysisError, unevaluated
     from analysis.tables import make_tables
     from epoet.sweep import job_lines
+
     delta = load_suite(subset_suite(tmp_path / "delta", [("easy", 0), ("medium", 0)]))
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     client = mlflow.MlflowClient(uri)
@@ -158,10 +187,14 @@ def test_runs_logged_with_the_unkeyed_names_are_read_as_before(tmp_path):
     client.log_metric(run_id, "suite/success_rate", 0.25, step=0)
     terrains = [t for t in delta.terrains for _ in range(2)]
     episodes = pd.DataFrame(
-        [[t.name, t.level, t.roughness, k % 2, k, ret, solved, solved, 1.0, 10, 0.0]
-         for k, (t, ret, solved) in enumerate(zip(terrains, [10.0, 30.0, 50.0, 70.0],
-                                                  [True, False, False, False]))],
-        columns=COLUMNS)
+        [
+            [t.name, t.level, t.roughness, k % 2, k, ret, solved, solved, 1.0, 10, 0.0]
+            for k, (t, ret, solved) in enumerate(
+                zip(terrains, [10.0, 30.0, 50.0, 70.0], [True, False, False, False])
+            )
+        ],
+        columns=COLUMNS,
+    )
     (tmp_path / "old").mkdir()
     episodes.to_csv(tmp_path / "old" / "episodes.csv", index=False)
     client.log_artifact(run_id, str(tmp_path / "old" / "episodes.csv"), "evaluation")

@@ -4,6 +4,7 @@ One `python -m pipeline.paper --budget smoke` call (every algorithm, one seed, a
 suite, one episode per terrain) fills a private store; the tests then check what it produced
 against the evaluation CSVs, and the bad inputs of each command.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,14 +20,14 @@ import mlflow
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ES_SIZES
 from mlflow.types import DataType
 
 from analysis.store import ALGOS
 from analysis.tables import table1, table2
-from epoet.eval.agents import resolve_run
-from epoet.envs.task import ACT_DIM, OBS_DIM
+from conftest import ES_SIZES
 from epoet.core.compute import default_workers
+from epoet.envs.task import ACT_DIM, OBS_DIM
+from epoet.eval.agents import resolve_run
 from epoet.eval.suite import LEVELS, SHIPPED, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,11 +53,28 @@ def paper(tmp_path_factory):
     uri = f"sqlite:///{tmp}/mlflow.db"
     suite = small_suite(tmp / "suite")
     proc = subprocess.run(
-        [sys.executable, "-m", "pipeline.paper", "--budget", "smoke", "--seeds", "1",
-         "--suite", str(suite), "--episodes", "1", "--out", str(tmp / "results"),
-         "--records", str(tmp / "records")],
-        capture_output=True, text=True, cwd=tmp,
-        env={**os.environ, "MLFLOW_TRACKING_URI": uri})
+        [
+            sys.executable,
+            "-m",
+            "pipeline.paper",
+            "--budget",
+            "smoke",
+            "--seeds",
+            "1",
+            "--suite",
+            str(suite),
+            "--episodes",
+            "1",
+            "--out",
+            str(tmp / "results"),
+            "--records",
+            str(tmp / "records"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp,
+        env={**os.environ, "MLFLOW_TRACKING_URI": uri},
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return uri, tmp / "results", proc.stdout, suite
 
@@ -78,8 +96,13 @@ def test_every_algorithm_is_trained_evaluated_and_logged(paper):
     assert name == "suite"  # a folder's suite is named by its basename
     for algo, run in runs.items():
         metrics = run.data.metrics
-        for stat in ("success_rate", "return_mean", "forward_distance_mean", "finish_rate",
-                     *(f"success_rate_{level}" for level in LEVELS)):
+        for stat in (
+            "success_rate",
+            "return_mean",
+            "forward_distance_mean",
+            "finish_rate",
+            *(f"success_rate_{level}" for level in LEVELS),
+        ):
             assert f"suite/{name}/{stat}" in metrics, (algo, stat)
         assert not [k for k in metrics if k.startswith("suite/success")]  # never unkeyed
         assert run.data.tags[f"eval_suite/{name}"] == load_suite(suite).fingerprint
@@ -88,19 +111,27 @@ def test_every_algorithm_is_trained_evaluated_and_logged(paper):
         # the common axes and score, so MLflow charts can compare every algorithm
         for key in ("env_steps", "elapsed", "score"):
             assert key in metrics, (algo, key)
-        elapsed = [m.value for m in sorted(client.get_metric_history(run.info.run_id,
-                                                                     "elapsed"),
-                                           key=lambda m: m.step)]
+        elapsed = [
+            m.value
+            for m in sorted(
+                client.get_metric_history(run.info.run_id, "elapsed"), key=lambda m: m.step
+            )
+        ]
         assert elapsed == sorted(elapsed)
         names = {a.path for a in client.list_artifacts(run.info.run_id, f"evaluation/{name}")}
-        assert names == {f"evaluation/{name}/episodes.csv", f"evaluation/{name}/actions.npz",
-                         f"evaluation/{name}/summary.json"}
-        csv = pd.read_csv(client.download_artifacts(run.info.run_id,
-                                                    f"evaluation/{name}/episodes.csv"))
+        assert names == {
+            f"evaluation/{name}/episodes.csv",
+            f"evaluation/{name}/actions.npz",
+            f"evaluation/{name}/summary.json",
+        }
+        csv = pd.read_csv(
+            client.download_artifacts(run.info.run_id, f"evaluation/{name}/episodes.csv")
+        )
         assert len(csv) == 4 and sorted(csv.level) == sorted(LEVELS)
         assert metrics[f"suite/{name}/return_mean"] == pytest.approx(csv["return"].mean())
         assert metrics[f"suite/{name}/forward_distance_mean"] == pytest.approx(
-            csv.forward_distance.mean())
+            csv.forward_distance.mean()
+        )
         # the suite's episodes: 2.5 x the smoke budget's 50 steps
         assert (csv.length <= 125).all() and (csv.length > 0).all()
         # solved: finished with the paper's 2000 x the smoke budget's score scale
@@ -112,8 +143,9 @@ def test_tables_match_the_evaluation_csvs(paper):
     client = mlflow.MlflowClient(uri)
     frames = []
     for algo, run in finished_runs(uri).items():
-        csv = pd.read_csv(client.download_artifacts(run.info.run_id,
-                                                    "evaluation/suite/episodes.csv"))
+        csv = pd.read_csv(
+            client.download_artifacts(run.info.run_id, "evaluation/suite/episodes.csv")
+        )
         frames.append(csv.assign(algo=algo, run_id=run.info.run_id))
     episodes = pd.concat(frames)
     t1 = pd.read_csv(results / "table1_suite.csv").set_index("algo")  # the suite named "suite"
@@ -122,7 +154,8 @@ def test_tables_match_the_evaluation_csvs(paper):
         assert t1.loc[algo, "total_mean"] == pytest.approx(rows.solved.mean())
         for level in LEVELS:
             assert t1.loc[algo, f"{level}_mean"] == pytest.approx(
-                rows[rows.level == level].solved.mean())
+                rows[rows.level == level].solved.mean()
+            )
         easy = rows[rows.level.isin(["easy", "medium"])]["return"]
         assert t2.loc[algo, "return_mean"] == pytest.approx(easy.mean())
         assert t2.loc[algo, "return_max"] == pytest.approx(easy.max())
@@ -134,10 +167,15 @@ def test_tables_match_the_evaluation_csvs(paper):
 
 def test_table_statistics_are_over_runs_and_pooled_episodes():
     # two runs of one algorithm: Table 1 averages the per-run rates, Table 2 pools episodes
-    episodes = pd.DataFrame({
-        "algo": ["ppo"] * 4, "run_id": ["a", "a", "b", "b"],
-        "level": ["easy", "hard", "easy", "hard"], "solved": [True, True, False, True],
-        "return": [10.0, 0.0, 30.0, 5.0]})
+    episodes = pd.DataFrame(
+        {
+            "algo": ["ppo"] * 4,
+            "run_id": ["a", "a", "b", "b"],
+            "level": ["easy", "hard", "easy", "hard"],
+            "solved": [True, True, False, True],
+            "return": [10.0, 0.0, 30.0, 5.0],
+        }
+    )
     t1, t2 = table1(episodes).iloc[0], table2(episodes).iloc[0]
     assert t1.easy_mean == 0.5 and t1.easy_std == pytest.approx(np.std([1, 0], ddof=1))
     assert t1.total_mean == pytest.approx(0.75) and t1.runs == 2
@@ -172,26 +210,34 @@ def one_line_error(capsys, call, *words: str) -> None:
 
 
 def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
-    from pipeline import paper as paper_cli
     from analysis import tables
     from epoet.eval import evaluate
+    from pipeline import paper as paper_cli
 
     uri, _, _, suite = paper
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     monkeypatch.chdir(tmp_path)
     runs = finished_runs(uri)
-    one_line_error(capsys, lambda: evaluate.main(["run=0123456789abcdef0123456789abcdef"]),
-                   "is not in the MLflow store")
+    one_line_error(
+        capsys,
+        lambda: evaluate.main(["run=0123456789abcdef0123456789abcdef"]),
+        "is not in the MLflow store",
+    )
     (tmp_path / "empty_run").mkdir()
-    one_line_error(capsys, lambda: evaluate.main([f"run={tmp_path / 'empty_run'}"]),
-                   "has no policy")
+    one_line_error(
+        capsys, lambda: evaluate.main([f"run={tmp_path / 'empty_run'}"]), "has no policy"
+    )
     broken = tmp_path / "broken_suite"
     shutil.copytree(suite, broken)
     (broken / "heights.npz").unlink()
-    one_line_error(capsys, lambda: evaluate.main([f"run={runs['epoet'].info.run_id}",
-                                                  f"suite={broken}"]), "has no heights.npz")
-    one_line_error(capsys, lambda: evaluate.main(["run=nothing-here"]),
-                   "a policy file, a run folder")
+    one_line_error(
+        capsys,
+        lambda: evaluate.main([f"run={runs['epoet'].info.run_id}", f"suite={broken}"]),
+        "has no heights.npz",
+    )
+    one_line_error(
+        capsys, lambda: evaluate.main(["run=nothing-here"]), "a policy file, a run folder"
+    )
     one_line_error(capsys, lambda: evaluate.main(["episodes=0", "run=x"]), "episodes")
     empty = f"sqlite:///{tmp_path}/empty.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", empty)
@@ -203,7 +249,8 @@ def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
     # nothing was written to the runs by the failed calls
     after = finished_runs(uri)
     assert {a: r.data.metrics for a, r in after.items()} == {
-        a: r.data.metrics for a, r in runs.items()}
+        a: r.data.metrics for a, r in runs.items()
+    }
 
 
 def flat_course(folder: Path) -> Path:
@@ -211,16 +258,28 @@ def flat_course(folder: Path) -> Path:
     of the paper's 2000-step episodes."""
     folder.mkdir()
     np.savez(folder / "heights.npz", flat=np.zeros((40, 40)))
-    (folder / "suite.json").write_text(json.dumps({
-        "format": "epoet-suite/2", "size": 20.0, "grid": 40,
-        "course": {"start_x": -6.0, "finish_x": -4.0, "half_width": 0.35,
-                   "episode_steps": 2000, "episode_ratio": 0.25},
-        "terrains": [{"name": "flat", "max_height": 0.01}]}))
+    (folder / "suite.json").write_text(
+        json.dumps(
+            {
+                "format": "epoet-suite/2",
+                "size": 20.0,
+                "grid": 40,
+                "course": {
+                    "start_x": -6.0,
+                    "finish_x": -4.0,
+                    "half_width": 0.35,
+                    "episode_steps": 2000,
+                    "episode_ratio": 0.25,
+                },
+                "terrains": [{"name": "flat", "max_height": 0.01}],
+            }
+        )
+    )
     return folder
 
 
 def test_an_episode_is_solved_when_it_finishes_with_the_scaled_return(mlflow_uri, tmp_path):
-    """"Solved" is the paper's: the finish line reached with a return of at least solve_score x
+    """ "Solved" is the paper's: the finish line reached with a return of at least solve_score x
     the run's score scale. The authors' ePOET agent, in a run folder whose budget scales scores
     by 0.5, finishes the flat 2 m course every time (returns of about 800-900, the finish bonus
     of 500 included); an agent that stands still never finishes."""
@@ -235,30 +294,43 @@ def test_an_episode_is_solved_when_it_finishes_with_the_scaled_return(mlflow_uri
     (walker / "policies").mkdir(parents=True)
     shutil.copy(FOLDER / "agents" / "poet_hexA8" / "flat.npz", walker / "policies" / "env0.npz")
     config = load(["budget=paper", "budget.score_scale=0.5"])  # the paper's agent: RK4
-    save_checkpoint(walker / "checkpoint.pkl",
-                    {"algo": "epoet", "config": dataclasses.asdict(config)})
+    save_checkpoint(
+        walker / "checkpoint.pkl", {"algo": "epoet", "config": dataclasses.asdict(config)}
+    )
     standing = tmp_path / "standing.npz"
-    np.savez(standing, theta=np.zeros_like(init_params(0, ES_SIZES)),
-             layer_sizes=np.array(ES_SIZES))
+    np.savez(
+        standing, theta=np.zeros_like(init_params(0, ES_SIZES)), layer_sizes=np.array(ES_SIZES)
+    )
 
     def episodes(run: Path, solve_score: float) -> pd.DataFrame:
-        result, _, _ = evaluate_run(validate(compose(
-            [f"run={run}", f"suite={suite}", "episodes=3", "processes=1",
-             f"solve_score={solve_score}", f"out={tmp_path / 'out'}"],
-            config_name="evaluate")), progress=False)
+        result, _, _ = evaluate_run(
+            validate(
+                compose(
+                    [
+                        f"run={run}",
+                        f"suite={suite}",
+                        "episodes=3",
+                        "processes=1",
+                        f"solve_score={solve_score}",
+                        f"out={tmp_path / 'out'}",
+                    ],
+                    config_name="evaluate",
+                )
+            ),
+            progress=False,
+        )
         assert result.metrics["suite/suite/success_rate"] == result.episodes.solved.mean()
         return result.episodes
 
-    low = episodes(walker, 1400.0)               # the bar: 0.5 x 1400 = 700
+    low = episodes(walker, 1400.0)  # the bar: 0.5 x 1400 = 700
     assert low.finished.all() and (low["return"] > 700).all() and low.solved.all()
-    high = episodes(walker, 2000.0)              # the bar: 1000, above every return
+    high = episodes(walker, 2000.0)  # the bar: 1000, above every return
     assert high.finished.all() and (high["return"] < 1000).all() and not high.solved.any()
-    still = episodes(standing, -1e9)             # every return clears the bar; none finishes
+    still = episodes(standing, -1e9)  # every return clears the bar; none finishes
     assert not still.finished.any() and not still.solved.any()
 
 
-def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monkeypatch,
-                                                                  capsys):
+def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monkeypatch, capsys):
     """A run folder's checkpoint names its MLflow run. Looked for in a store that does not exist
     (the default, the project's mlflow.db, here moved into tmp), the command fails in one line
     and leaves no empty store there or in the cwd; with tracking.uri naming the run's store it
@@ -275,10 +347,15 @@ def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monk
         run_id = tracker.start("epoet-s0")
     folder = tmp_path / "run"
     (folder / "policies").mkdir(parents=True)
-    np.savez(folder / "policies" / "env0.npz", theta=init_params(0, ES_SIZES),
-             layer_sizes=np.array(ES_SIZES))
-    save_checkpoint(folder / "checkpoint.pkl", {"run_id": run_id, "algo": "epoet",
-                                                "config": dataclasses.asdict(load([]))})
+    np.savez(
+        folder / "policies" / "env0.npz",
+        theta=init_params(0, ES_SIZES),
+        layer_sizes=np.array(ES_SIZES),
+    )
+    save_checkpoint(
+        folder / "checkpoint.pkl",
+        {"run_id": run_id, "algo": "epoet", "config": dataclasses.asdict(load([]))},
+    )
     default = tmp_path / "project" / "mlflow.db"
     default.parent.mkdir()
     monkeypatch.setattr(store, "DEFAULT_TRACKING_URI", f"sqlite:///{default}")
@@ -287,29 +364,40 @@ def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monk
     cwd.mkdir()
     monkeypatch.chdir(cwd)
     capsys.readouterr()  # MLflow's own log lines from creating the run's store
-    one_line_error(capsys, lambda: evaluate.main([f"run={folder}"]),
-                   f"run {run_id} is not in the MLflow store sqlite:///{default}")
+    one_line_error(
+        capsys,
+        lambda: evaluate.main([f"run={folder}"]),
+        f"run {run_id} is not in the MLflow store sqlite:///{default}",
+    )
     assert not default.exists() and list(cwd.iterdir()) == []
 
     suite = flat_course(tmp_path / "suite")
-    evaluate.main([f"run={folder}", f"tracking.uri={elsewhere}", f"suite={suite}", "episodes=1",
-                   "processes=1"])
-    assert "suite/suite/success_rate" in mlflow.MlflowClient(elsewhere).get_run(
-        run_id).data.metrics
+    evaluate.main(
+        [
+            f"run={folder}",
+            f"tracking.uri={elsewhere}",
+            f"suite={suite}",
+            "episodes=1",
+            "processes=1",
+        ]
+    )
+    assert "suite/suite/success_rate" in mlflow.MlflowClient(elsewhere).get_run(run_id).data.metrics
     assert not default.exists() and list(cwd.iterdir()) == []
 
 
-def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compose, mlflow_uri,
-                                                                         tmp_path, monkeypatch):
+def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(
+    compose, mlflow_uri, tmp_path, monkeypatch
+):
     from epoet.core.checkpoint import load_checkpoint
     from epoet.core.lifecycle import Stopped
     from epoet.run import DONE, run
     from epoet.tracking.writer import MlflowTracker
+
     overrides = ["algo=epoet", "budget=smoke", "workers.num=1", "resume=auto"]
     finished, interrupted = tmp_path / "finished", tmp_path / "interrupted"
     first = run(compose(overrides), finished)
     assert first is not None and (finished / DONE).is_file()
-    assert run(compose(overrides), finished) is None        # finished: skipped
+    assert run(compose(overrides), finished) is None  # finished: skipped
 
     # The other job gets a Ctrl-C in its first iteration (when that iteration's metrics are
     # logged): it stops at the iteration's end with a checkpoint, as `make paper` interrupted.
@@ -328,12 +416,12 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compo
     assert stopped["poet"]["iteration"] == 1 < first.iteration  # work left to do
     assert not (interrupted / DONE).exists()
 
-    again = run(compose(overrides), interrupted)             # continues from iteration 1
+    again = run(compose(overrides), interrupted)  # continues from iteration 1
     assert again is not None and again.iteration == first.iteration
-    assert trained == list(range(first.iteration))            # iterations 1.. trained once
+    assert trained == list(range(first.iteration))  # iterations 1.. trained once
     assert (interrupted / DONE).is_file()
     done, straight = load_checkpoint(interrupted), load_checkpoint(finished)
-    assert done["run_id"] == stopped["run_id"]               # the resume continued its run
+    assert done["run_id"] == stopped["run_id"]  # the resume continued its run
     assert done["poet"]["env_steps"] == straight["poet"]["env_steps"]  # as if never stopped
     assert len(done["poet"]["active"]) == len(straight["poet"]["active"])
     for a, b in zip(done["poet"]["active"], straight["poet"]["active"]):
@@ -345,25 +433,28 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(compo
     assert sorted(m.step for m in steps) == list(range(first.iteration))  # each once
 
 
-def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str,
-                                                 tmp_path: Path) -> None:
+def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str, tmp_path: Path) -> None:
     """Without a second command the run's MLflow record carries the suite's metrics, at the
     budget's episode count and the run's course scale; evaluate=false skips it."""
     from epoet.core.checkpoint import load_checkpoint
     from epoet.run import run
+
     smoke = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "budget.iterations=1"]
     run(compose([*smoke, "evaluate=true"]), tmp_path / "run")
     run_id = load_checkpoint(tmp_path / "run" / "checkpoint.pkl")["run_id"]
     record = mlflow.MlflowClient(mlflow_uri).get_run(run_id).data
-    assert "suite/shipped/success_rate" in record.metrics   # keyed by the shipped suite's name
+    assert "suite/shipped/success_rate" in record.metrics  # keyed by the shipped suite's name
     assert record.tags["eval_suite/shipped"] == load_suite().fingerprint
     assert record.tags["eval_episodes/shipped"] == "1"
     assert record.tags["eval_course_scale/shipped"] == "0.025"
     assert (tmp_path / "run" / "evaluation" / "shipped" / "episodes.csv").is_file()
     run(compose([*smoke, "evaluate=false"]), tmp_path / "plain")
     run_id = load_checkpoint(tmp_path / "plain" / "checkpoint.pkl")["run_id"]
-    assert not [k for k in mlflow.MlflowClient(mlflow_uri).get_run(run_id).data.metrics
-                if k.startswith("suite/")]
+    assert not [
+        k
+        for k in mlflow.MlflowClient(mlflow_uri).get_run(run_id).data.metrics
+        if k.startswith("suite/")
+    ]
 
 
 def test_every_agent_loads_as_an_mlflow_model_and_acts_as_the_product(paper, monkeypatch):
@@ -383,17 +474,22 @@ def test_every_agent_loads_as_an_mlflow_model_and_acts_as_the_product(paper, mon
         assert actions.shape == (5, ACT_DIM)
         np.testing.assert_allclose(actions, [policy(o) for o in observations], err_msg=algo)
         via_uri = resolve_run(f"runs:/{run.info.run_id}/agent", uri)
-        assert via_uri.run_id == run.info.run_id and via_uri.label == resolve_run(
-            run.info.run_id, uri).label
+        assert (
+            via_uri.run_id == run.info.run_id
+            and via_uri.label == resolve_run(run.info.run_id, uri).label
+        )
     models = mlflow.MlflowClient(uri).search_logged_models(
-        [mlflow.MlflowClient(uri).get_experiment_by_name("paper-smoke").experiment_id])
+        [mlflow.MlflowClient(uri).get_experiment_by_name("paper-smoke").experiment_id]
+    )
     assert sorted(m.source_run_id for m in models) == sorted(
-        r.info.run_id for r in finished_runs(uri).values())  # the UI's Models column
+        r.info.run_id for r in finished_runs(uri).values()
+    )  # the UI's Models column
 
 
 # --- what the smoke sweep left in MLflow, read back from the store: one meaning per metric, the
 # params the jobs ran with and only those that apply to them, a parent run that reads as the
 # sweep's result.
+
 
 def _history(uri: str, run: mlflow.entities.Run, key: str) -> list[float]:
     points = mlflow.MlflowClient(uri).get_metric_history(run.info.run_id, key)
@@ -438,8 +534,11 @@ def test_the_sweep_parent_reads_as_the_sweep(paper) -> None:
     uri, _, stdout, _ = paper
     client = mlflow.MlflowClient(uri)
     exp = client.get_experiment_by_name("paper-smoke")
-    (parent,) = [r for r in client.search_runs([exp.experiment_id])
-                 if "mlflow.parentRunId" not in r.data.tags]
+    (parent,) = [
+        r
+        for r in client.search_runs([exp.experiment_id])
+        if "mlflow.parentRunId" not in r.data.tags
+    ]
     runs = finished_runs(uri)
     assert parent.data.tags["algos"] == ",".join(ALGOS) and parent.data.tags["seeds"] == "1"
     assert parent.data.tags["budget"] == "smoke"
@@ -456,6 +555,7 @@ def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(pa
     """The IQM and probability-of-improvement tables and figures beside Tables 1-2, and the
     evaluation records (`--records`) rebuild every table without the store."""
     from analysis.tables import tables_from_records
+
     uri, results, stdout, suite = paper
     for stem in ("iqm_suite", "poi_suite"):
         for ext in ("csv", "md", "tex", "png"):
@@ -463,10 +563,10 @@ def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(pa
     iqm = pd.read_csv(results / "iqm_suite.csv")
     assert sorted(iqm.algo.unique()) == sorted(ALGOS) and set(iqm.score) == {"success", "return"}
     assert (iqm.ci_low <= iqm.iqm).all() and (iqm.iqm <= iqm.ci_high).all()
-    assert set(iqm.resampled) == {"terrains only (1 run)"}   # one seed: said in the output
+    assert set(iqm.resampled) == {"terrains only (1 run)"}  # one seed: said in the output
     assert "intervals come from the terrains only" in (results / "iqm_suite.md").read_text()
     poi = pd.read_csv(results / "poi_suite.csv")
-    assert len(poi) == 2 * 10   # every pair of the five algorithms, success and return
+    assert len(poi) == 2 * 10  # every pair of the five algorithms, success and return
     assert ((poi.ci_low <= poi.poi) & (poi.poi <= poi.ci_high)).all()
 
     records = results.parent / "records"
@@ -484,6 +584,12 @@ def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(pa
         assert evaluation["episodes_per_terrain"] == 1
     rebuilt = tmp_path / "rebuilt"
     tables_from_records(records, rebuilt, str(suite))
-    for name in ("table1_suite.csv", "table2_suite.csv", "iqm_suite.csv", "poi_suite.csv",
-                 "table1_suite.md", "iqm_suite.md"):
+    for name in (
+        "table1_suite.csv",
+        "table2_suite.csv",
+        "iqm_suite.csv",
+        "poi_suite.csv",
+        "table1_suite.md",
+        "iqm_suite.md",
+    ):
         assert (rebuilt / name).read_bytes() == (results / name).read_bytes(), name

@@ -1,6 +1,7 @@
 """Faults a long run meets: its main process killed (any signal), a worker dying mid-call, a
 physics blow-up, a NaN in a learner update, a full or read-only disk at checkpoint time, and a
 resumed run re-logging metrics. Real processes, real signals, real MuJoCo, real file systems."""
+
 from __future__ import annotations
 
 import os
@@ -16,20 +17,20 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
-from conftest import ES_SIZES, without_evaluation
-from pool_state import assert_same_state
-from processes import processes_with_env
 import torch
 
-from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from conftest import ES_SIZES, without_evaluation
 from epoet.config import load
-from epoet.rollout.policy import init_params
+from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from epoet.core.lifecycle import StopOnSignal, Stopped, raise_if_stopped, stop_requested
 from epoet.rollout.engine import RolloutEngine
 from epoet.rollout.evaluators import make_evaluator
+from epoet.rollout.policy import init_params
 from epoet.rollout.populations import Mirrored, Request
-from epoet.core.lifecycle import StopOnSignal, Stopped, raise_if_stopped, stop_requested
 from epoet.terrain import Terrain
 from epoet.tracking import MlflowTracker
+from pool_state import assert_same_state
+from processes import processes_with_env
 
 SMOKE = ["budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40"]
 CFG = load(SMOKE)
@@ -40,11 +41,19 @@ def _tagged_processes(tag: str) -> list[int]:
 
 
 def _launch(args: list[str], tmp_path: Path, tag: str) -> subprocess.Popen:
-    env = {**os.environ, "EPOET_TEST_TAG": tag,
-           "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db"}
-    return subprocess.Popen([sys.executable, "-m", "epoet", *without_evaluation(args)],
-                            cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    env = {
+        **os.environ,
+        "EPOET_TEST_TAG": tag,
+        "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db",
+    }
+    return subprocess.Popen(
+        [sys.executable, "-m", "epoet", *without_evaluation(args)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _wait_for(predicate, timeout: float = 120.0) -> None:
@@ -58,8 +67,17 @@ def test_a_killed_run_leaves_no_worker_process_behind(tmp_path: Path) -> None:
     sig = signal.SIGKILL  # the hardest case: no handler runs, nothing is cleaned up
     tag = f"orphans-{os.getpid()}"
     run_dir = tmp_path / "run"
-    proc = _launch([*SMOKE, "workers.num=2", "budget.iterations=1000", "checkpoint_every=1",
-                    f"hydra.run.dir={run_dir}"], tmp_path, tag)
+    proc = _launch(
+        [
+            *SMOKE,
+            "workers.num=2",
+            "budget.iterations=1000",
+            "checkpoint_every=1",
+            f"hydra.run.dir={run_dir}",
+        ],
+        tmp_path,
+        tag,
+    )
     try:
         _wait_for(lambda: (run_dir / "checkpoint.pkl").exists())  # the workers are running
         assert len(_tagged_processes(tag)) >= 4  # main, fork server, two workers
@@ -89,12 +107,16 @@ def test_sigint_and_sigterm_request_a_stop_and_a_second_signal_stops_at_once() -
 
 
 def test_sigterm_checkpoints_then_the_resumed_run_equals_an_uninterrupted_one(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     sig = signal.SIGTERM  # SLURM's preemption; SIGINT takes the same path (test above)
     run_dir = tmp_path / "stopped"
     overrides = [*SMOKE, "workers.num=2", "checkpoint_every=1000"]
-    proc = _launch([*overrides, "budget.iterations=1000", f"hydra.run.dir={run_dir}"],
-                   tmp_path, f"stop-{os.getpid()}")
+    proc = _launch(
+        [*overrides, "budget.iterations=1000", f"hydra.run.dir={run_dir}"],
+        tmp_path,
+        f"stop-{os.getpid()}",
+    )
     lines = []
     for line in proc.stdout:  # wait for the second iteration: no checkpoint is due before 1000
         lines.append(line)
@@ -112,9 +134,13 @@ def test_sigterm_checkpoints_then_the_resumed_run_equals_an_uninterrupted_one(
     assert not (run_dir / "DONE").exists()
 
     total = stopped_at + 2
-    both = [_launch([*overrides, f"budget.iterations={total}", *args], tmp_path, "resume")
-            for args in ([f"resume={run_dir}", f"hydra.run.dir={run_dir}"],
-                         [f"hydra.run.dir={tmp_path / 'straight'}"])]
+    both = [
+        _launch([*overrides, f"budget.iterations={total}", *args], tmp_path, "resume")
+        for args in (
+            [f"resume={run_dir}", f"hydra.run.dir={run_dir}"],
+            [f"hydra.run.dir={tmp_path / 'straight'}"],
+        )
+    ]
     for proc in both:
         _, err = proc.communicate(timeout=300)
         assert proc.returncode == 0, err[-2000:]
@@ -141,8 +167,10 @@ def test_a_resumed_run_never_logs_a_metric_point_twice(tmp_path: Path) -> None:
         resumed.log_metrics(8, {"final/x": 2.0})
     client = mlflow.MlflowClient(uri)
     assert sorted(m.step for m in client.get_metric_history(run_id, "a")) == list(range(8))
-    assert [(m.step, m.value) for m in client.get_metric_history(run_id, "final/x")] \
-        == [(5, 1.0), (8, 2.0)]
+    assert [(m.step, m.value) for m in client.get_metric_history(run_id, "final/x")] == [
+        (5, 1.0),
+        (8, 2.0),
+    ]
 
 
 def test_a_worker_killed_mid_call_is_replaced_and_the_results_are_unchanged() -> None:
@@ -180,8 +208,8 @@ def test_a_physics_blow_up_ends_the_episode_as_a_failure(tmp_path: Path) -> None
 
 
 def test_a_non_finite_learner_loss_skips_the_update_and_counts_it() -> None:
-    from epoet.rl.sac import SacLearner
     from epoet.rl.env import make_env
+    from epoet.rl.sac import SacLearner
 
     cfg = load(["algo=sac", "budget=smoke", "algo.batch_size=8"])
     env = make_env(cfg, obs_norm=False, seed=0)
@@ -201,8 +229,12 @@ def _mounted(tmp_path: Path, size: str) -> Path:
     """A real, tiny tmpfs (needs CAP_SYS_ADMIN, as root in a container has)."""
     point = tmp_path / "mnt"
     point.mkdir()
-    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(point)],
-                      capture_output=True).returncode != 0:
+    if (
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(point)], capture_output=True
+        ).returncode
+        != 0
+    ):
         pytest.skip("mounting a tmpfs needs CAP_SYS_ADMIN")
     try:
         yield point
@@ -211,7 +243,8 @@ def _mounted(tmp_path: Path, size: str) -> Path:
 
 
 def test_a_full_or_read_only_disk_at_checkpoint_time_keeps_the_previous_checkpoint(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     with _mounted(tmp_path, "256k") as disk:
         path = disk / "checkpoint.pkl"
         save_checkpoint(path, {"iteration": 1})

@@ -7,6 +7,7 @@ the commit:
 
     EPOET_WRITE_GOLDEN=1 .venv/bin/pytest tests/test_golden.py
 """
+
 from __future__ import annotations
 
 import json
@@ -17,24 +18,47 @@ import numpy as np
 import pytest
 import torch
 
-from epoet.core.checkpoint import load_checkpoint
 from epoet.config import compose
+from epoet.core.checkpoint import load_checkpoint
 from epoet.run import run
 
 GOLDEN = Path(__file__).with_name("golden.json")
 SAMPLES = 16
-BASELINE = ["budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
-            "budget.frames=240", "budget.eval_every=120", "budget.eval_episodes=1",
-            "algo.frames_per_batch=60", "checkpoint_every=2"]
+BASELINE = [
+    "budget=smoke",
+    "workers.num=1",
+    "terrain.grid=40",
+    "budget.episode_steps=30",
+    "budget.frames=240",
+    "budget.eval_every=120",
+    "budget.eval_episodes=1",
+    "algo.frames_per_batch=60",
+    "checkpoint_every=2",
+]
 OVERRIDES = {
-    "epoet": ["budget=smoke", "workers.num=2", "algo.es.hidden=[8]", "terrain.grid=40",
-              "algo.iterations_before_transfer=1", "algo.adjust_interval=2",
-              "algo.num_children=2", "algo.repro_threshold=-100000", "algo.mc_lower=-100000",
-              "algo.mc_upper=100000", "budget.iterations=5"],
+    "epoet": [
+        "budget=smoke",
+        "workers.num=2",
+        "algo.es.hidden=[8]",
+        "terrain.grid=40",
+        "algo.iterations_before_transfer=1",
+        "algo.adjust_interval=2",
+        "algo.num_children=2",
+        "algo.repro_threshold=-100000",
+        "algo.mc_lower=-100000",
+        "algo.mc_upper=100000",
+        "budget.iterations=5",
+    ],
     "ppo": ["algo=ppo", *BASELINE, "algo.epochs=2", "algo.minibatch=30"],
     "vmpo": ["algo=vmpo", *BASELINE, "algo.epochs=2", "algo.minibatch=30"],
-    "sac": ["algo=sac", *BASELINE, "algo.hidden=[32,32]", "algo.batch_size=32",
-            "algo.updates_per_batch=8", "algo.init_random_frames=60"],
+    "sac": [
+        "algo=sac",
+        *BASELINE,
+        "algo.hidden=[32,32]",
+        "algo.batch_size=32",
+        "algo.updates_per_batch=8",
+        "algo.init_random_frames=60",
+    ],
 }
 
 
@@ -53,19 +77,28 @@ def final_parameters(algo: str, run_dir: Path) -> np.ndarray:
         pairs = state["poet"]["active"] + state["poet"]["archived"]
         return np.concatenate([p["es"]["theta"] for p in pairs])
     params = state["learner"]["loss"]
-    return np.concatenate([params[k].detach().double().numpy().ravel() for k in sorted(params)
-                           if isinstance(params[k], torch.Tensor) and params[k].is_floating_point()])
+    return np.concatenate(
+        [
+            params[k].detach().double().numpy().ravel()
+            for k in sorted(params)
+            if isinstance(params[k], torch.Tensor) and params[k].is_floating_point()
+        ]
+    )
 
 
 def fingerprint(values: np.ndarray) -> dict:
     picks = np.linspace(0, values.size - 1, SAMPLES).astype(int)
-    return {"count": int(values.size), "sum": float(values.sum()),
-            "sample": [float(v) for v in values[picks]]}
+    return {
+        "count": int(values.size),
+        "sum": float(values.sum()),
+        "sample": [float(v) for v in values[picks]],
+    }
 
 
 @pytest.mark.parametrize("algo", sorted(OVERRIDES))
-def test_a_smoke_run_ends_with_the_golden_parameters(algo: str, mlflow_uri: str,
-                                                     tmp_path: Path) -> None:
+def test_a_smoke_run_ends_with_the_golden_parameters(
+    algo: str, mlflow_uri: str, tmp_path: Path
+) -> None:
     run(compose([*OVERRIDES[algo], "evaluate=false"]), tmp_path / "run")
     got = fingerprint(final_parameters(algo, tmp_path / "run"))
     if os.environ.get("EPOET_WRITE_GOLDEN"):

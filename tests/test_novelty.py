@@ -1,4 +1,5 @@
 """PATA-EC and novelty on constructed score matrices."""
+
 import numpy as np
 import pytest
 
@@ -16,8 +17,9 @@ def test_pata_ec_clips_then_ranks():
 def test_pata_ec_ties_from_clipping_share_their_average_rank():
     np.testing.assert_array_equal(pata_ec(np.array([-10.0, 0.0, 400.0]), LOW, HIGH), [0, 0, 0])
     # 4000 and 3500 both clip to 3000: ranks [0, 1.5, 1.5] -> [-0.5, 0.25, 0.25]
-    np.testing.assert_allclose(pata_ec(np.array([1000.0, 4000.0, 3500.0]), LOW, HIGH),
-                               [-0.5, 0.25, 0.25])
+    np.testing.assert_allclose(
+        pata_ec(np.array([1000.0, 4000.0, 3500.0]), LOW, HIGH), [-0.5, 0.25, 0.25]
+    )
 
 
 def test_pata_ec_single_agent_is_zero_not_nan():
@@ -57,14 +59,23 @@ def test_single_agent_pipeline_has_no_nan():
 
 def test_rank_by_novelty_puts_the_odd_candidate_first():
     # five agents; existing environments all rank agent 0 worst and agent 4 best
-    existing = np.array([[100.0, 800.0, 1200.0, 1800.0, 2600.0],
-                         [200.0, 900.0, 1100.0, 2000.0, 2900.0],
-                         [300.0, 700.0, 1300.0, 1900.0, 2700.0]])
-    candidates = np.array([[150.0, 850.0, 1250.0, 1850.0, 2650.0],   # same ordering
-                           [2900.0, 1900.0, 1200.0, 800.0, 100.0],   # reversed: the novel one
-                           [100.0, 900.0, 1300.0, 2900.0, 1900.0]])  # one swap
-    order, values = rank_by_novelty(pata_ec(candidates, LOW, HIGH), pata_ec(existing, LOW, HIGH),
-                                    k=5)
+    existing = np.array(
+        [
+            [100.0, 800.0, 1200.0, 1800.0, 2600.0],
+            [200.0, 900.0, 1100.0, 2000.0, 2900.0],
+            [300.0, 700.0, 1300.0, 1900.0, 2700.0],
+        ]
+    )
+    candidates = np.array(
+        [
+            [150.0, 850.0, 1250.0, 1850.0, 2650.0],  # same ordering
+            [2900.0, 1900.0, 1200.0, 800.0, 100.0],  # reversed: the novel one
+            [100.0, 900.0, 1300.0, 2900.0, 1900.0],
+        ]
+    )  # one swap
+    order, values = rank_by_novelty(
+        pata_ec(candidates, LOW, HIGH), pata_ec(existing, LOW, HIGH), k=5
+    )
     assert order.tolist() == [1, 2, 0]
     assert values[0] == pytest.approx(0.0) and values[1] > values[2] > 0
 
@@ -76,13 +87,16 @@ def test_rank_by_novelty_with_empty_archive_keeps_proposal_order():
     np.testing.assert_array_equal(novelties(np.zeros((3, 4)), np.empty((0, 4)), k=5), values)
 
 
-@pytest.mark.parametrize("call, message", [
-    (lambda: pata_ec(np.array([1.0, np.nan]), LOW, HIGH), "NaN"),
-    (lambda: pata_ec(np.array([]), LOW, HIGH), "n_agents >= 1"),
-    (lambda: novelty(np.zeros(3), np.zeros((2, 4)), k=5), "match"),
-    (lambda: novelty(np.zeros(3), np.zeros((2, 3)), k=0), "k must be"),
-    (lambda: rank_by_novelty(np.zeros(3), np.zeros((2, 3)), k=5), "candidates"),
-])
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: pata_ec(np.array([1.0, np.nan]), LOW, HIGH), "NaN"),
+        (lambda: pata_ec(np.array([]), LOW, HIGH), "n_agents >= 1"),
+        (lambda: novelty(np.zeros(3), np.zeros((2, 4)), k=5), "match"),
+        (lambda: novelty(np.zeros(3), np.zeros((2, 3)), k=0), "k must be"),
+        (lambda: rank_by_novelty(np.zeros(3), np.zeros((2, 3)), k=5), "candidates"),
+    ],
+)
 def test_bad_input_raises_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message):
         call()

@@ -1,6 +1,7 @@
 """Observation normalisation for ES (Salimans et al. 2017): the folded policy acts on raw
 observations as the ES parameters act on standardised ones, the statistics are those of the
 recorded ES episodes, and a run with it exports agents that score what the loop measured."""
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -9,16 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
-from epoet.terrain.config import TerrainConfig
+from epoet.core.checkpoint import load_checkpoint
 from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer
-from epoet.rollout.policy import fold, forward, init_params
-from epoet.rollout.backends.serial import SerialEvaluator
-from epoet.rollout.populations import Agents, Request
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
+from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.rollout.policy import fold, forward, init_params
+from epoet.rollout.populations import Agents, Request
 from epoet.run import run
+from epoet.terrain.config import TerrainConfig
 
 SIZES = (53, 8, 18)
 SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
@@ -29,8 +30,11 @@ def test_the_folded_policy_on_raw_observations_is_theta_on_standardised_ones() -
     theta = init_params(1, SIZES, std=0.5)
     mean, std = rng.normal(size=53), rng.uniform(0.1, 5.0, size=53)
     obs = rng.normal(size=(7, 53)) * std + mean
-    np.testing.assert_allclose(forward(fold(theta, mean, std, SIZES), obs, SIZES),
-                               forward(theta, (obs - mean) / std, SIZES), atol=1e-12)
+    np.testing.assert_allclose(
+        forward(fold(theta, mean, std, SIZES), obs, SIZES),
+        forward(theta, (obs - mean) / std, SIZES),
+        atol=1e-12,
+    )
     both = fold(np.stack([theta, -theta]), mean, std, SIZES)
     np.testing.assert_array_equal(both[0], fold(theta, mean, std, SIZES))
     assert not np.array_equal(both[0], theta)
@@ -56,9 +60,16 @@ def _poet(terrain_cfg: TerrainConfig, episodes: int) -> EPOET:
     paper = load(["budget=paper"])
     agent = replace(paper.agent, max_episode_steps=30, settle_steps=2)
     es = replace(paper.algo.es, obs_norm_episodes=episodes)
-    return EPOET(replace(paper.algo, es=es), terrain_cfg,
-                 SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES), seed=4,
-                 n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES)
+    return EPOET(
+        replace(paper.algo, es=es),
+        terrain_cfg,
+        SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES),
+        seed=4,
+        n_pairs=3,
+        eval_episodes=2,
+        score_scale=1.0,
+        layer_sizes=SIZES,
+    )
 
 
 def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainConfig) -> None:
@@ -71,8 +82,9 @@ def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainCo
     # the evaluation ran the folded policy: replaying it from the same starts gives the score
     service = poet.service
     seeds = service.seeds(service.eval_episodes, Key.EVAL, pair.env.index, 0)
-    again = service.evaluator.run([Request(service.terrain(pair.env, 0),
-                                           Agents.of(service.policy(pair.theta)[None], seeds))])
+    again = service.evaluator.run(
+        [Request(service.terrain(pair.env, 0), Agents.of(service.policy(pair.theta)[None], seeds))]
+    )
     assert again[0].returns.mean() == pytest.approx(pair.score, abs=1e-9)
     np.testing.assert_array_equal(pair.best_theta, service.policy(pair.theta))
     # without normalisation the same seed runs other policies
@@ -82,26 +94,31 @@ def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainCo
 
 
 def test_an_epoet_run_with_normalisation_exports_raw_policies_and_resumes(
-        compose, mlflow_uri: str, tmp_path: Path) -> None:
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
     norm = ["algo.es.obs_norm_episodes=1", "checkpoint_every=1"]
     run(compose(SMOKE + norm + ["budget.iterations=3"]), tmp_path / "straight")
     run(compose(SMOKE + norm + ["budget.iterations=2"]), tmp_path / "killed")
-    run(compose(SMOKE + norm + ["budget.iterations=3", f"resume={tmp_path / 'killed'}"]),
-        tmp_path / "resumed")
+    run(
+        compose(SMOKE + norm + ["budget.iterations=3", f"resume={tmp_path / 'killed'}"]),
+        tmp_path / "resumed",
+    )
     straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")["poet"]
     resumed = load_checkpoint(tmp_path / "resumed" / "checkpoint.pkl")["poet"]
     assert straight["obs_norm"]["count"] > 0
     for key in ("count", "sum", "sumsq"):
         np.testing.assert_array_equal(straight["obs_norm"][key], resumed["obs_norm"][key])
-    np.testing.assert_array_equal(straight["active"][0]["es"]["theta"],
-                                  resumed["active"][0]["es"]["theta"])
+    np.testing.assert_array_equal(
+        straight["active"][0]["es"]["theta"], resumed["active"][0]["es"]["theta"]
+    )
     stats = straight["obs_norm"]
     mean = stats["sum"] / stats["count"]
     std = np.sqrt(np.maximum(stats["sumsq"] / stats["count"] - mean**2, VAR_FLOOR))
     with np.load(tmp_path / "straight" / "policies" / "env0.npz") as saved:
         sizes = tuple(saved["layer_sizes"])
-        np.testing.assert_allclose(saved["final_theta"],
-                                   fold(straight["active"][0]["es"]["theta"], mean, std, sizes))
+        np.testing.assert_allclose(
+            saved["final_theta"], fold(straight["active"][0]["es"]["theta"], mean, std, sizes)
+        )
 
 
 def test_the_workstation_budget_normalises_epoet_and_epoet_sac_observations() -> None:

@@ -1,4 +1,5 @@
 """The ePOET loop on the real rollout engine: reproduction, archive, transfer, tracking, resume."""
+
 from __future__ import annotations
 
 import os
@@ -10,19 +11,19 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
-from conftest import without_evaluation
-from pool_state import assert_same_state
 
-from epoet.core.checkpoint import load_checkpoint
+from conftest import without_evaluation
 from epoet.config import load
-from epoet.terrain.config import TerrainConfig
-from epoet.rollout.backends.serial import SerialEvaluator
-from epoet.rollout.evaluators import make_evaluator
+from epoet.core.checkpoint import load_checkpoint
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
 from epoet.poet.reproduction import best_agent_for, minimal_criterion, propose_children
 from epoet.poet.runner import layer_sizes
+from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.rollout.evaluators import make_evaluator
 from epoet.run import run
+from epoet.terrain.config import TerrainConfig
+from pool_state import assert_same_state
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = (53, 8, 18)
@@ -33,8 +34,16 @@ SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40
 def make_poet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> EPOET:
     agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
     evaluator = SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES)
-    return EPOET(replace(PAPER.algo, **algo), terrain_cfg, evaluator, seed=seed, n_pairs=2, eval_episodes=1,
-                 score_scale=1.0, layer_sizes=SIZES)
+    return EPOET(
+        replace(PAPER.algo, **algo),
+        terrain_cfg,
+        evaluator,
+        seed=seed,
+        n_pairs=2,
+        eval_episodes=1,
+        score_scale=1.0,
+        layer_sizes=SIZES,
+    )
 
 
 OPEN = dict(repro_threshold=-1e9, mc_lower=-1e9, mc_upper=1e9)  # every child passes
@@ -53,15 +62,13 @@ def test_reproduction_admits_at_most_one_child(terrain_cfg: TerrainConfig) -> No
 
 
 def test_reproduction_requires_minimal_criterion(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=-1e9, mc_lower=1e8,
-                     mc_upper=1e9)
+    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=-1e9, mc_lower=1e8, mc_upper=1e9)
     poet.run_iteration()
     assert poet.reproduce(poet.iteration) == 0 and len(poet.pool.active) == 1
 
 
 def test_reproduction_requires_threshold(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=1e9, mc_lower=-1e9,
-                     mc_upper=1e9)
+    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=1e9, mc_lower=-1e9, mc_upper=1e9)
     poet.run_iteration()
     assert poet.reproduce(poet.iteration) == 0
 
@@ -81,7 +88,7 @@ def test_transfer_replaces_a_beaten_agent(terrain_cfg: TerrainConfig) -> None:
     poet.run_iteration()
     poet.reproduce(poet.iteration)
     target = poet.pool.active[1]
-    target.scores[:] = [-1e9]          # any other agent beats this incumbent
+    target.scores[:] = [-1e9]  # any other agent beats this incumbent
     target.es.tell(*_fake_step(target))  # move its optimiser away from the initial state
     before = target.theta.copy()
     assert poet.transfer(poet.iteration) >= 1
@@ -102,14 +109,16 @@ def test_annecs_counts_solved_children(terrain_cfg: TerrainConfig) -> None:
     assert poet.run_iteration()["annecs"] == 1
 
 
-def test_best_score_is_the_best_score_so_far(terrain_cfg: TerrainConfig,
-                                             monkeypatch: pytest.MonkeyPatch) -> None:
+def test_best_score_is_the_best_score_so_far(
+    terrain_cfg: TerrainConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """`score` is this iteration's best active score, `best_score` the best of any iteration so
     far (it equalled `score` before): evaluations scripted to fall and rise again."""
     poet = make_poet(terrain_cfg)
     scripted = iter([5.0, 3.0, 4.0, 6.0])
-    monkeypatch.setattr(poet.service, "scores", lambda requests: [np.array([next(scripted)])
-                                                                  for _ in requests])
+    monkeypatch.setattr(
+        poet.service, "scores", lambda requests: [np.array([next(scripted)]) for _ in requests]
+    )
     logged = [poet.run_iteration() for _ in range(4)]
     assert [m["score"] for m in logged] == [5.0, 3.0, 4.0, 6.0]
     assert [m["best_score"] for m in logged] == [5.0, 5.0, 5.0, 6.0]
@@ -128,9 +137,19 @@ def test_smoke_run_is_tracked(compose, mlflow_uri: str, tmp_path: Path) -> None:
     poet = run(compose(SMOKE), tmp_path / "run")
     (r,) = _runs(mlflow_uri)
     assert r.info.status == "FINISHED"
-    for key in ("pair0/return_mean", "pair0/return_max", "pair0/score", "pair0/lr",
-                "pair0/sigma", "best_score", "active_envs", "archived_envs", "annecs",
-                "env_steps", "time/iteration"):
+    for key in (
+        "pair0/return_mean",
+        "pair0/return_max",
+        "pair0/score",
+        "pair0/lr",
+        "pair0/sigma",
+        "best_score",
+        "active_envs",
+        "archived_envs",
+        "annecs",
+        "env_steps",
+        "time/iteration",
+    ):
         assert key in r.data.metrics, key
     history = mlflow.MlflowClient(mlflow_uri).get_metric_history(r.info.run_id, "best_score")
     assert [m.step for m in history] == [0, 1, 2]
@@ -154,22 +173,31 @@ def _assert_same(a: dict, b: dict) -> None:
     assert_same_state(a, b)  # every entry, the pairs' bests and the env genomes included
 
 
-def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
-                                                tmp_path: Path) -> None:
+def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str, tmp_path: Path) -> None:
     # Small intervals so reproduction (t=2, 4) and transfers happen on both sides of the cut
     # (seed 1: a transfer at t=2, 3 and 4).
-    algo = ["algo.iterations_before_transfer=1", "algo.adjust_interval=2", "algo.num_children=2",
-            "algo.repro_threshold=-100000", "algo.mc_lower=-100000", "algo.mc_upper=100000",
-            "checkpoint_every=1", "seed=1"]
+    algo = [
+        "algo.iterations_before_transfer=1",
+        "algo.adjust_interval=2",
+        "algo.num_children=2",
+        "algo.repro_threshold=-100000",
+        "algo.mc_lower=-100000",
+        "algo.mc_upper=100000",
+        "checkpoint_every=1",
+        "seed=1",
+    ]
     run(compose(SMOKE + algo + ["budget.iterations=5"]), tmp_path / "straight")
     run(compose(SMOKE + algo + ["budget.iterations=3"]), tmp_path / "killed")
-    run(compose(SMOKE + algo + ["budget.iterations=5", f"resume={tmp_path / 'killed'}"]),
-        tmp_path / "resumed")
+    run(
+        compose(SMOKE + algo + ["budget.iterations=5", f"resume={tmp_path / 'killed'}"]),
+        tmp_path / "resumed",
+    )
     straight, resumed = _state(tmp_path / "straight"), _state(tmp_path / "resumed")
     assert len(straight["active"]) > 1, "reproduction should have happened"
     assert straight["transfers"] > 0, "transfers should have happened"
-    assert any(p["best_score"] > p["scores"][-1] for p in straight["active"]), \
+    assert any(p["best_score"] > p["scores"][-1] for p in straight["active"]), (
         "some pair's best evaluation should not be its last"
+    )
     _assert_same(straight, resumed)
     runs = {r.info.run_id: r for r in _runs(mlflow_uri)}
     assert len(runs) == 2  # the resumed run continued the killed one
@@ -180,16 +208,24 @@ def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str,
 
 def _cli(args: list[str], uri: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    return subprocess.run([sys.executable, "-m", "epoet", *without_evaluation(args)], cwd=cwd,
-                          env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "epoet", *without_evaluation(args)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_multirun_has_one_parent_and_two_children(mlflow_uri: str, tmp_path: Path) -> None:
     # Parent and children do not depend on the algorithm; every algorithm's multirun is
     # exercised by test_evaluation's `make paper` call.
-    out = _cli(["-m", *SMOKE, "budget.iterations=1", "seed=1,2",
-                f"hydra.sweep.dir={tmp_path / 'sweep'}"], mlflow_uri, tmp_path)
+    out = _cli(
+        ["-m", *SMOKE, "budget.iterations=1", "seed=1,2", f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+        mlflow_uri,
+        tmp_path,
+    )
     assert out.returncode == 0, out.stderr
     runs = _runs(mlflow_uri)
     parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
@@ -204,7 +240,7 @@ def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) 
     poet.run_iteration()
     poet.reproduce(poet.iteration)
     for pair in poet.pool.active:
-        pair.scores[:] = [-1e9]        # every direct transfer clears the bar
+        pair.scores[:] = [-1e9]  # every direct transfer clears the bar
     before = [p.theta.copy() for p in poet.pool.active]
     assert poet.transfer(poet.iteration) == len(poet.pool.active)
     for pair in poet.pool.active:
@@ -212,8 +248,7 @@ def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) 
         assert not any(np.array_equal(pair.theta, theta) for theta in before)
 
 
-def test_the_transfer_bar_is_the_best_of_the_last_evaluations(terrain_cfg: TerrainConfig
-                                                               ) -> None:
+def test_the_transfer_bar_is_the_best_of_the_last_evaluations(terrain_cfg: TerrainConfig) -> None:
     """The reference's bar: the best of the target's last 5 evaluations; a great score 6
     evaluations ago no longer guards the agent."""
     poet = make_poet(terrain_cfg, num_children=2, **OPEN)
@@ -236,21 +271,26 @@ def test_reproduction_schedule(terrain_cfg: TerrainConfig, later, due) -> None:
 
 
 def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
-        terrain_cfg: TerrainConfig) -> None:
+    terrain_cfg: TerrainConfig,
+) -> None:
     # Learn the child's scores on the real engine (they do not depend on the thresholds) ...
     probe = make_poet(terrain_cfg, num_children=1, **OPEN)
     probe.run_iteration()
     service, t = probe.service, probe.iteration
-    (child, parent), = propose_children(service, probe.cfg, probe.pool.active, t)
-    mc_score = float(service.scores([service.eval_request(child.terrain, parent.theta[None],
-                                                          Key.MC, t, child.slot)])[0][0])
+    ((child, parent),) = propose_children(service, probe.cfg, probe.pool.active, t)
+    mc_score = float(
+        service.scores(
+            [service.eval_request(child.terrain, parent.theta[None], Key.MC, t, child.slot)]
+        )[0][0]
+    )
     best_score, _ = best_agent_for(probe.pool, service, probe.cfg, child, t)
     assert best_score != mc_score
     # ... then set the window so that the parent's agent passes and the best agent does not.
     middle = (mc_score + best_score) / 2
     window = (mc_score - 1.0, middle) if best_score > mc_score else (middle, mc_score + 1.0)
-    poet = make_poet(terrain_cfg, num_children=1, repro_threshold=-1e9, mc_lower=window[0],
-                     mc_upper=window[1])
+    poet = make_poet(
+        terrain_cfg, num_children=1, repro_threshold=-1e9, mc_lower=window[0], mc_upper=window[1]
+    )
     poet.run_iteration()
     t = poet.iteration
     children = propose_children(poet.service, poet.cfg, poet.pool.active, t)
@@ -262,7 +302,7 @@ def test_admission_fine_tunes_with_a_fresh_optimiser(terrain_cfg: TerrainConfig)
     poet = make_poet(terrain_cfg, seed=4, num_children=1, **OPEN)
     poet.run_iteration()
     t = poet.iteration
-    (child, _), = propose_children(poet.service, poet.cfg, poet.pool.active, t)
+    ((child, _),) = propose_children(poet.service, poet.cfg, poet.pool.active, t)
     score, theta = best_agent_for(poet.pool, poet.service, poet.cfg, child, t)
     assert not np.array_equal(theta, poet.pool.active[0].theta), "seed 4: a fine-tuned agent wins"
     es = poet.pool.active[0].es  # the incumbent's optimiser state must not matter
@@ -277,8 +317,16 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
         agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
         with make_evaluator(agent, terrain_cfg, workers, batch=3, layer_sizes=SIZES) as ev:
             every = dict(iterations_before_transfer=1, adjust_interval=1, later_adjust_interval=1)
-            poet = EPOET(replace(PAPER.algo, num_children=2, **every, **OPEN), terrain_cfg, ev,
-                         seed=5, n_pairs=3, eval_episodes=2, score_scale=1.0, layer_sizes=SIZES)
+            poet = EPOET(
+                replace(PAPER.algo, num_children=2, **every, **OPEN),
+                terrain_cfg,
+                ev,
+                seed=5,
+                n_pairs=3,
+                eval_episodes=2,
+                score_scale=1.0,
+                layer_sizes=SIZES,
+            )
             for _ in range(3):
                 poet.run_iteration()
             return poet.state_dict()
@@ -290,13 +338,17 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
 
 # README "Budgets": what each budget runs with (thresholds x, transfer / reproduce every, S per
 # iteration, integrator); `paper`'s are the paper's.
-SCHEDULES = {"smoke": (0.025, 15, 75, 0.01, "implicitfast"),
-             "laptop": (0.125, 10, 20, 0.005, "implicitfast"),
-             "workstation": (1.0, 15, 75, 0.0, "implicitfast"),
-             "paper": (1.0, 15, 75, 0.01, "rk4")}
+SCHEDULES = {
+    "smoke": (0.025, 15, 75, 0.01, "implicitfast"),
+    "laptop": (0.125, 10, 20, 0.005, "implicitfast"),
+    "workstation": (1.0, 15, 75, 0.0, "implicitfast"),
+    "paper": (1.0, 15, 75, 0.01, "rk4"),
+}
 
 
-@pytest.mark.parametrize("budget", sorted(p.stem for p in (ROOT / "conf" / "budget").glob("*.yaml")))
+@pytest.mark.parametrize(
+    "budget", sorted(p.stem for p in (ROOT / "conf" / "budget").glob("*.yaml"))
+)
 def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budget: str) -> None:
     """Small budgets may trade integrator, intervals and S schedule for time; `paper` may not.
     Each budget runs with its README row (a budget's own file missing or misnamed falls back to
@@ -304,16 +356,22 @@ def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budg
     cfg = load([f"budget={budget}"])
     assert cfg.agent.max_episode_steps == cfg.budget.episode_steps
     loop = EPOET.from_config(cfg, SerialEvaluator(cfg.agent, cfg.terrain, 1, layer_sizes(cfg)))
-    runs_with = (cfg.budget.score_scale, loop.transfer_interval, loop.reproduce_interval,
-                 cfg.terrain.max_height_step, cfg.agent.integrator)
+    runs_with = (
+        cfg.budget.score_scale,
+        loop.transfer_interval,
+        loop.reproduce_interval,
+        cfg.terrain.max_height_step,
+        cfg.agent.integrator,
+    )
     assert runs_with == SCHEDULES[budget]
     assert (runs_with == SCHEDULES["paper"]) == (budget == "paper")
     assert (cfg.budget.hours == 24.0) == (budget == "paper")
 
 
 @pytest.mark.parametrize("choice", ["best", "final"])
-def test_a_run_exports_each_pairs_best_or_final_agent(compose, mlflow_uri: str, tmp_path: Path,
-                                                      choice: str) -> None:
+def test_a_run_exports_each_pairs_best_or_final_agent(
+    compose, mlflow_uri: str, tmp_path: Path, choice: str
+) -> None:
     """Each pair keeps the parameters of its best evaluation (the reference's best.json per
     niche); `agent_choice` picks which the run exports, and both are in the file. The run is
     stopped and resumed after every iteration, so each checkpoint shows the parameters that
@@ -322,8 +380,10 @@ def test_a_run_exports_each_pairs_best_or_final_agent(compose, mlflow_uri: str, 
     evaluated: list[tuple[np.ndarray, float]] = []
     for iterations in range(1, 5):
         resume = [f"resume={folder}"] if evaluated else []
-        run(compose(SMOKE + [f"budget.iterations={iterations}", f"agent_choice={choice}",
-                             *resume]), folder)
+        run(
+            compose(SMOKE + [f"budget.iterations={iterations}", f"agent_choice={choice}", *resume]),
+            folder,
+        )
         (pair,) = load_checkpoint(folder / "checkpoint.pkl")["poet"]["active"]  # no child yet
         evaluated.append((pair["es"]["theta"].copy(), pair["scores"][-1]))
     scores = [score for _, score in evaluated]

@@ -1,15 +1,15 @@
 """Evaluation records (pipeline.records writes, analysis.records reads): exported from a real
 store of tiny trained and evaluated runs, the tables they rebuild without the store are the
 store's; exporting again overwrites a run's record and nothing else."""
+
 from __future__ import annotations
 
 import json
 import shlex
 from pathlib import Path
 
-import numpy as np
-
 import mlflow
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -22,16 +22,19 @@ from epoet.eval.suite import SHIPPED, load_suite
 from pipeline.records import export
 
 EXPERIMENT = "records"
-RUNS = {("epoet", 1): ["algo.es.hidden=[8]", "budget.iterations=1"],
-        ("epoet", 2): ["algo.es.hidden=[8]", "budget.iterations=1"],
-        ("ppo", 1): ["budget.frames=200"]}
+RUNS = {
+    ("epoet", 1): ["algo.es.hidden=[8]", "budget.iterations=1"],
+    ("epoet", 2): ["algo.es.hidden=[8]", "budget.iterations=1"],
+    ("ppo", 1): ["budget.frames=200"],
+}
 
 
 def two_terrain_suite(folder: Path) -> Path:
     """The shipped suite's first easy and first medium terrain, in the same format."""
     shipped = load_suite()
-    names = [next(t.name for t in shipped.terrains if t.level == level)
-             for level in ("easy", "medium")]
+    names = [
+        next(t.name for t in shipped.terrains if t.level == level) for level in ("easy", "medium")
+    ]
     index = json.loads((SHIPPED / "suite.json").read_text())
     index["terrains"] = [e for e in index["terrains"] if e["name"] in names]
     folder.mkdir(parents=True)
@@ -46,6 +49,7 @@ def store(tmp_path_factory):
     """(uri, suite folder): three tiny runs (ePOET seeds 1-2, PPO seed 1) each evaluated on a
     two-terrain suite, two episodes per terrain."""
     from epoet.run import run
+
     tmp = tmp_path_factory.mktemp("records")
     uri = f"sqlite:///{tmp}/mlflow.db"
     suite = two_terrain_suite(tmp / "duo")
@@ -53,17 +57,36 @@ def store(tmp_path_factory):
         patch.setenv("MLFLOW_TRACKING_URI", uri)
         for (algo, seed), extra in RUNS.items():
             folder = tmp / f"{algo}_s{seed}"
-            run(compose([f"algo={algo}", "budget=smoke", "workers.num=1", f"seed={seed}",
-                         "evaluate=false", f"tracking.experiment={EXPERIMENT}", *extra]), folder)
-            evaluate_run(validate(compose([f"run={folder}", f"suite={suite}", "episodes=2",
-                                           "processes=1"], config_name="evaluate")),
-                         progress=False)
+            run(
+                compose(
+                    [
+                        f"algo={algo}",
+                        "budget=smoke",
+                        "workers.num=1",
+                        f"seed={seed}",
+                        "evaluate=false",
+                        f"tracking.experiment={EXPERIMENT}",
+                        *extra,
+                    ]
+                ),
+                folder,
+            )
+            evaluate_run(
+                validate(
+                    compose(
+                        [f"run={folder}", f"suite={suite}", "episodes=2", "processes=1"],
+                        config_name="evaluate",
+                    )
+                ),
+                progress=False,
+            )
     return uri, suite
 
 
 def files(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
-            if p.is_file()}
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
 
 
 def test_records_rebuild_the_stores_tables(store, tmp_path, capsys):
@@ -71,18 +94,18 @@ def test_records_rebuild_the_stores_tables(store, tmp_path, capsys):
     written = export(EXPERIMENT, tmp_path / "records", uri)
     assert sorted(p.name for p in written) == ["epoet_s1", "epoet_s2", "ppo_s1"]
     from_store = make_tables(EXPERIMENT, tmp_path / "store", str(suite), tracking_uri=uri)
-    from_records = tables_from_records(tmp_path / "records", tmp_path / "from_records",
-                                       str(suite))
+    from_records = tables_from_records(tmp_path / "records", tmp_path / "from_records", str(suite))
     assert [p.name for p in from_store] == [p.name for p in from_records]
     names = {p.name for p in from_store}
-    assert {"table1_duo.csv", "table2_duo.md", "iqm_duo.csv", "iqm_duo.png", "poi_duo.tex"} \
-        <= names
+    assert {"table1_duo.csv", "table2_duo.md", "iqm_duo.csv", "iqm_duo.png", "poi_duo.tex"} <= names
     # every file the same, byte for byte: tables, statistics and figures
     assert files(tmp_path / "store") == files(tmp_path / "from_records")
 
     client = mlflow.MlflowClient(uri)
-    runs = {(r.data.tags["algo"], int(r.data.tags["seed"])): r for r in client.search_runs(
-        [client.get_experiment_by_name(EXPERIMENT).experiment_id])}
+    runs = {
+        (r.data.tags["algo"], int(r.data.tags["seed"])): r
+        for r in client.search_runs([client.get_experiment_by_name(EXPERIMENT).experiment_id])
+    }
     for (algo, seed), run in runs.items():
         folder = tmp_path / "records" / f"{algo}_s{seed}"
         info = json.loads((folder / "run.json").read_text())
@@ -94,10 +117,20 @@ def test_records_rebuild_the_stores_tables(store, tmp_path, capsys):
         # not a sweep job: the command is rebuilt from the params, and is the one that ran
         assert info["command_source"] == "params"
         words = shlex.split(info["command"])
-        assert words[:6] == ["python", "-m", "epoet", f"algo={algo}", "budget=smoke",
-                             f"seed={seed}"]
-        assert set(words[6:]) == {*RUNS[algo, seed], "evaluate=false", "workers.num=1",
-                                  f"tracking.experiment={EXPERIMENT}"}
+        assert words[:6] == [
+            "python",
+            "-m",
+            "epoet",
+            f"algo={algo}",
+            "budget=smoke",
+            f"seed={seed}",
+        ]
+        assert set(words[6:]) == {
+            *RUNS[algo, seed],
+            "evaluate=false",
+            "workers.num=1",
+            f"tracking.experiment={EXPERIMENT}",
+        }
         training = info["training"]
         assert training["wall_time_s"] == metrics["elapsed"]
         assert training["env_steps"] == metrics["env_steps"]
@@ -117,8 +150,13 @@ def test_records_rebuild_the_stores_tables(store, tmp_path, capsys):
         assert evaluation["success_rate"] == metrics["suite/duo/success_rate"]
         assert evaluation["time"] is not None
         for name in ("summary.json", "episodes.csv"):
-            logged = Path(client.download_artifacts(run.info.run_id, f"evaluation/duo/{name}",
-                                                    str(tmp_path / "dl" / run.info.run_id)))
+            logged = Path(
+                client.download_artifacts(
+                    run.info.run_id,
+                    f"evaluation/duo/{name}",
+                    str(tmp_path / "dl" / run.info.run_id),
+                )
+            )
             assert (folder / "duo" / name).read_bytes() == logged.read_bytes()
 
 
@@ -130,13 +168,13 @@ def test_exporting_again_overwrites_its_runs_and_keeps_other_records(store, tmp_
     other = out / "vmpo_s9"
     other.mkdir()
     (other / "run.json").write_text("another experiment's record\n")
-    (out / "epoet_s1" / "gone").mkdir()   # a suite folder the run no longer lists
+    (out / "epoet_s1" / "gone").mkdir()  # a suite folder the run no longer lists
     (out / "epoet_s1" / "gone" / "episodes.csv").write_text("stale\n")
     (out / "ppo_s1" / "duo" / "episodes.csv").write_text("damaged\n")
     export(EXPERIMENT, out, uri)
     again = files(out)
     assert again.pop("vmpo_s9/run.json") == b"another experiment's record\n"
-    assert again == first   # the same store gives the same files; the stale folder is gone
+    assert again == first  # the same store gives the same files; the stale folder is gone
 
 
 def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
@@ -145,16 +183,27 @@ def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     client = mlflow.MlflowClient(uri)
     shipped, paper = load_suite("shipped"), load_suite("paper")
-    episodes = pd.DataFrame([[t.name, t.level, t.roughness, 0, 7, 5.0, False, False, 1.0, 10,
-                              0.0] for t in shipped.terrains[:2]], columns=COLUMNS)
+    episodes = pd.DataFrame(
+        [
+            [t.name, t.level, t.roughness, 0, 7, 5.0, False, False, 1.0, 10, 0.0]
+            for t in shipped.terrains[:2]
+        ],
+        columns=COLUMNS,
+    )
     (tmp_path / "eval").mkdir()
     episodes.to_csv(tmp_path / "eval" / "episodes.csv", index=False)
     (tmp_path / "eval" / "summary.json").write_text("{}\n")
 
-    def finished(experiment: str, tags: dict[str, str], eval_tags: dict[str, str], folder: str,
-                 params: dict[str, str] = {}) -> str:
+    def finished(
+        experiment: str,
+        tags: dict[str, str],
+        eval_tags: dict[str, str],
+        folder: str,
+        params: dict[str, str] = {},
+    ) -> str:
         exp = client.get_experiment_by_name(experiment) or client.get_experiment(
-            client.create_experiment(experiment))
+            client.create_experiment(experiment)
+        )
         run_id = client.create_run(exp.experiment_id, tags=tags).info.run_id
         for key, value in {**eval_tags, **params}.items():
             (client.log_param if key in params else client.set_tag)(run_id, key, value)
@@ -163,11 +212,22 @@ def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
         client.set_terminated(run_id, "FINISHED")
         return run_id
 
-    agent = finished("reference", {"algo": "epoet_sac", "seed": "sac_58",
-                                   "reference": "poet_twin22/sac_58", "budget": "paper"},
-                     {"eval_suite/paper": paper.fingerprint, "eval_course_scale/paper": "1",
-                      "eval_episodes/paper": "5"}, "evaluation/paper",
-                     params={"repository": "ml-tue/ePOET_3D", "logged_score": "2806"})
+    agent = finished(
+        "reference",
+        {
+            "algo": "epoet_sac",
+            "seed": "sac_58",
+            "reference": "poet_twin22/sac_58",
+            "budget": "paper",
+        },
+        {
+            "eval_suite/paper": paper.fingerprint,
+            "eval_course_scale/paper": "1",
+            "eval_episodes/paper": "5",
+        },
+        "evaluation/paper",
+        params={"repository": "ml-tue/ePOET_3D", "logged_score": "2806"},
+    )
     export("reference", tmp_path / "reference", uri)
     info = json.loads((tmp_path / "reference" / "epoet_sac_sac_58" / "run.json").read_text())
     assert info["run_id"] == agent and info["command"] is None
@@ -176,9 +236,12 @@ def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
     assert info["provenance"] == {"logged_score": "2806", "repository": "ml-tue/ePOET_3D"}
     assert list(info["evaluations"]) == ["paper"]
 
-    old = finished("old", {"algo": "ppo", "seed": "3"},
-                   {"eval_suite": shipped.fingerprint, "eval_course_scale": "0.2",
-                    "eval_episodes": "1"}, "evaluation")
+    old = finished(
+        "old",
+        {"algo": "ppo", "seed": "3"},
+        {"eval_suite": shipped.fingerprint, "eval_course_scale": "0.2", "eval_episodes": "1"},
+        "evaluation",
+    )
     export("old", tmp_path / "old", uri)
     info = json.loads((tmp_path / "old" / "ppo_s3" / "run.json").read_text())
     assert info["run_id"] == old and info["evaluations"]["shipped"]["course_scale"] == "0.2"
@@ -190,20 +253,37 @@ def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
 
 
 def test_records_on_other_terrains_are_refused_and_records_without_the_suite_named(
-        tmp_path, capsys):
+    tmp_path, capsys
+):
     shipped = load_suite("shipped")
-    episodes = pd.DataFrame([[t.name, t.level, t.roughness, 0, 7, 5.0, True, True, 1.0, 10,
-                              0.0] for t in shipped.terrains], columns=COLUMNS)
+    episodes = pd.DataFrame(
+        [
+            [t.name, t.level, t.roughness, 0, 7, 5.0, True, True, 1.0, 10, 0.0]
+            for t in shipped.terrains
+        ],
+        columns=COLUMNS,
+    )
     for name, suites in (("ppo_s1", {"shipped": shipped.fingerprint}), ("sac_s1", {})):
         (tmp_path / name / "shipped").mkdir(parents=True)
         episodes.to_csv(tmp_path / name / "shipped" / "episodes.csv", index=False)
-        (tmp_path / name / "run.json").write_text(json.dumps({
-            "format": "epoet-record/1", "algo": name[:3], "seed": "1", "run_id": name,
-            "evaluations": {s: {"fingerprint": f, "course_scale": "1"}
-                            for s, f in suites.items()}}))
+        (tmp_path / name / "run.json").write_text(
+            json.dumps(
+                {
+                    "format": "epoet-record/1",
+                    "algo": name[:3],
+                    "seed": "1",
+                    "run_id": name,
+                    "evaluations": {
+                        s: {"fingerprint": f, "course_scale": "1"} for s, f in suites.items()
+                    },
+                }
+            )
+        )
     written = tables_from_records(tmp_path, tmp_path / "out")
-    assert "left out 1 record(s) without an evaluation on suite shipped: sac_s1" in \
-        capsys.readouterr().out
+    assert (
+        "left out 1 record(s) without an evaluation on suite shipped: sac_s1"
+        in capsys.readouterr().out
+    )
     assert pd.read_csv(tmp_path / "out" / "table1_shipped.csv").algo.tolist() == ["ppo"]
     assert tmp_path / "out" / "iqm_shipped.png" in written
     info = json.loads((tmp_path / "ppo_s1" / "run.json").read_text())

@@ -1,6 +1,7 @@
 """The authors' published agents and terrains, converted (epoet/reference/, epoet.eval.reference):
 they walk in our env as far as their logs say, the layout is what makes them walk, the paper
 suite is the reference's arithmetic, and what cannot be read is refused in one sentence."""
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,9 @@ from epoet.rollout.policy import forward
 
 def _returns(policy, seeds=(0, 1, 2), steps: int = 2000) -> list[float]:
     """Episode returns on the task the authors trained on: RK4, 2000 steps, S = 0.1 m."""
-    env = gym.make(ENV_ID, agent={"integrator": "rk4", "max_episode_steps": steps},
-                   terrain={"max_height": 0.1})
+    env = gym.make(
+        ENV_ID, agent={"integrator": "rk4", "max_episode_steps": steps}, terrain={"max_height": 0.1}
+    )
     totals = []
     for seed in seeds:
         obs, _ = env.reset(seed=seed)
@@ -47,8 +49,9 @@ def _shipped(name: str) -> AgentSource:
 
 def test_the_authors_epoet_agent_walks_as_far_as_its_log_says():
     returns = _returns(_shipped("poet_hexA8/flat").load())
-    assert manifest()["agents"]["poet_hexA8/flat"]["logged_score"] == pytest.approx(2602.175,
-                                                                                     abs=1e-3)
+    assert manifest()["agents"]["poet_hexA8/flat"]["logged_score"] == pytest.approx(
+        2602.175, abs=1e-3
+    )
     assert np.mean(returns) >= 2300, returns
 
 
@@ -104,8 +107,7 @@ def _reference_heights(genome: dict, seed: int, s: float = 1.0) -> np.ndarray:
             velocity = 0.8 * velocity + 0.08 * np.sign(half - z)
             z += velocity
             if col < 120:
-                f = value(0, (col / 5 - 17 - 12) * np.pi / 12, (row / 5 - 20 - 12) * np.pi / 12,
-                          {})
+                f = value(0, (col / 5 - 17 - 12) * np.pi / 12, (row / 5 - 20 - 12) * np.pi / 12, {})
                 z = half + f
                 if row == 110 and col == 110:
                     z_norm = f
@@ -115,8 +117,9 @@ def _reference_heights(genome: dict, seed: int, s: float = 1.0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     level = rng.uniform(0.5, s + 0.5)
     r, c = np.ogrid[-1:1:200j, -1:1:200j]
-    bowl = (level - np.cos(2 * np.pi * np.clip(np.sqrt(c ** 2 + r ** 2), 0.04, 1)) / 2) \
-        * ndimage.zoom(rng.uniform(0.15, 1, (20, 20)), 10.0)
+    bowl = (level - np.cos(2 * np.pi * np.clip(np.sqrt(c**2 + r**2), 0.04, 1)) / 2) * ndimage.zoom(
+        rng.uniform(0.15, 1, (20, 20)), 10.0
+    )
     bowl = (bowl - bowl.min()) / (bowl.max() - bowl.min()) * s
     mixed = 0.3 * bowl + 0.7 * cppn
     return (mixed - mixed.min()) / (mixed.max() - mixed.min())
@@ -158,8 +161,7 @@ def test_a_reference_spec_names_a_shipped_agent_or_lists_them(mlflow_uri):
         resolve_run("reference:poet_hexA8/nope", mlflow_uri)
     assert "\n" not in str(err.value)
     run = resolve_run("reference:poet_twin22/sac_58", mlflow_uri)
-    assert (run.algo, run.seed, run.agent_config(None).integrator) == ("epoet_sac", "sac_58",
-                                                                       "rk4")
+    assert (run.algo, run.seed, run.agent_config(None).integrator) == ("epoet_sac", "sac_58", "rk4")
     again = resolve_run("reference:poet_twin22/sac_58", mlflow_uri)
     assert again.run_id == run.run_id  # one MLflow run per agent, made once
     model = mlflow.pyfunc.load_model(f"runs:/{run.run_id}/agent")
@@ -169,15 +171,27 @@ def test_a_reference_spec_names_a_shipped_agent_or_lists_them(mlflow_uri):
 
 def test_the_evaluate_command_runs_a_reference_agent_on_the_paper_suite(mlflow_uri, tmp_path):
     done = subprocess.run(
-        [sys.executable, "-m", "epoet.eval.evaluate", "run=reference:poet_hexA8/flat", "suite=paper",
-         "episodes=1", "processes=1", f"out={tmp_path / 'out'}"],
-        capture_output=True, text=True, timeout=600)
+        [
+            sys.executable,
+            "-m",
+            "epoet.eval.evaluate",
+            "run=reference:poet_hexA8/flat",
+            "suite=paper",
+            "episodes=1",
+            "processes=1",
+            f"out={tmp_path / 'out'}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr
     assert "success rate" in done.stdout
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["episodes_per_terrain"] == 1 and summary["label"] == "reference:poet_hexA8/flat"
     # the figures read its MLflow run like any other: a t-SNE panel, no training curves needed
     from analysis.figures import write_figures
+
     written = write_figures("reference", tmp_path / "figures", "paper", tracking_uri=mlflow_uri)
     assert tmp_path / "figures" / "tsne.png" in written
 
@@ -190,13 +204,15 @@ def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
     from torch import nn
 
     from epoet.rl.sac_loss import TwinQ
+
     entry = manifest()["agents"]["sac/42"]
     spec = torch.load(FOLDER / entry["critics"], weights_only=True)
     critics = TwinQ(53 + 18, spec["hidden"], nn.ReLU)
     critics.load_state_dict(spec["state_dict"])
     actor = _shipped("sac/42").load()
-    env = gym.make(ENV_ID, agent={"integrator": "rk4", "max_episode_steps": 300},
-                   terrain={"max_height": 0.1})
+    env = gym.make(
+        ENV_ID, agent={"integrator": "rk4", "max_episode_steps": 300}, terrain={"max_height": 0.1}
+    )
     obs, _ = env.reset(seed=0)
     states = []
     for _ in range(300):
@@ -208,4 +224,4 @@ def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
         rng = torch.Generator().manual_seed(0)
         noise = torch.rand((20, *chosen.shape, 18), generator=rng) * 2 - 1
         random = torch.stack([critics(states, a).min(0).values for a in noise]).mean(0)
-    assert (chosen > random).float().mean() >= 0.9, (chosen - random)
+    assert (chosen > random).float().mean() >= 0.9, chosen - random

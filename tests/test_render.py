@@ -3,6 +3,7 @@
 The command runs as a subprocess: MuJoCo picks its OpenGL backend once per process, when first
 imported, and this test process may already have imported it without one.
 """
+
 from __future__ import annotations
 
 import os
@@ -13,20 +14,26 @@ from pathlib import Path
 import imageio.v2 as imageio
 import numpy as np
 import pytest
-from conftest import ES_SIZES, one_terrain_suite
 from mlflow import MlflowClient
 
+from conftest import ES_SIZES, one_terrain_suite
 from epoet.config import load
-from epoet.rollout.policy import init_params
 from epoet.eval.render import NO_GL
+from epoet.rollout.policy import init_params
 from epoet.terrain import make_terrain
 from epoet.tracking import MlflowTracker
 
 
 def render_cli(*args: str, cwd: Path, uri: str | None = None) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri} if uri else None
-    return subprocess.run([sys.executable, "-m", "epoet.eval.render", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "epoet.eval.render", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def skip_without_gl(proc: subprocess.CompletedProcess) -> None:
@@ -64,8 +71,9 @@ def suite(tmp_path: Path) -> Path:
 
 def test_an_es_policy_on_a_terrain_file_becomes_an_mp4_of_the_episode(policy, tmp_path):
     terrain = make_terrain(load(["algo=epoet"]).terrain, seed=0).save(tmp_path / "cppn0.npz")
-    proc = render_cli(f"run={policy}", f"terrain={terrain}", "steps=10", "width=96",
-                      "height=64", cwd=tmp_path)
+    proc = render_cli(
+        f"run={policy}", f"terrain={terrain}", "steps=10", "width=96", "height=64", cwd=tmp_path
+    )
     skip_without_gl(proc)
     assert proc.returncode == 0, proc.stderr
     # Default name: videos/<run label>_<terrain>.mp4, the label's space made safe.
@@ -78,8 +86,7 @@ def test_an_es_policy_on_a_terrain_file_becomes_an_mp4_of_the_episode(policy, tm
     assert "11 frames" in proc.stdout and str(Path("videos") / video.name) in proc.stdout
 
 
-def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tmp_path,
-                                                               mlflow_uri):
+def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tmp_path, mlflow_uri):
     with MlflowTracker(mlflow_uri, "render") as tracker:
         run_id = tracker.start("es-run")
         pool = tmp_path / "policies"
@@ -87,8 +94,17 @@ def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tm
         policy.rename(pool / "env0.npz")
         tracker.log_artifact(pool, "policies")
     out = tmp_path / "clip.mp4"
-    proc = render_cli(f"run={run_id}", "terrain=bumps", f"suite={suite}", "steps=5",
-                      "width=64", "height=48", f"out={out}", cwd=tmp_path, uri=mlflow_uri)
+    proc = render_cli(
+        f"run={run_id}",
+        "terrain=bumps",
+        f"suite={suite}",
+        "steps=5",
+        "width=64",
+        "height=48",
+        f"out={out}",
+        cwd=tmp_path,
+        uri=mlflow_uri,
+    )
     skip_without_gl(proc)
     assert proc.returncode == 0, proc.stderr
     assert len(decoded(out)) == 6
@@ -97,8 +113,9 @@ def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tm
 
 
 def test_an_unknown_suite_terrain_is_one_line(policy, suite, tmp_path):
-    line = one_error_line(render_cli(f"run={policy}", "terrain=nope", f"suite={suite}",
-                                     cwd=tmp_path))
+    line = one_error_line(
+        render_cli(f"run={policy}", "terrain=nope", f"suite={suite}", cwd=tmp_path)
+    )
     # The GL check runs before the suite is read (the suite module imports mujoco): without GL
     # the terrain is never looked up, so there is nothing to check here.
     if NO_GL in line:
@@ -109,14 +126,14 @@ def test_an_unknown_suite_terrain_is_one_line(policy, suite, tmp_path):
 
 
 def test_a_missing_run_file_is_one_line(tmp_path):
-    line = one_error_line(render_cli(f"run={tmp_path / 'missing.npz'}", "terrain=r0l0",
-                                     cwd=tmp_path))
+    line = one_error_line(
+        render_cli(f"run={tmp_path / 'missing.npz'}", "terrain=r0l0", cwd=tmp_path)
+    )
     assert "missing.npz" in line
 
 
 def test_an_odd_frame_size_is_one_line(policy, tmp_path):
-    line = one_error_line(render_cli(f"run={policy}", "terrain=r0l0", "width=641",
-                                     cwd=tmp_path))
+    line = one_error_line(render_cli(f"run={policy}", "terrain=r0l0", "width=641", cwd=tmp_path))
     assert "must be even" in line
 
 
@@ -159,8 +176,9 @@ np.savez(sys.argv[1], **frames)
 @pytest.fixture(scope="module")
 def snapshots(tmp_path_factory) -> dict[str, np.ndarray]:
     out = tmp_path_factory.mktemp("snapshots") / "frames.npz"
-    proc = subprocess.run([sys.executable, "-c", SNAPSHOTS, str(out)], capture_output=True,
-                          text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", SNAPSHOTS, str(out)], capture_output=True, text=True, timeout=300
+    )
     skip_without_gl(proc)
     assert proc.returncode == 0, proc.stderr
     with np.load(out) as frames:

@@ -1,4 +1,5 @@
 """The batched rollout engine and the evaluation backends, on real MuJoCo physics."""
+
 from __future__ import annotations
 
 import os
@@ -7,16 +8,15 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import ES_SIZES
 
+from conftest import ES_SIZES
 from epoet.config import load
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
-from epoet.rollout.populations import mirrored_population
-from epoet.rollout.policy import forward, init_params
 from epoet.rollout.engine import RolloutEngine
 from epoet.rollout.evaluators import make_evaluator
-from epoet.rollout.populations import Agents, Mirrored, Request
+from epoet.rollout.policy import forward, init_params
+from epoet.rollout.populations import Agents, Mirrored, Request, mirrored_population
 from epoet.terrain import Terrain, make_terrain
 
 PAPER = load(["budget=paper"])  # the paper's agent (RK4) and CPPN terrain
@@ -60,8 +60,10 @@ def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
 
 def test_results_do_not_depend_on_batch_size(terrain):
     params, seeds = population(6, seed=4)
-    runs = [RolloutEngine(AGENT, TERRAIN_CFG, b, ES_SIZES).run(terrain, params, seeds, record=True)
-            for b in (1, 4, 8)]
+    runs = [
+        RolloutEngine(AGENT, TERRAIN_CFG, b, ES_SIZES).run(terrain, params, seeds, record=True)
+        for b in (1, 4, 8)
+    ]
     assert len(set(runs[0].lengths.tolist())) >= 3  # slots free up at different steps
     for other in runs[1:]:
         np.testing.assert_array_equal(other.returns, runs[0].returns)
@@ -87,20 +89,25 @@ def test_finished_episodes_stop_while_others_run_on(terrain):
 
 def test_recorded_transitions_add_up_to_the_returns(terrain):
     params, seeds = population(5, seed=3)
-    episodes = RolloutEngine(AGENT, TERRAIN_CFG, 3, ES_SIZES).run(terrain, params, seeds,
-                                                              record=True)
+    episodes = RolloutEngine(AGENT, TERRAIN_CFG, 3, ES_SIZES).run(
+        terrain, params, seeds, record=True
+    )
     t = episodes.transitions
     assert len(t["reward"]) == episodes.lengths.sum()
     for e in range(len(seeds)):
         mine = t["episode"] == e
         # recorded in float32 (SAC's replay): sums and actions to float32 precision
         assert t["reward"].dtype == t["obs"].dtype == t["action"].dtype == np.float32
-        assert t["reward"][mine].sum(dtype=np.float64) == pytest.approx(episodes.returns[e],
-                                                                        rel=1e-5, abs=1e-4)
+        assert t["reward"][mine].sum(dtype=np.float64) == pytest.approx(
+            episodes.returns[e], rel=1e-5, abs=1e-4
+        )
         np.testing.assert_array_equal(t["obs"][mine][1:], t["next_obs"][mine][:-1])
-        np.testing.assert_allclose(t["action"][mine][0],
-                                   forward(params[e], t["obs"][mine][0].astype(np.float64), ES_SIZES),
-                                   rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(
+            t["action"][mine][0],
+            forward(params[e], t["obs"][mine][0].astype(np.float64), ES_SIZES),
+            rtol=1e-4,
+            atol=1e-5,
+        )
         assert not t["terminated"][mine][:-1].any()
 
 
@@ -108,8 +115,10 @@ def test_one_and_two_workers_give_identical_results(terrain):
     theta = init_params(7, ES_SIZES)
     es = Request(terrain, Mirrored.of(theta, np.array([11, 12, 13]), 0.05, np.array([21, 22, 23])))
     evaluation = Request(terrain, Agents.of(np.stack([theta, -theta]), np.array([5, 6])))
-    with make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as one, \
-            make_evaluator(AGENT, TERRAIN_CFG, 2, 2, ES_SIZES) as two:
+    with (
+        make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as one,
+        make_evaluator(AGENT, TERRAIN_CFG, 2, 2, ES_SIZES) as two,
+    ):
         (returns,) = [e.returns for e in one.run([es])]
         np.testing.assert_array_equal(two.run([es])[0].returns, returns)
         evaluation = evaluation._replace(record=len(evaluation.population))  # record them all
@@ -129,8 +138,8 @@ def test_one_and_two_workers_give_identical_results(terrain):
         assert two.restarts == 1
     # The mirrored population is the one `mirrored_population` builds, pairs sharing a start.
     direct = RolloutEngine(AGENT, TERRAIN_CFG, 6, ES_SIZES).run(
-        terrain, mirrored_population(theta, np.array([11, 12, 13]), 0.05),
-        np.tile([21, 22, 23], 2))
+        terrain, mirrored_population(theta, np.array([11, 12, 13]), 0.05), np.tile([21, 22, 23], 2)
+    )
     np.testing.assert_array_equal(direct.returns, returns)
     with pytest.raises(RuntimeError, match="closed"):
         two.run([es])
@@ -141,13 +150,16 @@ def test_one_call_of_many_requests_equals_one_call_each(terrain):
     separate calls, in request order, for any worker count."""
     other = make_terrain(TERRAIN_CFG, seed=2, iteration=30)
     theta = init_params(3, ES_SIZES)
-    requests = [Request(terrain, Mirrored.of(theta, np.array([1, 2, 3]), 0.05,
-                                             np.array([4, 5, 6]))),
-                Request(other, Agents.of(np.stack([theta, -theta]), np.array([7, 8, 9]))),
-                Request(terrain, Agents.of(theta[None], np.array([10])))]
+    requests = [
+        Request(terrain, Mirrored.of(theta, np.array([1, 2, 3]), 0.05, np.array([4, 5, 6]))),
+        Request(other, Agents.of(np.stack([theta, -theta]), np.array([7, 8, 9]))),
+        Request(terrain, Agents.of(theta[None], np.array([10]))),
+    ]
     requests = [r._replace(record=len(r.population)) for r in requests]  # record them all
-    with make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as one, \
-            make_evaluator(AGENT, TERRAIN_CFG, 2, 4, ES_SIZES) as two:
+    with (
+        make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as one,
+        make_evaluator(AGENT, TERRAIN_CFG, 2, 4, ES_SIZES) as two,
+    ):
         separate = [one.run([r])[0] for r in requests]
         for evaluator in (one, two):
             together = evaluator.run(requests)
@@ -167,8 +179,7 @@ def test_a_request_records_its_first_episodes_from_the_worker_processes(terrain)
     episodes of a request come back recorded from the workers, step for step, with the same
     results as an unrecorded call."""
     theta = init_params(5, ES_SIZES)
-    es = Request(terrain, Mirrored.of(theta, np.array([1, 2, 3, 4]), 0.05, np.arange(4)),
-                 record=3)
+    es = Request(terrain, Mirrored.of(theta, np.array([1, 2, 3, 4]), 0.05, np.arange(4)), record=3)
     evaluation = Request(terrain, Agents.of(theta[None], np.array([9, 10])))
     with make_evaluator(AGENT, TERRAIN_CFG, 2, 2, ES_SIZES) as pool:
         recorded, unrecorded = pool.run([es, evaluation])
@@ -177,8 +188,9 @@ def test_a_request_records_its_first_episodes_from_the_worker_processes(terrain)
     np.testing.assert_array_equal(np.unique(t["episode"]), [0, 1, 2])
     assert len(t["reward"]) == int(recorded.lengths[:3].sum())
     for e in range(3):
-        np.testing.assert_allclose(t["reward"][t["episode"] == e].sum(dtype=np.float64),
-                                   recorded.returns[e], rtol=1e-5)
+        np.testing.assert_allclose(
+            t["reward"][t["episode"] == e].sum(dtype=np.float64), recorded.returns[e], rtol=1e-5
+        )
     assert unrecorded.transitions is None and plain.transitions is None
     np.testing.assert_array_equal(plain.returns, recorded.returns)
 
@@ -194,8 +206,9 @@ def test_bad_input_is_refused_in_one_sentence(terrain):
         engine.run(terrain, params, seeds - 1)
     with make_evaluator(AGENT, TERRAIN_CFG, 1, 2, ES_SIZES) as evaluator:
         with pytest.raises(ValueError, match="one seed per noise seed"):
-            evaluator.run([Request(terrain, Mirrored.of(params[0], np.arange(3), 0.02,
-                                                        np.arange(2)))])
+            evaluator.run(
+                [Request(terrain, Mirrored.of(params[0], np.arange(3), 0.02, np.arange(2)))]
+            )
         with pytest.raises(ValueError, match="spawn_seeds must have shape"):
             evaluator.run([Request(terrain, Agents.of(params, np.zeros((2, 4), dtype=int)))])
     for workers in (0, "ray"):

@@ -1,4 +1,5 @@
 """Crossing between the ES pool and the SAC actor: crossover, random mapping, distillation."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -6,12 +7,11 @@ import pytest
 import torch
 
 from conftest import ES_SIZES
-
 from epoet.config import load
-from epoet.rollout.policy import forward, init_params, unflatten
 from epoet.epoet_sac.bridge import crossover, distill_into_actor, distill_into_es, random_mapping
 from epoet.rl.env import make_env
 from epoet.rl.nets import make_actor
+from epoet.rollout.policy import forward, init_params, unflatten
 
 
 def sac_actor(hidden: tuple[int, ...] = (64, 64)):
@@ -37,9 +37,12 @@ def test_random_mapping_draws_each_layer_from_the_matching_sac_layer():
     theta = random_mapping(net, ES_SIZES, np.random.default_rng(2))
     linears = [m for m in net.modules() if isinstance(m, torch.nn.Linear)]
     for i, ((w, b), linear) in enumerate(zip(unflatten(theta, ES_SIZES), linears)):
-        weight, bias = linear.weight.detach().double().numpy(), linear.bias.detach().double().numpy()
+        weight, bias = (
+            linear.weight.detach().double().numpy(),
+            linear.bias.detach().double().numpy(),
+        )
         if i == len(linears) - 1:
-            weight, bias = weight[:ES_SIZES[-1]], bias[:ES_SIZES[-1]]
+            weight, bias = weight[: ES_SIZES[-1]], bias[: ES_SIZES[-1]]
         assert np.isin(w, weight).all() and np.isin(b, bias).all()
 
 
@@ -49,8 +52,9 @@ def test_distillation_imitates_the_sac_actor_far_better_than_the_random_mapping(
     with torch.no_grad():
         want = torch.tanh(net(torch.as_tensor(obs, dtype=torch.float32))[0]).double().numpy()
     mapped = random_mapping(net, ES_SIZES, np.random.default_rng(3))
-    distilled, error = distill_into_es(net, obs, ES_SIZES, init_params(4, ES_SIZES), epochs=30,
-                                       batch=64, lr=3e-3, seed=5)
+    distilled, error = distill_into_es(
+        net, obs, ES_SIZES, init_params(4, ES_SIZES), epochs=30, batch=64, lr=3e-3, seed=5
+    )
     random_error = np.mean((forward(mapped, obs, ES_SIZES) - want) ** 2)
     distilled_error = np.mean((forward(distilled, obs, ES_SIZES) - want) ** 2)
     assert distilled_error == pytest.approx(error, rel=1e-6)
@@ -69,8 +73,6 @@ def test_distilling_an_es_agent_into_the_actor_moves_its_mean_towards_the_agent(
         return float(np.mean((got - want) ** 2))
 
     before = error()
-    final = distill_into_actor(net, theta, obs, ES_SIZES, epochs=30, batch=64, lr=1e-3,
-                               seed=7)
+    final = distill_into_actor(net, theta, obs, ES_SIZES, epochs=30, batch=64, lr=1e-3, seed=7)
     assert final == pytest.approx(error(), rel=1e-5)
     assert error() < 0.25 * before
-

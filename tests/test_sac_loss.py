@@ -1,4 +1,5 @@
 """Our SAC loss against TorchRL's SACLoss: the same actor, the same two critics, the same noise."""
+
 from __future__ import annotations
 
 import torch
@@ -21,20 +22,37 @@ def test_sac_loss_equals_torchrls_sacloss_on_the_same_networks_and_noise() -> No
     torch.manual_seed(0)
     actor = make_actor(env, HIDDEN, "relu", state_independent_scale=False, safe_tanh=False)
     critics = TwinQ(obs_dim + act_dim, HIDDEN, nn.ReLU)
-    ours = SacLoss(actor, critics, obs_key="observation", gamma=0.9, alpha_init=0.5,
-                   target_entropy=-7.0)
-    qvalue = ValueOperator(MLP(in_features=obs_dim + act_dim, out_features=1,
-                               num_cells=HIDDEN, activation_class=nn.ReLU),
-                           in_keys=["observation", "action"])
-    theirs = SACLoss(actor, qvalue, num_qvalue_nets=2, loss_function="l2", alpha_init=0.5,
-                     action_spec=env.action_spec, target_entropy=-7.0, deactivate_vmap=True)
+    ours = SacLoss(
+        actor, critics, obs_key="observation", gamma=0.9, alpha_init=0.5, target_entropy=-7.0
+    )
+    qvalue = ValueOperator(
+        MLP(
+            in_features=obs_dim + act_dim,
+            out_features=1,
+            num_cells=HIDDEN,
+            activation_class=nn.ReLU,
+        ),
+        in_keys=["observation", "action"],
+    )
+    theirs = SACLoss(
+        actor,
+        qvalue,
+        num_qvalue_nets=2,
+        loss_function="l2",
+        alpha_init=0.5,
+        action_spec=env.action_spec,
+        target_entropy=-7.0,
+        deactivate_vmap=True,
+    )
     theirs.make_value_estimator(ValueEstimators.TD0, gamma=0.9)
     # TorchRL keeps each critic parameter stacked over the two networks, nn.Linear's (out, in)
     with torch.no_grad():
         for params in (theirs.qvalue_network_params, theirs.target_qvalue_network_params):
             flat = params.flatten_keys(".")
-            weights = sorted((k for k in flat.keys() if k.endswith("weight")),
-                             key=lambda k: int(k.split(".")[-2]))
+            weights = sorted(
+                (k for k in flat.keys() if k.endswith("weight")),
+                key=lambda k: int(k.split(".")[-2]),
+            )
             for key, w, b in zip(weights, critics.weights, critics.biases):
                 flat[key].copy_(w.transpose(1, 2))
                 flat[key.replace("weight", "bias")].copy_(b.squeeze(1))
@@ -47,14 +65,19 @@ def test_sac_loss_equals_torchrls_sacloss_on_the_same_networks_and_noise() -> No
 
     gen = torch.Generator().manual_seed(1)
     n = 64
-    batch = TensorDict({
-        "observation": torch.randn(n, obs_dim, generator=gen),
-        "action": torch.rand(n, act_dim, generator=gen) * 1.8 - 0.9,
-        "next": {"observation": torch.randn(n, obs_dim, generator=gen),
-                 "reward": torch.randn(n, 1, generator=gen),
-                 "terminated": torch.rand(n, 1, generator=gen) < 0.2,
-                 "done": torch.zeros(n, 1, dtype=torch.bool)},
-    }, batch_size=[n])
+    batch = TensorDict(
+        {
+            "observation": torch.randn(n, obs_dim, generator=gen),
+            "action": torch.rand(n, act_dim, generator=gen) * 1.8 - 0.9,
+            "next": {
+                "observation": torch.randn(n, obs_dim, generator=gen),
+                "reward": torch.randn(n, 1, generator=gen),
+                "terminated": torch.rand(n, 1, generator=gen) < 0.2,
+                "done": torch.zeros(n, 1, dtype=torch.bool),
+            },
+        },
+        batch_size=[n],
+    )
     batch["next", "done"] = batch["next", "terminated"].clone()
 
     torch.manual_seed(7)
@@ -62,8 +85,9 @@ def test_sac_loss_equals_torchrls_sacloss_on_the_same_networks_and_noise() -> No
     torch.manual_seed(7)
     want = theirs(batch.clone())
     for key in ("loss_qvalue", "loss_actor", "loss_alpha", "alpha", "entropy"):
-        torch.testing.assert_close(got[key].detach(), want[key].detach().reshape(()),
-                                   rtol=1e-5, atol=1e-6, msg=key)
+        torch.testing.assert_close(
+            got[key].detach(), want[key].detach().reshape(()), rtol=1e-5, atol=1e-6, msg=key
+        )
 
 
 def test_detached_critics_take_no_gradient_so_the_actor_loss_moves_only_the_actor() -> None:

@@ -1,6 +1,7 @@
 """Scaling out: workers=ray gives exactly workers=local's results, on a local Ray (which replaces
 a killed actor) and, for a whole run, on a cluster started with `ray start --head`; a joblib
 sweep runs its jobs in parallel into one sqlite store; the SLURM launcher config composes."""
+
 from __future__ import annotations
 
 import os
@@ -18,12 +19,12 @@ from pathlib import Path
 import mlflow
 import numpy as np
 import pytest
-from conftest import ES_SIZES, without_evaluation
 
-from epoet.core.checkpoint import load_checkpoint
+from conftest import ES_SIZES, without_evaluation
 from epoet.config import load
-from epoet.rollout.policy import init_params, policy_sizes
+from epoet.core.checkpoint import load_checkpoint
 from epoet.rollout.evaluators import make_evaluator
+from epoet.rollout.policy import init_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import Terrain
 
@@ -33,9 +34,14 @@ RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
 
 def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db", **env}
-    return subprocess.run([sys.executable, "-m", "epoet", *without_evaluation(args)],
-                          cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=400)
+    return subprocess.run(
+        [sys.executable, "-m", "epoet", *without_evaluation(args)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=400,
+    )
 
 
 def _no_run_in(store: Path) -> bool:
@@ -105,8 +111,9 @@ def test_ray_actors_step_as_many_robots_as_local_workers() -> None:
     with evaluator_for(local.workers, local.agent, local.terrain, sizes) as pool:
         given = pool.batch  # what each pool worker's engine is built with
     with evaluator_for(on_ray.workers, on_ray.agent, on_ray.terrain, sizes) as actors:
-        batches = ray.get([actor.__ray_call__.remote(lambda self: self.engine.batch)
-                           for actor in actors._actors])
+        batches = ray.get(
+            [actor.__ray_call__.remote(lambda self: self.engine.batch) for actor in actors._actors]
+        )
     assert given == load([]).workers.batch > 1
     assert batches == [given, given]
 
@@ -116,9 +123,21 @@ def ray_cluster(tmp_path: Path):
     """A real Ray head node on this machine, as `ray start --head` starts one for users."""
     port = 6390
     env = {**os.environ, "RAY_ENABLE_UV_RUN_RUNTIME_ENV": "0"}
-    started = subprocess.run([RAY, "start", "--head", f"--port={port}", "--num-cpus=2",
-                              "--include-dashboard=false", "--disable-usage-stats"],
-                             capture_output=True, text=True, timeout=180, env=env)
+    started = subprocess.run(
+        [
+            RAY,
+            "start",
+            "--head",
+            f"--port={port}",
+            "--num-cpus=2",
+            "--include-dashboard=false",
+            "--disable-usage-stats",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=env,
+    )
     assert started.returncode == 0, started.stderr[-2000:]
     try:
         yield f"127.0.0.1:{port}"
@@ -127,18 +146,29 @@ def ray_cluster(tmp_path: Path):
 
 
 @pytest.mark.skipif(RAY is None, reason="the ray command comes with the 'distributed' extra")
-def test_a_run_joins_a_running_ray_cluster_with_the_same_result(local_run: Path, ray_cluster: str,
-                                                                tmp_path: Path) -> None:
+def test_a_run_joins_a_running_ray_cluster_with_the_same_result(
+    local_run: Path, ray_cluster: str, tmp_path: Path
+) -> None:
     # `ray start` turns on token authentication; its token is in ~/.ray, as for users.
-    out = _epoet([*SMOKE, "workers=ray", f"workers.address={ray_cluster}",
-                  f"hydra.run.dir={tmp_path / 'run'}"], tmp_path, RAY_AUTH_MODE="token")
+    out = _epoet(
+        [
+            *SMOKE,
+            "workers=ray",
+            f"workers.address={ray_cluster}",
+            f"hydra.run.dir={tmp_path / 'run'}",
+        ],
+        tmp_path,
+        RAY_AUTH_MODE="token",
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     _assert_same_pool(_pool(tmp_path / "run"), _pool(local_run))
 
 
 def test_an_unreachable_ray_cluster_is_one_line_before_any_run(tmp_path: Path) -> None:
-    out = _epoet([*SMOKE, "workers=ray", "workers.address=127.0.0.1:9",
-                  f"hydra.run.dir={tmp_path / 'run'}"], tmp_path)
+    out = _epoet(
+        [*SMOKE, "workers=ray", "workers.address=127.0.0.1:9", f"hydra.run.dir={tmp_path / 'run'}"],
+        tmp_path,
+    )
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [out.stderr.strip()]
     assert "no Ray cluster answers at workers.address=127.0.0.1:9" in out.stderr
@@ -146,8 +176,18 @@ def test_an_unreachable_ray_cluster_is_one_line_before_any_run(tmp_path: Path) -
 
 
 def test_a_joblib_sweep_runs_two_jobs_in_parallel_into_one_store(tmp_path: Path) -> None:
-    out = _epoet(["-m", *SMOKE, "workers.num=1", "seed=1,2", "hydra/launcher=joblib",
-                  "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path / 'sweep'}"], tmp_path)
+    out = _epoet(
+        [
+            "-m",
+            *SMOKE,
+            "workers.num=1",
+            "seed=1,2",
+            "hydra/launcher=joblib",
+            "hydra.launcher.n_jobs=2",
+            f"hydra.sweep.dir={tmp_path / 'sweep'}",
+        ],
+        tmp_path,
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     assert "database is locked" not in out.stderr
     client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
@@ -163,8 +203,9 @@ def test_a_joblib_sweep_runs_two_jobs_in_parallel_into_one_store(tmp_path: Path)
 
 
 def test_the_slurm_launcher_config_composes(tmp_path: Path) -> None:
-    out = _epoet(["hydra/launcher=slurm", "--cfg", "hydra", "--package", "hydra.launcher"],
-                 tmp_path)
+    out = _epoet(
+        ["hydra/launcher=slurm", "--cfg", "hydra", "--package", "hydra.launcher"], tmp_path
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert "hydra_plugins.hydra_submitit_launcher" in out.stdout and "timeout_min" in out.stdout
 
@@ -212,19 +253,39 @@ def not_ray(request) -> Iterator[str]:
 
 def _ray_processes() -> set[int]:
     out = subprocess.run(["ps", "-eo", "pid=,args="], capture_output=True, text=True).stdout
-    return {int(line.split()[0]) for line in out.splitlines()
-            if "gcs_server" in line or "raylet" in line or "ray::" in line}
+    return {
+        int(line.split()[0])
+        for line in out.splitlines()
+        if "gcs_server" in line or "raylet" in line or "ray::" in line
+    }
 
 
-def test_an_address_where_something_else_listens_is_one_line_in_seconds(not_ray: str,
-                                                                        tmp_path: Path) -> None:
+def test_an_address_where_something_else_listens_is_one_line_in_seconds(
+    not_ray: str, tmp_path: Path
+) -> None:
     before = _ray_processes()
     start = time.monotonic()
     out = subprocess.run(
-        [sys.executable, "-m", "epoet", *without_evaluation([
-            "workers=ray", f"workers.address={not_ray}", "budget=smoke",
-            f"tracking.uri=sqlite:///{tmp_path}/mlflow.db", f"hydra.run.dir={tmp_path / 'run'}"])],
-        cwd=tmp_path, env=os.environ, capture_output=True, text=True, timeout=40)
+        [
+            sys.executable,
+            "-m",
+            "epoet",
+            *without_evaluation(
+                [
+                    "workers=ray",
+                    f"workers.address={not_ray}",
+                    "budget=smoke",
+                    f"tracking.uri=sqlite:///{tmp_path}/mlflow.db",
+                    f"hydra.run.dir={tmp_path / 'run'}",
+                ]
+            ),
+        ],
+        cwd=tmp_path,
+        env=os.environ,
+        capture_output=True,
+        text=True,
+        timeout=40,
+    )
     elapsed = time.monotonic() - start
     assert out.returncode == 2, out.stderr[-2000:]
     lines = out.stderr.strip().splitlines()

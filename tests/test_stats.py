@@ -1,5 +1,6 @@
 """The statistics beside Tables 1-2 (analysis/stats.py), on hand-made episodes whose answers are
 known without the code under test."""
+
 from __future__ import annotations
 
 import itertools
@@ -8,34 +9,48 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.stats import (iqm_table, poi, poi_interval, poi_table, rliable, score_matrices,
-                            write_stats)
+from analysis.stats import (
+    iqm_table,
+    poi,
+    poi_interval,
+    poi_table,
+    rliable,
+    score_matrices,
+    write_stats,
+)
 from analysis.tables import to_markdown
 
 
-def episodes_of(scores: dict[str, np.ndarray], solved: dict[str, np.ndarray] | None = None,
-                spread: float = 0.5) -> pd.DataFrame:
+def episodes_of(
+    scores: dict[str, np.ndarray], solved: dict[str, np.ndarray] | None = None, spread: float = 0.5
+) -> pd.DataFrame:
     """Two episodes per (run, terrain) whose returns average to scores[algo][run, terrain]
     (one spread below, one above) and whose `solved` is solved[algo][run, terrain]."""
     rows = []
     for algo, matrix in scores.items():
         for run, terrain in itertools.product(*map(range, matrix.shape)):
             for sign in (-1, 1):
-                rows.append({"run_id": f"{algo}-{run}", "algo": algo, "seed": str(run),
-                             "terrain": f"t{terrain}", "level": "easy",
-                             "return": matrix[run, terrain] + sign * spread,
-                             "solved": bool(solved[algo][run, terrain]) if solved else False})
+                rows.append(
+                    {
+                        "run_id": f"{algo}-{run}",
+                        "algo": algo,
+                        "seed": str(run),
+                        "terrain": f"t{terrain}",
+                        "level": "easy",
+                        "return": matrix[run, terrain] + sign * spread,
+                        "solved": bool(solved[algo][run, terrain]) if solved else False,
+                    }
+                )
     return pd.DataFrame(rows)
 
 
 def test_the_iqm_is_the_mean_of_the_middle_half():
-    values = np.arange(1.0, 9.0).reshape(2, 4)   # 2 runs x 4 terrains: 1..8
-    middle = sorted(values.ravel())[2:6]          # drop the lowest and the highest quarter
+    values = np.arange(1.0, 9.0).reshape(2, 4)  # 2 runs x 4 terrains: 1..8
+    middle = sorted(values.ravel())[2:6]  # drop the lowest and the highest quarter
     assert middle == [3.0, 4.0, 5.0, 6.0]
-    solved = values > 4                           # entries 0,0,0,0,1,1,1,1: middle 0,0,1,1
-    table = iqm_table(episodes_of({"ppo": values}, {"ppo": solved}), reps=300).set_index(
-        "score")
-    assert table.loc["return", "iqm"] == pytest.approx(sum(middle) / 4)   # 4.5
+    solved = values > 4  # entries 0,0,0,0,1,1,1,1: middle 0,0,1,1
+    table = iqm_table(episodes_of({"ppo": values}, {"ppo": solved}), reps=300).set_index("score")
+    assert table.loc["return", "iqm"] == pytest.approx(sum(middle) / 4)  # 4.5
     assert table.loc["success", "iqm"] == pytest.approx(0.5)
     for score in ("return", "success"):
         row = table.loc[score]
@@ -49,13 +64,13 @@ def test_the_iqm_is_the_mean_of_the_middle_half():
 def test_score_matrices_are_per_run_and_terrain_means():
     values = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]])
     matrices = score_matrices(episodes_of({"sac": values}, spread=3.0), "return")
-    np.testing.assert_allclose(matrices["sac"], values)   # each entry: (v - 3 + v + 3) / 2
+    np.testing.assert_allclose(matrices["sac"], values)  # each entry: (v - 3 + v + 3) / 2
 
 
 def test_an_algorithm_better_on_every_terrain_has_probability_of_improvement_1():
     rng = np.random.default_rng(0)
     worse = rng.uniform(0, 10, (3, 5))
-    better = worse.max() + 1 + rng.uniform(0, 10, (3, 5))   # every run above every run
+    better = worse.max() + 1 + rng.uniform(0, 10, (3, 5))  # every run above every run
     point, low, high = poi_interval(better, worse, reps=300)
     assert (point, low, high) == (1.0, 1.0, 1.0)
     point, low, high = poi_interval(worse, better, reps=300)
@@ -70,8 +85,7 @@ def test_probability_of_improvement_by_hand_and_as_rliable_computes_it():
     assert poi(x, y) == pytest.approx(0.5)
     # 2 runs against 3 on one terrain, 6 pairs: x > y in (4, 1), (4, 3), (4, 2), (2, 1), a tie
     # in (2, 2), and (2, 3) lost: (4 + 0.5) / 6
-    assert poi(np.array([[4.0], [2.0]]), np.array([[1.0], [3.0], [2.0]])) == pytest.approx(
-        4.5 / 6)
+    assert poi(np.array([[4.0], [2.0]]), np.array([[1.0], [3.0], [2.0]])) == pytest.approx(4.5 / 6)
     # the vectorised form is rliable's number, ties and unequal run counts included
     rng = np.random.default_rng(1)
     for runs_x, runs_y in ((3, 3), (2, 3), (1, 1), (1, 4)):
@@ -82,8 +96,10 @@ def test_probability_of_improvement_by_hand_and_as_rliable_computes_it():
 
 def test_pairs_read_as_the_papers_claims_and_one_run_is_said(tmp_path):
     ones = np.ones((1, 3))
-    episodes = episodes_of({"ppo": ones, "sac": 2 * ones, "epoet": 3 * ones},
-                           {"ppo": ones * 0, "sac": ones * 0, "epoet": ones})
+    episodes = episodes_of(
+        {"ppo": ones, "sac": 2 * ones, "epoet": 3 * ones},
+        {"ppo": ones * 0, "sac": ones * 0, "epoet": ones},
+    )
     table = poi_table(episodes, reps=200)
     assert list(zip(table.x, table.y)) == [("sac", "ppo"), ("epoet", "ppo"), ("epoet", "sac")] * 2
     ret = table[table.score == "return"]
@@ -93,8 +109,9 @@ def test_pairs_read_as_the_papers_claims_and_one_run_is_said(tmp_path):
     assert set(table.resampled) == {"terrains only (1 run each)"}
 
     written = write_stats(episodes, tmp_path, "shipped", "1", to_markdown, reps=200)
-    assert {p.name for p in written} == {f"{n}_shipped.{e}" for n in ("iqm", "poi")
-                                         for e in ("csv", "md", "tex", "png")}
+    assert {p.name for p in written} == {
+        f"{n}_shipped.{e}" for n in ("iqm", "poi") for e in ("csv", "md", "tex", "png")
+    }
     text = (tmp_path / "iqm_shipped.md").read_text()
     assert "One run only (ppo, sac, epoet)" in text and "terrains only" in text
     assert "\\begin{tabular}" in (tmp_path / "poi_shipped.tex").read_text()

@@ -1,4 +1,5 @@
 """The evaluation suite: deterministic regeneration of the shipped data, levels, folder checks."""
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,19 @@ from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
 from epoet.eval import suite as suite_module
-from epoet.eval.suite import (LEVELS, SHIPPED, Course, SuiteError, differences, example_terrain,
-                                 generate, level_of, load_suite, quantize, write_suite)
+from epoet.eval.suite import (
+    LEVELS,
+    SHIPPED,
+    Course,
+    SuiteError,
+    differences,
+    example_terrain,
+    generate,
+    level_of,
+    load_suite,
+    quantize,
+    write_suite,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,14 +62,23 @@ def test_shipped_suite_has_32_terrains_with_levels_from_their_course_roughness()
     counts = suite.level_counts()
     assert all(counts[level] >= 4 for level in LEVELS), counts
     # S rises round by round, and so does the median roughness
-    medians = [np.median([t.roughness for t in suite.terrains if t.info["round"] == r])
-               for r in range(4)]
+    medians = [
+        np.median([t.roughness for t in suite.terrains if t.info["round"] == r]) for r in range(4)
+    ]
     assert medians == sorted(medians)
 
 
 def test_level_buckets_follow_the_reference_thresholds():
     assert [level_of(v) for v in (0.0, 0.00099, 0.001, 0.0099, 0.01, 0.099, 0.1, 5.0)] == [
-        "easy", "easy", "medium", "medium", "hard", "hard", "extreme", "extreme"]
+        "easy",
+        "easy",
+        "medium",
+        "medium",
+        "hard",
+        "hard",
+        "extreme",
+        "extreme",
+    ]
 
 
 def test_course_roughness_reads_only_the_strip_the_robot_walks():
@@ -66,9 +87,9 @@ def test_course_roughness_reads_only_the_strip_the_robot_walks():
     axis = np.linspace(-size / 2, size / 2, n)
     hm[:, axis < -10] = np.random.default_rng(0).random((n, int((axis < -10).sum())))
     course = Course(-6.0, 6.0, 0.35, 2000, 2.5)
-    assert course.roughness(hm, 1.0, size) < 1e-12      # rough ground behind the start only
+    assert course.roughness(hm, 1.0, size) < 1e-12  # rough ground behind the start only
     hm2 = hm.copy()
-    hm2[n // 2, n // 2] = 1.0                           # one spike on the course
+    hm2[n // 2, n // 2] = 1.0  # one spike on the course
     assert course.roughness(hm2, 1.0, size) > 0.0
     assert course.roughness(hm2, 2.0, size) == pytest.approx(4 * course.roughness(hm2, 1.0, size))
 
@@ -79,21 +100,30 @@ def test_a_suite_written_by_write_suite_loads_back(tmp_path):
     write_suite(tmp_path, terrains, entries, Course.of(cfg.agent, cfg.episode_ratio))
     suite = load_suite(tmp_path)
     assert [t.name for t in suite.terrains] == ["r0l0", "r0l1"]
-    assert suite.course == Course(cfg.agent.start_x, cfg.agent.finish_x, 0.35,
-                                  cfg.agent.max_episode_steps, cfg.episode_ratio)
+    assert suite.course == Course(
+        cfg.agent.start_x, cfg.agent.finish_x, 0.35, cfg.agent.max_episode_steps, cfg.episode_ratio
+    )
     assert np.array_equal(quantize(suite.terrains[0].heightmap), quantize(terrains[0].heightmap))
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda d: (d / "suite.json").unlink(), "has no suite.json"),
-    (lambda d: (d / "heights.npz").unlink(), "has no heights.npz"),
-    (lambda d: (d / "suite.json").write_text("{not json"), "is malformed"),
-    (lambda d: (d / "suite.json").write_text(json.dumps({"format": "other"})), "is malformed"),
-    (lambda d: (d / "suite.json").write_text(json.dumps(
-        {**json.loads((d / "suite.json").read_text()), "format": "epoet-suite/1"})),
-     "epoet-suite/1.*regenerate"),
-    (lambda d: np.savez(d / "heights.npz", r0l0=np.zeros((3, 3))), "is malformed"),
-])
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda d: (d / "suite.json").unlink(), "has no suite.json"),
+        (lambda d: (d / "heights.npz").unlink(), "has no heights.npz"),
+        (lambda d: (d / "suite.json").write_text("{not json"), "is malformed"),
+        (lambda d: (d / "suite.json").write_text(json.dumps({"format": "other"})), "is malformed"),
+        (
+            lambda d: (d / "suite.json").write_text(
+                json.dumps(
+                    {**json.loads((d / "suite.json").read_text()), "format": "epoet-suite/1"}
+                )
+            ),
+            "epoet-suite/1.*regenerate",
+        ),
+        (lambda d: np.savez(d / "heights.npz", r0l0=np.zeros((3, 3))), "is malformed"),
+    ],
+)
 def test_a_malformed_suite_folder_is_one_clear_error(tmp_path, damage, message):
     folder = tmp_path / "suite"
     shutil.copytree(SHIPPED, folder)
@@ -129,8 +159,12 @@ def test_evaluation_runs_the_suites_course_scaled_to_the_episode():
     allow at the course's pace (a 400-step budget: a fifth of the 22 m), in episodes 2.5x its
     training ones (the reference's 5000 steps for the paper's 2000)."""
     course = load_suite().course
-    for budget, steps, length in (("paper", 5000, 22.0), ("workstation", 5000, 22.0),
-                                  ("laptop", 1000, 4.4), ("smoke", 125, 0.55)):
+    for budget, steps, length in (
+        ("paper", 5000, 22.0),
+        ("workstation", 5000, 22.0),
+        ("laptop", 1000, 4.4),
+        ("smoke", 125, 0.55),
+    ):
         rules = course.rules(load([f"budget={budget}"]).agent)
         assert rules.start_x == course.start_x and rules.max_episode_steps == steps
         assert rules.finish_x - rules.start_x == pytest.approx(length)
@@ -173,9 +207,20 @@ def test_check_command_reports_a_mismatch_in_one_line(tmp_path):
     index = json.loads((folder / "suite.json").read_text())
     index["terrains"][0]["seed"] += 1
     (folder / "suite.json").write_text(json.dumps(index))
-    proc = subprocess.run([sys.executable, "-m", "epoet.eval.suite", f"out={folder}",
-                           "check=true", "max_heights=[0.4]", "children=1"],
-                          capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "epoet.eval.suite",
+            f"out={folder}",
+            "check=true",
+            "max_heights=[0.4]",
+            "children=1",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     assert proc.returncode == 2
     assert proc.stderr.startswith("error: suite") and "differs" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
@@ -187,8 +232,11 @@ def test_suites_are_named_shipped_paper_or_by_their_folder(tmp_path, monkeypatch
     a basename that is a named suite's name, so no folder passes for a named suite."""
     assert suite_module.PAPER == ROOT / "epoet" / "reference" / "suite"
     assert load_suite().name == load_suite("shipped").name == load_suite(SHIPPED).name == "shipped"
-    for basename, name in (("my suite", "my_suite"), ("paper", "dir-paper"),
-                           ("shipped", "dir-shipped")):
+    for basename, name in (
+        ("my suite", "my_suite"),
+        ("paper", "dir-paper"),
+        ("shipped", "dir-shipped"),
+    ):
         shutil.copytree(SHIPPED, tmp_path / basename)
         assert load_suite(tmp_path / basename).name == name
     # "paper" names the paper suite's folder; while it is missing, the usual one-line error
@@ -205,15 +253,17 @@ def test_example_terrain_names_a_terrain_of_the_given_suite(tmp_path):
     shipped = load_suite()
     first_medium = next(t.name for t in shipped.terrains if t.level == "medium")
     assert example_terrain() == example_terrain(suite=shipped) == first_medium
-    picks = [next(t for t in shipped.terrains if t.level == level)
-             for level in ("hard", "extreme")]
+    picks = [next(t for t in shipped.terrains if t.level == level) for level in ("hard", "extreme")]
     index = json.loads((SHIPPED / "suite.json").read_text())
-    index["terrains"] = [{**e, "name": f"x_{e['name']}"} for e in index["terrains"]
-                         if e["name"] in {t.name for t in picks}]
+    index["terrains"] = [
+        {**e, "name": f"x_{e['name']}"}
+        for e in index["terrains"]
+        if e["name"] in {t.name for t in picks}
+    ]
     tmp_path.joinpath("suite.json").write_text(json.dumps(index))
     with np.load(SHIPPED / "heights.npz") as heights:
         np.savez(tmp_path / "heights.npz", **{f"x_{t.name}": heights[t.name] for t in picks})
     other = load_suite(tmp_path)
     assert sorted(t.level for t in other.terrains) == ["extreme", "hard"]
-    assert example_terrain(suite=other) == other.terrains[0].name   # no medium: its first
+    assert example_terrain(suite=other) == other.terrains[0].name  # no medium: its first
     assert example_terrain("extreme", other) == f"x_{picks[1].name}"

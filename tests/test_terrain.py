@@ -1,4 +1,5 @@
 """Terrains: bowl, CPPN (real neat-python genomes), mixing, mutation rules, files, gallery."""
+
 from __future__ import annotations
 
 import copy
@@ -15,14 +16,28 @@ import pytest
 
 from epoet.config import compose, load, validate
 from epoet.core.schema import ConfigError
+from epoet.terrain import (
+    CppnMutationError,
+    Terrain,
+    TerrainFileError,
+    check_inputs,
+    cppn_inputs,
+    evaluate,
+    genome_config,
+    make_terrain,
+    max_height_at,
+    mix,
+    mutate_genome,
+    mutate_terrain,
+    new_genome,
+    normalize,
+    random_bowl,
+)
 from epoet.terrain.config import TerrainConfig
-from epoet.terrain import (CppnMutationError, Terrain, TerrainFileError, check_inputs,
-                           cppn_inputs, evaluate, genome_config, make_terrain, max_height_at, mix,
-                           mutate_genome, mutate_terrain, new_genome, normalize, random_bowl)
 from epoet.terrain.cppn import _ACTIVATIONS, fingerprint, has_input_output_path
 
 ROOT = Path(__file__).resolve().parents[1]
-CPPN = load(["budget=paper"]).terrain       # the paper's ePOET terrain (conf/terrain/cppn.yaml)
+CPPN = load(["budget=paper"]).terrain  # the paper's ePOET terrain (conf/terrain/cppn.yaml)
 BOWL = load(["algo=ppo", "budget=paper"]).terrain  # the baselines' (conf/terrain/bowl.yaml)
 
 
@@ -38,6 +53,7 @@ def neat_network(genome: neat.DefaultGenome, cfg: TerrainConfig) -> neat.nn.Feed
 
 
 # ---------------------------------------------------------------- CPPN evaluation
+
 
 @pytest.mark.parametrize("aggregations", [["sum"], ["sum", "product", "max", "min", "mean"]])
 def test_vectorised_cppn_equals_neat_feed_forward_network(cfg, aggregations):
@@ -98,14 +114,15 @@ def test_genome_creation_is_seeded_and_leaves_the_global_random_stream_alone(cfg
 
 # ---------------------------------------------------------------- mutation
 
+
 def test_mutated_child_obeys_the_validity_rules(cfg):
     parent = make_terrain(cfg, 1)
     child = mutate_terrain(parent, cfg, 7, iteration=10)
     rules, gc = cfg.mutation, genome_config(cfg.cppn)
-    assert has_input_output_path(child.genome)                                   # (a)
+    assert has_input_output_path(child.genome)  # (a)
     assert parent.genome.distance(child.genome, gc) > rules.min_genome_distance  # (b), and
     # test_children_are_far_enough_from_parents_whose_response_needs_no_reset below
-    out = evaluate(child.genome, *check_inputs(rules.check_grid))                # (c)
+    out = evaluate(child.genome, *check_inputs(rules.check_grid))  # (c)
     shifted = out - out[0, 0]
     assert shifted.max() > rules.min_range and shifted.var() > rules.min_variance
     assert child.generation == parent.generation + 1 and child.parent_id == parent.id
@@ -118,8 +135,10 @@ def test_children_are_far_enough_from_parents_whose_response_needs_no_reset(cfg)
     rules, gc = cfg.mutation, genome_config(cfg.cppn)
     parent = make_terrain(cfg, 1).genome
     parent.nodes[0].response = rules.output_response
-    distances = [parent.distance(mutate_genome(parent, cfg.cppn, rules, seed, cppn_inputs(cfg)),
-                                 gc) for seed in range(12)]
+    distances = [
+        parent.distance(mutate_genome(parent, cfg.cppn, rules, seed, cppn_inputs(cfg)), gc)
+        for seed in range(12)
+    ]
     assert min(distances) > rules.min_genome_distance
 
 
@@ -159,8 +178,9 @@ def test_only_the_root_output_is_forced_to_sin(cfg):
     """The reference sets sin on the root genome; children keep the activation mutation gives."""
     root = make_terrain(cfg, 1).genome
     assert root.nodes[0].activation == "sin"
-    children = [mutate_genome(root, cfg.cppn, cfg.mutation, seed, cppn_inputs(cfg))
-                for seed in range(40)]
+    children = [
+        mutate_genome(root, cfg.cppn, cfg.mutation, seed, cppn_inputs(cfg)) for seed in range(40)
+    ]
     assert {c.nodes[0].activation for c in children} - {"sin"}
 
 
@@ -188,6 +208,7 @@ def test_bowl_terrains_do_not_mutate(cfg):
 
 
 # ---------------------------------------------------------------- bowl, mixing, schedule
+
 
 def test_bowl_is_in_unit_range_and_deterministic():
     a = random_bowl(np.random.default_rng(4), 50, 0.5)
@@ -228,8 +249,7 @@ def _wavelength(profile: np.ndarray, spacing: float) -> float:
     linear trend: exact for a sinusoid, and not snapped to a short window's frequency bins."""
     x = np.arange(profile.size)
     h = profile - np.polyval(np.polyfit(x, profile, 1), x)
-    return float(2 * np.pi * np.sqrt(np.mean(h ** 2))
-                 / np.sqrt(np.mean((np.diff(h) / spacing) ** 2)))
+    return float(2 * np.pi * np.sqrt(np.mean(h**2)) / np.sqrt(np.mean((np.diff(h) / spacing) ** 2)))
 
 
 @pytest.mark.parametrize("seed", [3, 8, 10, 11])
@@ -241,11 +261,13 @@ def test_cppn_features_have_the_reference_wavelength(seed):
     cfg = replace(CPPN, bowl_weight=0.0, max_height=1.0)  # the CPPN part alone
     genome = new_genome(cfg.cppn, seed)
     for step in range(3):
-        genome = mutate_genome(genome, cfg.cppn, cfg.mutation, 100 * seed + step,
-                               cppn_inputs(cfg))
+        genome = mutate_genome(genome, cfg.cppn, cfg.mutation, 100 * seed + step, cppn_inputs(cfg))
     cells = np.arange(120)
-    reference = evaluate(genome, (cells / 5 - 17 - 12) * np.pi / 12,
-                         np.full(cells.size, (100 / 5 - 20 - 12) * np.pi / 12))
+    reference = evaluate(
+        genome,
+        (cells / 5 - 17 - 12) * np.pi / 12,
+        np.full(cells.size, (100 / 5 - 20 - 12) * np.pi / 12),
+    )
     expected = _wavelength(reference, 0.2)
     assert expected < 12.0, "the window must hold a few features for the measure to mean much"
     # Our field, on the same metres: robot-frame x (c/5 - 17) sits at agent.start_x + that.
@@ -305,14 +327,14 @@ def test_to_png_writes_an_image(tmp_path, cfg):
 
 # ---------------------------------------------------------------- bad input
 
+
 def test_unknown_kind_is_rejected_by_make_terrain(cfg):
     cfg.kind = "hill"  # the schema rejects it too; the public function must not trust that
     with pytest.raises(ValueError, match="terrain.kind must be 'bowl' or 'cppn', got 'hill'"):
         make_terrain(cfg, 0)
 
 
-@pytest.mark.parametrize("field, value", [("grid", 0), ("grid", -3), ("size", 0.0),
-                                          ("size", -1.0)])
+@pytest.mark.parametrize("field, value", [("grid", 0), ("grid", -3), ("size", 0.0), ("size", -1.0)])
 def test_non_positive_sizes_fail_validation_naming_the_field(field, value):
     raw = compose([f"terrain.{field}={value}"], config_name="gallery")
     with pytest.raises(ConfigError, match=f"terrain.{field} must be > 0"):
@@ -328,9 +350,15 @@ def test_a_genome_on_a_bowl_terrain_and_negative_seeds_are_rejected(cfg):
 
 # ---------------------------------------------------------------- gallery command
 
+
 def run_gallery(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "epoet.eval.gallery", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "epoet.eval.gallery", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_gallery_writes_a_png_and_the_terrains(tmp_path):

@@ -1,4 +1,5 @@
 """Tracking against a real MLflow sqlite store (one per module: creating it costs ~4 s)."""
+
 from __future__ import annotations
 
 import os
@@ -73,8 +74,9 @@ def test_a_flush_records_the_machines_load_at_most_every_load_every_seconds(stor
 
 def test_large_flush_is_split_into_mlflow_sized_batches(store, request):
     uri, _ = store
-    tracker = MlflowTracker(uri, experiment=request.node.name, flush_every=10**6,
-                            flush_seconds=3600)
+    tracker = MlflowTracker(
+        uri, experiment=request.node.name, flush_every=10**6, flush_seconds=3600
+    )
     run_id = tracker.start("chunked")
     for step in range(1250):  # one flush of 2500 points: MLflow accepts 1000 per call
         tracker.log_metrics(step, {"a": 1.0, "b": 2.0})
@@ -85,8 +87,9 @@ def test_large_flush_is_split_into_mlflow_sized_batches(store, request):
 
 def test_a_failed_flush_keeps_the_points_for_the_next(store, request):
     uri, _ = store
-    tracker = MlflowTracker(uri, experiment=request.node.name, flush_every=10**6,
-                            flush_seconds=3600)
+    tracker = MlflowTracker(
+        uri, experiment=request.node.name, flush_every=10**6, flush_seconds=3600
+    )
     run_id = tracker.start("refused")
     for step in range(1500):
         tracker.log_metrics(step, {"a": 1.0})
@@ -116,8 +119,12 @@ def test_time_based_flush_and_close_flushes(store, request):
 
 def test_params_are_the_flattened_config_and_tags_are_set(store, tracker):
     uri, _ = store
-    cfg = {"algo": {"name": "ppo", "lr": 3e-4, "hidden": [256, 256]}, "seed": 1,
-           "terrain": {"cppn": {"enabled": True}}, "long": "x" * 7000}
+    cfg = {
+        "algo": {"name": "ppo", "lr": 3e-4, "hidden": [256, 256]},
+        "seed": 1,
+        "terrain": {"cppn": {"enabled": True}},
+        "long": "x" * 7000,
+    }
     run_id = tracker.start("params", params=flatten(cfg), tags={"algo": "ppo", "seed": 1})
     tracker.close()
 
@@ -133,17 +140,23 @@ def test_params_are_the_flattened_config_and_tags_are_set(store, tracker):
 
 
 def test_flatten_keeps_empty_mappings_and_stringifies():
-    assert flatten({"a": {"b": {"c": 1}}, "e": {}, "n": None}) == \
-        {"a.b.c": "1", "e": "{}", "n": "None"}
+    assert flatten({"a": {"b": {"c": 1}}, "e": {}, "n": None}) == {
+        "a.b.c": "1",
+        "e": "{}",
+        "n": "None",
+    }
 
 
-@pytest.mark.parametrize("name, key", [
-    ("pair/0/return_mean", "pair/0/return_mean"),
-    ("sac.loss q", "sac.loss q"),
-    ("loss(pi):x", "loss_pi__x"),
-    ("/a//b/", "a/b"),
-    ("a/../b", "a/__/b"),
-])
+@pytest.mark.parametrize(
+    "name, key",
+    [
+        ("pair/0/return_mean", "pair/0/return_mean"),
+        ("sac.loss q", "sac.loss q"),
+        ("loss(pi):x", "loss_pi__x"),
+        ("/a//b/", "a/b"),
+        ("a/../b", "a/__/b"),
+    ],
+)
 def test_metric_keys_are_made_mlflow_valid(store, tracker, name, key):
     assert metric_key(name) == key
     tracker.start("keys")
@@ -176,8 +189,11 @@ def test_artifacts_are_uploaded_beside_the_database(store, tracker, tmp_path):
     tracker.close()
 
     client = MlflowClient(uri)
-    assert sorted(a.path for a in client.list_artifacts(run_id)) == \
-        ["config.yaml", "eval.csv", "terrains"]
+    assert sorted(a.path for a in client.list_artifacts(run_id)) == [
+        "config.yaml",
+        "eval.csv",
+        "terrains",
+    ]
     assert [a.path for a in client.list_artifacts(run_id, "terrains")] == ["terrains/t0.npy"]
     assert client.get_run(run_id).info.artifact_uri.startswith((root / "mlartifacts").as_uri())
 
@@ -190,8 +206,12 @@ def test_resume_continues_the_same_run(store, request):
     first.close("KILLED")
 
     second = MlflowTracker(uri, experiment=request.node.name)
-    assert second.start(params={"seed": "1", "budget.iterations": "20", "new": "yes"},
-                        resume_run_id=run_id) == run_id
+    assert (
+        second.start(
+            params={"seed": "1", "budget.iterations": "20", "new": "yes"}, resume_run_id=run_id
+        )
+        == run_id
+    )
     assert MlflowClient(uri).get_run(run_id).info.status == "RUNNING"
     second.log_metrics(1, {"return": 2.0})
     second.close()
@@ -238,13 +258,16 @@ def test_closed_tracker_refuses_metrics(tracker):
         tracker.log_metrics(0, {"x": 1.0})
 
 
-@pytest.mark.parametrize("uri, problem", [
-    ("http://127.0.0.1:9", "Connection refused"),
-    ("sqlite:///{tmp}/no/such/dir/mlflow.db", "does not exist"),
-    ("sqlite:///{tmp}/file.txt/mlflow.db", "file.txt is not a directory"),
-    ("sqlite:///{tmp}", "is a directory, not a database file"),
-    ("sqlite:///{tmp}/file.txt", "not a usable sqlite database (file is not a database)"),
-])
+@pytest.mark.parametrize(
+    "uri, problem",
+    [
+        ("http://127.0.0.1:9", "Connection refused"),
+        ("sqlite:///{tmp}/no/such/dir/mlflow.db", "does not exist"),
+        ("sqlite:///{tmp}/file.txt/mlflow.db", "file.txt is not a directory"),
+        ("sqlite:///{tmp}", "is a directory, not a database file"),
+        ("sqlite:///{tmp}/file.txt", "not a usable sqlite database (file is not a database)"),
+    ],
+)
 def test_unusable_store_fails_fast_with_one_line(tmp_path, monkeypatch, uri, problem):
     (tmp_path / "file.txt").write_text("not a directory")
     uri = uri.format(tmp=tmp_path)
@@ -293,7 +316,7 @@ def test_numpy_steps_and_values_are_accepted(store, tracker):
 
 # --- the Hydra sweep callback, run as a real multirun in a subprocess ---------------------------
 
-_APP = '''
+_APP = """
 import hydra
 from omegaconf import OmegaConf
 from epoet.tracking import MlflowTracker, flatten, parent_run_id
@@ -309,9 +332,9 @@ def main(cfg):
 
 if __name__ == "__main__":
     main()
-'''
+"""
 
-_CONFIG = '''
+_CONFIG = """
 x: 0
 fail_on: -1
 experiment: ???
@@ -320,7 +343,7 @@ hydra:
     mlflow_sweep:
       _target_: epoet.sweep.MlflowSweepCallback
       experiment: ${experiment}
-'''
+"""
 
 
 def _sweep(tmp_path: Path, uri: str, *overrides: str) -> subprocess.CompletedProcess:
@@ -328,8 +351,14 @@ def _sweep(tmp_path: Path, uri: str, *overrides: str) -> subprocess.CompletedPro
     (tmp_path / "config.yaml").write_text(textwrap.dedent(_CONFIG))
     env = {k: v for k, v in os.environ.items() if k != PARENT_RUN_ENV}
     env["MLFLOW_TRACKING_URI"] = uri
-    return subprocess.run([sys.executable, "app.py", "-m", *overrides], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "app.py", "-m", *overrides],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def _runs(uri: str, experiment: str) -> tuple[list, list]:
@@ -365,12 +394,13 @@ def test_sweep_with_a_failing_job_marks_the_parent_failed(store, tmp_path):
     parents, children = _runs(uri, "sweep_fail")
     assert len(parents) == 1
     assert parents[0].info.status == "FAILED"
-    assert sorted((c.data.params["x"], c.info.status) for c in children) == \
-        [("1", "FINISHED"), ("2", "FAILED")]
+    assert sorted((c.data.params["x"], c.info.status) for c in children) == [
+        ("1", "FINISHED"),
+        ("2", "FAILED"),
+    ]
 
 
-def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, request,
-                                                                        monkeypatch):
+def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, request, monkeypatch):
     """An ES and a torch agent (the authors', shipped), each logged as its run's MLflow model
     and loaded with `mlflow.pyfunc.load_model`, act on float32 and float64 observations as the
     policy does on the same values; both models have one signature."""
@@ -379,6 +409,7 @@ def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, re
     from epoet.envs.spaces import ACT_DIM, OBS_DIM
     from epoet.eval.agents import file_source
     from epoet.eval.reference import FOLDER
+
     uri, _ = store
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)  # where load_model("runs:/...") looks
     observations = np.random.default_rng(0).normal(size=(4, OBS_DIM))
@@ -395,7 +426,8 @@ def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, re
             actions = model.predict(given)
             assert actions.shape == (4, ACT_DIM) and actions.dtype == np.float64, (agent, dtype)
             expected = [policy(obs) for obs in given.astype(np.float64)]
-            np.testing.assert_allclose(actions, expected, rtol=1e-6, atol=1e-7,
-                                       err_msg=f"{agent} {dtype.__name__}")
+            np.testing.assert_allclose(
+                actions, expected, rtol=1e-6, atol=1e-7, err_msg=f"{agent} {dtype.__name__}"
+            )
         signatures.append(model.metadata.signature)
     assert signatures[0] == signatures[1]

@@ -7,11 +7,12 @@ import pytest
 import torch
 from tensordict import TensorDict
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
-from torch import distributions as d, nn
+from torch import distributions as d
+from torch import nn
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import (
-    IndependentNormal,
     MLP,
+    IndependentNormal,
     ProbabilisticActor,
     TanhNormal,
     ValueOperator,
@@ -176,9 +177,7 @@ def test_eta_loss_moves_eta_towards_its_constraint(eps_eta, grows):
     psi = np_softmax(top / eta)
     kl_to_uniform = float(np.sum(psi * np.log(psi * len(top))))
     # d loss / d log_eta = eta * d loss / d eta
-    assert math.isclose(
-        float(loss.log_eta.grad), eta * (eps_eta - kl_to_uniform), rel_tol=1e-4
-    )
+    assert math.isclose(float(loss.log_eta.grad), eta * (eps_eta - kl_to_uniform), rel_tol=1e-4)
 
     torch.optim.SGD([loss.log_eta], lr=0.1).step()
     assert (float(loss.eta) > eta) is grows
@@ -245,9 +244,7 @@ def test_kl_without_closed_form_is_estimated_from_the_batch_log_probs():
 # --- the whole loss ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "distribution_class", [TanhNormal, IndependentNormal, d.Normal]
-)
+@pytest.mark.parametrize("distribution_class", [TanhNormal, IndependentNormal, d.Normal])
 def test_full_loss_on_a_collected_batch(distribution_class):
     actor, critic = make_actor(distribution_class), make_critic()
     loss = VMPOLoss(actor, critic)

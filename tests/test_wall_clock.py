@@ -1,6 +1,7 @@
 """`budget.hours`: the paper's comparison after a fixed wall-clock time. The stop falls at an
 iteration (ePOET) or collector-batch (baselines) boundary with a checkpoint, the hours add up
 over resumes, and a resume with more hours goes on."""
+
 from __future__ import annotations
 
 import subprocess
@@ -11,18 +12,34 @@ import mlflow
 import numpy as np
 import pytest
 
-from epoet.core.checkpoint import load_checkpoint
 from epoet.config import load
+from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
-TINY = "budget.hours=1e-9"   # used up by the first iteration or batch
-EPOET = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40",
-         "budget.iterations=4"]
-PPO = ["algo=ppo", "budget=smoke", "workers.num=1", "terrain.grid=40", "budget.episode_steps=30",
-       "budget.frames=240", "budget.eval_every=120", "budget.eval_episodes=1",
-       "algo.frames_per_batch=60", "algo.epochs=2", "algo.minibatch=30", "checkpoint_every=10"]
+TINY = "budget.hours=1e-9"  # used up by the first iteration or batch
+EPOET = [
+    "budget=smoke",
+    "workers.num=1",
+    "algo.es.hidden=[8]",
+    "terrain.grid=40",
+    "budget.iterations=4",
+]
+PPO = [
+    "algo=ppo",
+    "budget=smoke",
+    "workers.num=1",
+    "terrain.grid=40",
+    "budget.episode_steps=30",
+    "budget.frames=240",
+    "budget.eval_every=120",
+    "budget.eval_episodes=1",
+    "algo.frames_per_batch=60",
+    "algo.epochs=2",
+    "algo.minibatch=30",
+    "checkpoint_every=10",
+]
 
 
 def _stop_reason(uri: str, run_id: str) -> str:
@@ -40,32 +57,38 @@ def _assert_summed_over_the_resume(uri: str, run_id: str, step_time: str, total:
     times = _history(uri, run_id, step_time)
     elapsed = _history(uri, run_id, "elapsed")
     steps = sorted(times)
-    np.testing.assert_allclose([elapsed[s] for s in steps], np.cumsum([times[s] for s in steps]),
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        [elapsed[s] for s in steps], np.cumsum([times[s] for s in steps]), rtol=1e-9
+    )
     assert total == pytest.approx(elapsed[steps[-1]], rel=1e-9)
 
 
 def test_epoet_stops_at_the_wall_clock_budget_and_a_resume_goes_on(
-        compose, mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    compose, mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     folder = tmp_path / "run"
     run(compose(EPOET + [TINY]), folder)
     first = load_checkpoint(folder / "checkpoint.pkl")
-    assert first["poet"]["iteration"] == 1          # the first boundary, with a checkpoint
-    assert "stopped at the wall-clock budget (budget.hours=1e-09) after 1 iterations" in \
-        capsys.readouterr().out
+    assert first["poet"]["iteration"] == 1  # the first boundary, with a checkpoint
+    assert (
+        "stopped at the wall-clock budget (budget.hours=1e-09) after 1 iterations"
+        in capsys.readouterr().out
+    )
     assert _stop_reason(mlflow_uri, first["run_id"]) == "hours"
     run(compose(EPOET + ["budget.hours=1", f"resume={folder}"]), folder)
     second = load_checkpoint(folder / "checkpoint.pkl")
     assert second["run_id"] == first["run_id"] and second["poet"]["iteration"] == 4
-    assert second["poet"]["elapsed"] > first["poet"]["elapsed"]   # summed over the resume
+    assert second["poet"]["elapsed"] > first["poet"]["elapsed"]  # summed over the resume
     assert _stop_reason(mlflow_uri, first["run_id"]) == "iterations"
     assert len(_history(mlflow_uri, first["run_id"], "time/iteration")) == 4
-    _assert_summed_over_the_resume(mlflow_uri, first["run_id"], "time/iteration",
-                                   second["poet"]["elapsed"])
+    _assert_summed_over_the_resume(
+        mlflow_uri, first["run_id"], "time/iteration", second["poet"]["elapsed"]
+    )
 
 
 def test_a_baseline_stops_at_a_batch_boundary_and_a_resume_goes_on(
-        compose, mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    compose, mlflow_uri: str, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     folder = tmp_path / "run"
     run(compose(PPO + [TINY]), folder)
     first = load_checkpoint(folder / "checkpoint.pkl")
@@ -78,13 +101,19 @@ def test_a_baseline_stops_at_a_batch_boundary_and_a_resume_goes_on(
     assert second["loop"]["wall_time"] > first["loop"]["wall_time"]
     assert _stop_reason(mlflow_uri, first["run_id"]) == "frames"
     assert sorted(_history(mlflow_uri, first["run_id"], "time/batch")) == [60, 120, 180, 240]
-    _assert_summed_over_the_resume(mlflow_uri, first["run_id"], "time/batch",
-                                   second["loop"]["wall_time"])
+    _assert_summed_over_the_resume(
+        mlflow_uri, first["run_id"], "time/batch", second["loop"]["wall_time"]
+    )
 
 
 def test_the_paper_budget_is_24_hours_with_the_references_baseline_frames() -> None:
-    job = subprocess.run([sys.executable, "-m", "epoet", "budget=paper", "--cfg", "job"],
-                         capture_output=True, text=True, cwd=ROOT, timeout=120)
+    job = subprocess.run(
+        [sys.executable, "-m", "epoet", "budget=paper", "--cfg", "job"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert job.returncode == 0 and "hours: 24.0" in job.stdout
     # ml-tue/ePOET_3D torchrl/config/{ppo,sac,vmpo}_hex.json: epochs x frames per epoch
     frames = {"ppo": 3000 * 2000, "sac": 500 * 2048, "vmpo": 488 * 2000}

@@ -9,6 +9,7 @@ checkpoints this project wrote.
 Layout: a run folder (Hydra's job output directory) holds its checkpoint as `checkpoint.pkl`;
 `find_checkpoint` accepts either the folder or the file.
 """
+
 from __future__ import annotations
 
 import os
@@ -55,8 +56,9 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
     checkpoint is untouched."""
     path = Path(path)
     if not isinstance(state, dict):
-        raise CheckpointError(f"cannot save checkpoint {path}: state must be a dict, "
-                              f"got {type(state).__name__}.")
+        raise CheckpointError(
+            f"cannot save checkpoint {path}: state must be a dict, got {type(state).__name__}."
+        )
     if path.is_dir():
         raise CheckpointError(f"cannot save checkpoint {path}: it is a directory.")
     try:
@@ -67,8 +69,9 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> None:
             file.seek(0)
             file.write(_HEADER.pack(_MAGIC, FORMAT_VERSION, writer.length, writer.crc))
     except Exception as exc:  # KeyboardInterrupt / SystemExit pass through unchanged
-        raise CheckpointError(f"cannot save checkpoint {path}: "
-                              f"{type(exc).__name__}: {exc}.") from exc
+        raise CheckpointError(
+            f"cannot save checkpoint {path}: {type(exc).__name__}: {exc}."
+        ) from exc
 
 
 def find_checkpoint(path: str | Path) -> Path:
@@ -77,8 +80,9 @@ def find_checkpoint(path: str | Path) -> Path:
     if path.is_dir():
         candidate = path / CHECKPOINT_NAME
         if not candidate.is_file():
-            raise CheckpointError(f"no checkpoint in run folder {path}: "
-                                  f"{CHECKPOINT_NAME} does not exist.")
+            raise CheckpointError(
+                f"no checkpoint in run folder {path}: {CHECKPOINT_NAME} does not exist."
+            )
         return candidate
     if not path.exists():
         raise CheckpointError(f"checkpoint {path} does not exist.")
@@ -92,18 +96,24 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         with open(file_path, "rb") as file:
             header = file.read(_HEADER.size)
             if len(header) < _HEADER.size:
-                raise CheckpointError(f"checkpoint {file_path} is truncated: "
-                                      f"{len(header)} bytes, shorter than its header.")
+                raise CheckpointError(
+                    f"checkpoint {file_path} is truncated: "
+                    f"{len(header)} bytes, shorter than its header."
+                )
             magic, version, length, crc = _HEADER.unpack(header)
             if magic != _MAGIC:
                 raise CheckpointError(f"{file_path} is not an epoet checkpoint (wrong magic).")
             if version != FORMAT_VERSION:
-                raise CheckpointError(f"checkpoint {file_path} has format version {version}, "
-                                      f"this code reads version {FORMAT_VERSION}.")
+                raise CheckpointError(
+                    f"checkpoint {file_path} has format version {version}, "
+                    f"this code reads version {FORMAT_VERSION}."
+                )
             size = os.fstat(file.fileno()).st_size - _HEADER.size
             if size != length:
-                raise CheckpointError(f"checkpoint {file_path} is truncated or padded: "
-                                      f"payload is {size} bytes, header says {length}.")
+                raise CheckpointError(
+                    f"checkpoint {file_path} is truncated or padded: "
+                    f"payload is {size} bytes, header says {length}."
+                )
             actual = 0
             while chunk := file.read(_CHUNK):
                 actual = zlib.crc32(chunk, actual)
@@ -116,8 +126,9 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     except CheckpointError:
         raise
     except Exception as exc:  # the CRC matched, so this is a class that no longer unpickles
-        raise CheckpointError(f"cannot unpickle checkpoint {file_path}: "
-                              f"{type(exc).__name__}: {exc}.") from exc
+        raise CheckpointError(
+            f"cannot unpickle checkpoint {file_path}: {type(exc).__name__}: {exc}."
+        ) from exc
     if not isinstance(state, dict):
         raise CheckpointError(f"checkpoint {file_path} does not hold a dict.")
     return state

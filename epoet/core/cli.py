@@ -1,12 +1,12 @@
 """Shared by the command-line entry points: bad input ends in one line on stderr, exit 2
 (`epoet.config.run_hydra_app` runs a Hydra app this way)."""
+
 from __future__ import annotations
 
 import sys
 from typing import NoReturn
 
-from hydra.errors import HydraException, MissingConfigException
-from omegaconf.errors import OmegaConfBaseException
+from hydra.errors import MissingConfigException
 
 from epoet.core.errors import first_line
 

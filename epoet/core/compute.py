@@ -1,4 +1,5 @@
 """How many cores this process may use (the default worker count of every pool)."""
+
 from __future__ import annotations
 
 import os

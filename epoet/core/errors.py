@@ -1,4 +1,5 @@
 """One-line errors: every command reports bad input as one sentence, whatever raised it."""
+
 from __future__ import annotations
 
 

@@ -10,6 +10,7 @@
   (`StopOnSignal`). A second signal stops at once (KeyboardInterrupt), losing the step in
   progress.
 """
+
 from __future__ import annotations
 
 import os
@@ -54,8 +55,12 @@ class StopOnSignal:
         _active = self
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         global _active
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
@@ -66,8 +71,12 @@ class StopOnSignal:
         if self.signum is not None:
             raise KeyboardInterrupt  # asked twice: stop now
         self.signum = signum
-        print(f"\n[epoet] {signal.Signals(signum).name} received: stopping at the next "
-              f"checkpoint boundary (send it again to stop at once)", file=sys.stderr, flush=True)
+        print(
+            f"\n[epoet] {signal.Signals(signum).name} received: stopping at the next "
+            f"checkpoint boundary (send it again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 _active: StopOnSignal | None = None  # the run's, while it trains

@@ -3,6 +3,7 @@
 Schemas live beside the code they configure (envs/config.py, terrain/config.py, ...); each
 failure is one `ConfigError` sentence naming the key a user types.
 """
+
 from __future__ import annotations
 
 from typing import Any

@@ -1,4 +1,5 @@
 """Where an iteration's wall time goes, step by step (the `time/<step>` metrics)."""
+
 from __future__ import annotations
 
 import time

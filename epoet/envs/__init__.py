@@ -1,6 +1,7 @@
 """The hexapod terrain task, registered with gymnasium as `epoet/Hexapod-v0`
 (`epoet.envs.hexapod_env.make_hexapod`, imported when gymnasium makes one: importing this
 package, for its schemas say, stays light)."""
+
 import gymnasium as gym
 
 ENV_ID = "epoet/Hexapod-v0"

@@ -1,5 +1,6 @@
 """The hexapod's and its episode's settings (conf/agent/); the integrators are those
 `epoet.envs.model` implements."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,9 +30,20 @@ class RewardConfig:
 
     def __post_init__(self) -> None:
         positive(self, "target_speed")
-        non_negative(self, "lateral_speed_penalty", "w_velocity", "w_heading", "w_lateral",
-                     "c_lateral", "c_heading", "c_pitch", "c_roll", "c_actuator", "c_vertical",
-                     "finish_bonus")
+        non_negative(
+            self,
+            "lateral_speed_penalty",
+            "w_velocity",
+            "w_heading",
+            "w_lateral",
+            "c_lateral",
+            "c_heading",
+            "c_pitch",
+            "c_roll",
+            "c_actuator",
+            "c_vertical",
+            "finish_bonus",
+        )
 
 
 # rk4: the reference's; implicitfast: faster and stable here (README "Budgets"); epoet.envs.model
@@ -46,26 +58,31 @@ class AgentConfig:
     KEY: ClassVar[str] = "agent"
 
     name: str
-    timestep: float                  # one physics step per control step: 50 Hz, as the reference
-    integrator: str                  # rk4 (the reference) | implicitfast (faster; README: Budgets)
+    timestep: float  # one physics step per control step: 50 Hz, as the reference
+    integrator: str  # rk4 (the reference) | implicitfast (faster; README: Budgets)
     max_episode_steps: int
-    start_x: float                   # spawn x; the finish line is `finish_x` (see README)
+    start_x: float  # spawn x; the finish line is `finish_x` (see README)
     finish_x: float
-    no_progress_steps: int           # end after this many steps without a new best x
-    progress_margin: float           # metres beyond the best x that count as progress
+    no_progress_steps: int  # end after this many steps without a new best x
+    progress_margin: float  # metres beyond the best x that count as progress
     settle_steps: int
     spawn_xy_std: float
-    spawn_yaw: float                 # yaw ~ U(-spawn_yaw, spawn_yaw)
+    spawn_yaw: float  # yaw ~ U(-spawn_yaw, spawn_yaw)
     spawn_vel_std: float
-    spawn_clearance: float           # torso height above the highest ground under the robot
+    spawn_clearance: float  # torso height above the highest ground under the robot
     reward: RewardConfig
 
     def __post_init__(self) -> None:
         check(self.name == "hexapod", f"agent.name must be 'hexapod', got {self.name!r}.")
-        check(self.integrator in INTEGRATORS,
-              f"agent.integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}.")
+        check(
+            self.integrator in INTEGRATORS,
+            f"agent.integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}.",
+        )
         positive(self, "timestep", "max_episode_steps", "no_progress_steps", "spawn_clearance")
-        non_negative(self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std",
-                     "progress_margin")
-        check(self.finish_x > self.start_x,
-              f"agent.finish_x ({self.finish_x}) must be ahead of agent.start_x ({self.start_x}).")
+        non_negative(
+            self, "settle_steps", "spawn_xy_std", "spawn_yaw", "spawn_vel_std", "progress_margin"
+        )
+        check(
+            self.finish_x > self.start_x,
+            f"agent.finish_x ({self.finish_x}) must be ahead of agent.start_x ({self.start_x}).",
+        )

@@ -1,4 +1,5 @@
 """`epoet/Hexapod-v0`: the hexapod terrain-walking task as a gymnasium.Env."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -9,11 +10,11 @@ import numpy as np
 
 from epoet.config import task_configs
 from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, REWARD_TERMS, EpisodeState, HexapodTask
 from epoet.terrain import make_terrain
+from epoet.terrain.config import TerrainConfig
 from epoet.terrain.terrain import TerrainLike
 
 
@@ -28,8 +29,15 @@ class HexapodEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(self, agent: AgentConfig, terrain: TerrainConfig, resample_terrain: bool = False,
-                 render_mode: str | None = None, width: int = 320, height: int = 240) -> None:
+    def __init__(
+        self,
+        agent: AgentConfig,
+        terrain: TerrainConfig,
+        resample_terrain: bool = False,
+        render_mode: str | None = None,
+        width: int = 320,
+        height: int = 240,
+    ) -> None:
         self.agent_cfg, self.terrain_cfg = agent, terrain
         self.model = build_model(self.agent_cfg, self.terrain_cfg)
         self.data = mujoco.MjData(self.model)
@@ -62,8 +70,9 @@ class HexapodEnv(gym.Env):
             self.set_terrain(options["terrain"])
         elif self.terrain is None or self.resample_terrain:
             terrain_seed = int(self.np_random.integers(2**31 - 1))
-            self.set_terrain(make_terrain(self.terrain_cfg, seed=terrain_seed,
-                                          iteration=self.episodes))
+            self.set_terrain(
+                make_terrain(self.terrain_cfg, seed=terrain_seed, iteration=self.episodes)
+            )
         self.episodes += 1
         spawn(self.model, self.data, self.ground, self.agent_cfg, self.np_random)
         qpos, qvel, sensordata = self._gather()
@@ -80,12 +89,18 @@ class HexapodEnv(gym.Env):
         action_to_targets(action, out=self.data.ctrl)
         self._step(self.model, self.data)
         qpos, qvel, sensordata = self._gather()
-        reward, terminated, truncated, terms = self.task.step(qpos, qvel, sensordata, self._state,
-                                                              self._obs)
+        reward, terminated, truncated, terms = self.task.step(
+            qpos, qvel, sensordata, self._state, self._obs
+        )
         info = self._info(qpos)
         info["reward_terms"] = dict(zip(REWARD_TERMS, terms[0].tolist()))
-        return (self._obs[0].copy(), float(reward[0]), bool(terminated[0]), bool(truncated[0]),
-                info)
+        return (
+            self._obs[0].copy(),
+            float(reward[0]),
+            bool(terminated[0]),
+            bool(truncated[0]),
+            info,
+        )
 
     def _gather(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d = self.data
@@ -93,9 +108,12 @@ class HexapodEnv(gym.Env):
 
     def _info(self, qpos: np.ndarray) -> dict:
         x, y = qpos[0, 0], qpos[0, 1]
-        return {"x": float(x), "finished": bool(self._state.finished[0]),
-                "roughness": float(self.ground.roughness(x, y)[0]),
-                "steps": int(self._state.steps[0])}
+        return {
+            "x": float(x),
+            "finished": bool(self._state.finished[0]),
+            "roughness": float(self.ground.roughness(x, y)[0]),
+            "steps": int(self._state.steps[0]),
+        }
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":

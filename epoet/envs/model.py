@@ -4,6 +4,7 @@ The MJCF (assets/hexapod.xml) fixes the robot; the heightfield's resolution, ext
 come from the terrain config, applied through MjSpec before compiling, so one compiled model serves
 every terrain of a run: `set_heightfield` rewrites `hfield_data` in place (no recompilation).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -18,7 +19,6 @@ from scipy.ndimage import uniform_filter
 from epoet.envs.config import INTEGRATORS, AgentConfig
 from epoet.terrain.config import TerrainConfig
 
-
 LEGS = ("fl", "fr", "ml", "mr", "rl", "rr")
 """The one leg order used by joints, actuators, observation, action and contact flags."""
 SEGMENTS = ("coxa", "femur", "tibia")
@@ -31,8 +31,9 @@ TARGET_HIGH = np.tile([0.6, 0.4, 0.8], len(LEGS))
 MJCF = resources.files("epoet.envs") / "assets" / "hexapod.xml"
 
 # The schema's choices (epoet.envs.config.INTEGRATORS), as MuJoCo's enum.
-_MJ_INTEGRATORS = {name: getattr(mujoco.mjtIntegrator, f"mjINT_{name.upper()}")
-                   for name in INTEGRATORS}
+_MJ_INTEGRATORS = {
+    name: getattr(mujoco.mjtIntegrator, f"mjINT_{name.upper()}") for name in INTEGRATORS
+}
 
 
 class TerrainMismatchError(ValueError):
@@ -70,7 +71,8 @@ def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
     if not half_extent_ok:
         raise TerrainMismatchError(
             f"agent.start_x/finish_x ({agent.start_x}, {agent.finish_x}) must lie inside the "
-            f"terrain (|x| < {half} m for terrain.size={terrain.size}).")
+            f"terrain (|x| < {half} m for terrain.size={terrain.size})."
+        )
     return spec.compile()
 
 
@@ -152,27 +154,33 @@ class Ground:
     def __init__(self, model: mujoco.MjModel) -> None:
         self.nrow = int(model.hfield_nrow[0])
         self.ncol = int(model.hfield_ncol[0])
-        self.half_x, self.half_y, self.elevation, self.base = (float(v) for v in model.hfield_size[0])
+        self.half_x, self.half_y, self.elevation, self.base = (
+            float(v) for v in model.hfield_size[0]
+        )
         self.heights = np.zeros((self.nrow, self.ncol))  # metres
         self._roughness: np.ndarray | None = None  # computed on first use (the engine needs none)
         self.heightmap = np.zeros((self.nrow, self.ncol))  # terrain units in [0, 1]
         self.max_height = 0.0
 
-    def set(self, model: mujoco.MjModel, heightmap: np.ndarray, max_height: float,
-            size: float) -> None:
+    def set(
+        self, model: mujoco.MjModel, heightmap: np.ndarray, max_height: float, size: float
+    ) -> None:
         """Write a terrain into the model in place; the caller runs mj_forward afterwards."""
         if abs(size - 2 * self.half_x) > 1e-9:
             raise TerrainMismatchError(
                 f"terrain is {size} m wide but the model's heightfield is {2 * self.half_x} m "
-                f"(terrain.size).")
+                f"(terrain.size)."
+            )
         if heightmap.shape != (self.nrow, self.ncol):
             raise TerrainMismatchError(
                 f"terrain heightmap is {heightmap.shape} but the model's heightfield is "
-                f"{(self.nrow, self.ncol)}; build the env with the terrain's grid size.")
+                f"{(self.nrow, self.ncol)}; build the env with the terrain's grid size."
+            )
         if not 0.0 <= max_height <= self.elevation + 1e-12:
             raise TerrainMismatchError(
                 f"terrain max_height {max_height} m is outside [0, {self.elevation}] m, the "
-                f"model's heightfield elevation (terrain.max_height_limit).")
+                f"model's heightfield elevation (terrain.max_height_limit)."
+            )
         self.heightmap = np.asarray(heightmap, dtype=np.float64)
         self.max_height = float(max_height)
         self.heights = self.heightmap * self.max_height
@@ -189,7 +197,7 @@ class Ground:
         """Highest ground within a square of half-width `radius` around (x, y)."""
         r0, c0 = self.cell(x - radius, y - radius)
         r1, c1 = self.cell(x + radius, y + radius)
-        return float(self.heights[r0:r1 + 1, c0:c1 + 1].max())
+        return float(self.heights[r0 : r1 + 1, c0 : c1 + 1].max())
 
     def roughness(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Variance of the 5 x 5 height patch (metres) under each point: the difficulty measure.

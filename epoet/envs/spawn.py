@@ -1,4 +1,5 @@
 """Episode start: place the robot above the local ground, randomise, and let it settle."""
+
 from __future__ import annotations
 
 import mujoco
@@ -13,8 +14,13 @@ FOOTPRINT = 0.35
 _NEUTRAL = action_to_targets(np.zeros(18))
 
 
-def spawn(model: mujoco.MjModel, data: mujoco.MjData, ground: Ground, agent: AgentConfig,
-          rng: np.random.Generator) -> None:
+def spawn(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    ground: Ground,
+    agent: AgentConfig,
+    rng: np.random.Generator,
+) -> None:
     """Reset `data` to a random start pose and run the settling steps.
 
     The torso starts `spawn_clearance` above the highest ground under its footprint, so it never

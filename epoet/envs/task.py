@@ -4,6 +4,7 @@ Both the gymnasium env (a batch of one) and the ES rollout engine (hundreds of r
 lockstep) call this one implementation, so the reward ES optimises is the reward the RL baselines
 see. Inputs are raw MuJoCo arrays gathered per step: qpos (B, 25), qvel (B, 24), sensordata (B, 24).
 """
+
 from __future__ import annotations
 
 from collections import namedtuple
@@ -29,22 +30,30 @@ class EpisodeState:
     prev_heading: np.ndarray
     prev_y: np.ndarray
     best_x: np.ndarray
-    stalled: np.ndarray     # consecutive steps without a new best x
+    stalled: np.ndarray  # consecutive steps without a new best x
     steps: np.ndarray
-    finished: np.ndarray    # finish line crossed (the bonus is paid once)
-    unstable: np.ndarray    # the physics blew up in the last step (the episode ended on it)
+    finished: np.ndarray  # finish line crossed (the bonus is paid once)
+    unstable: np.ndarray  # the physics blew up in the last step (the episode ended on it)
 
     @classmethod
     def zeros(cls, batch: int) -> "EpisodeState":
         f = lambda: np.zeros(batch)  # noqa: E731
-        return cls(f(), f(), f(), np.zeros(batch, np.int64), np.zeros(batch, np.int64),
-                   np.zeros(batch, bool), np.zeros(batch, bool))
+        return cls(
+            f(),
+            f(),
+            f(),
+            np.zeros(batch, np.int64),
+            np.zeros(batch, np.int64),
+            np.zeros(batch, bool),
+            np.zeros(batch, bool),
+        )
 
 
 # What the compiled step reads of the config and the model layout, as a namedtuple (numba takes
 # one where it cannot take a dataclass): every reward weight under its config name, then the
 # episode rules and the index of the first actuator-force sensor.
 if TYPE_CHECKING:
+
     class _Constants(RewardConfig):
         """What the type checker sees of the namedtuple below (its fields are built at run time)."""
 
@@ -58,9 +67,19 @@ if TYPE_CHECKING:
 
         def __init__(self, *values: float) -> None: ...
 else:
-    _Constants = namedtuple("_Constants", [f.name for f in fields(RewardConfig)] + [
-        "v_ref", "finish_x", "progress_margin", "half_size", "max_episode_steps",
-        "no_progress_steps", "actuator_force"])
+    _Constants = namedtuple(
+        "_Constants",
+        [f.name for f in fields(RewardConfig)]
+        + [
+            "v_ref",
+            "finish_x",
+            "progress_margin",
+            "half_size",
+            "max_episode_steps",
+            "no_progress_steps",
+            "actuator_force",
+        ],
+    )
 
 
 @njit(cache=True)
@@ -104,11 +123,25 @@ def _mean_square(row: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _step(c: _Constants, at: tuple[int, int, int], qpos: np.ndarray, qvel: np.ndarray,
-          sensordata: np.ndarray, prev_heading: np.ndarray, prev_y: np.ndarray,
-          best_x: np.ndarray, stalled: np.ndarray, steps: np.ndarray, finished: np.ndarray,
-          unstable: np.ndarray, reward: np.ndarray, terminated: np.ndarray,
-          truncated: np.ndarray, terms: np.ndarray, obs: np.ndarray) -> None:
+def _step(
+    c: _Constants,
+    at: tuple[int, int, int],
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    sensordata: np.ndarray,
+    prev_heading: np.ndarray,
+    prev_y: np.ndarray,
+    best_x: np.ndarray,
+    stalled: np.ndarray,
+    steps: np.ndarray,
+    finished: np.ndarray,
+    unstable: np.ndarray,
+    reward: np.ndarray,
+    terminated: np.ndarray,
+    truncated: np.ndarray,
+    terms: np.ndarray,
+    obs: np.ndarray,
+) -> None:
     """`HexapodTask.step` for every row, compiled: one call instead of ~80 numpy calls a step
     (at 16 robots those took about a quarter of the physics' time)."""
     for b in range(qpos.shape[0]):
@@ -118,20 +151,31 @@ def _step(c: _Constants, at: tuple[int, int, int], qpos: np.ndarray, qvel: np.nd
         heading = heading_deviation(w)
         roll, pitch = roll_pitch(w, qx, qy, qz)
 
-        velocity = (1.0 / (np.abs(vx - c.target_speed) + 1.0) - c.v_ref) \
-            / (1.0 + c.lateral_speed_penalty * vy * vy)
+        velocity = (1.0 / (np.abs(vx - c.target_speed) + 1.0) - c.v_ref) / (
+            1.0 + c.lateral_speed_penalty * vy * vy
+        )
         # Correcting heading and lateral drift is rewarded as a potential difference
         # (Azayev et al.).
         heading_gain = np.abs(prev_heading[b]) - heading
         lateral_gain = np.abs(prev_y[b]) - np.abs(y)
-        force = sensordata[b, c.actuator_force:c.actuator_force + ACT_DIM]
-        penalty = (c.c_lateral * y * y + c.c_heading * heading * heading
-                   + c.c_pitch * pitch * pitch + c.c_roll * roll * roll
-                   + c.c_actuator * _mean_square(force) + c.c_vertical * vz * vz)
+        force = sensordata[b, c.actuator_force : c.actuator_force + ACT_DIM]
+        penalty = (
+            c.c_lateral * y * y
+            + c.c_heading * heading * heading
+            + c.c_pitch * pitch * pitch
+            + c.c_roll * roll * roll
+            + c.c_actuator * _mean_square(force)
+            + c.c_vertical * vz * vz
+        )
         crossed = x >= c.finish_x and not finished[b]
         bonus = c.finish_bonus if crossed else 0.0
-        r = (c.w_velocity * velocity + c.w_heading * heading_gain
-             + c.w_lateral * lateral_gain - penalty + bonus)
+        r = (
+            c.w_velocity * velocity
+            + c.w_heading * heading_gain
+            + c.w_lateral * lateral_gain
+            - penalty
+            + bonus
+        )
 
         prev_heading[b] = heading
         prev_y[b] = y
@@ -160,8 +204,9 @@ def _step(c: _Constants, at: tuple[int, int, int], qpos: np.ndarray, qvel: np.nd
         # Falling off: below the terrain's lowest point (height 0) or past its edge.
         fell = qpos[b, 2] < 0.0 or np.abs(x) > c.half_size or np.abs(y) > c.half_size
         terminated[b] = finished[b] or fell or not sound
-        truncated[b] = not terminated[b] and (steps[b] >= c.max_episode_steps
-                                              or stalled[b] > c.no_progress_steps)
+        truncated[b] = not terminated[b] and (
+            steps[b] >= c.max_episode_steps or stalled[b] > c.no_progress_steps
+        )
         reward[b] = r
         terms[b, 0] = c.w_velocity * velocity
         terms[b, 1] = c.w_heading * heading_gain
@@ -172,21 +217,31 @@ def _step(c: _Constants, at: tuple[int, int, int], qpos: np.ndarray, qvel: np.nd
 
 
 @njit(cache=True)
-def _observe(qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
-             at: tuple[int, int, int], out: np.ndarray) -> None:
+def _observe(
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    sensordata: np.ndarray,
+    at: tuple[int, int, int],
+    out: np.ndarray,
+) -> None:
     """`HexapodTask.observe` for every row, compiled."""
     for b in range(qpos.shape[0]):
         _observe_row(qpos[b], qvel[b], sensordata[b], at, out[b])
 
 
 @njit(cache=True)
-def _observe_row(qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
-                 at: tuple[int, int, int], row: np.ndarray) -> None:
+def _observe_row(
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    sensordata: np.ndarray,
+    at: tuple[int, int, int],
+    row: np.ndarray,
+) -> None:
     """One robot's observation; `at` holds the first index of the joint angles in qpos, of the
     joint velocities in qvel and of the contact sensors in sensordata."""
     joint_qpos, joint_qvel, contact = at
-    row[0:18] = qpos[joint_qpos:joint_qpos + 18]
-    row[18:36] = qvel[joint_qvel:joint_qvel + 18]
+    row[0:18] = qpos[joint_qpos : joint_qpos + 18]
+    row[18:36] = qvel[joint_qvel : joint_qvel + 18]
     row[36:42] = qvel[0:6]
     row[42:46] = qpos[3:7]
     row[46] = qpos[1]
@@ -209,13 +264,20 @@ class HexapodTask:
     def __init__(self, agent: AgentConfig, layout: Layout, half_size: float) -> None:
         rw = agent.reward
         self._c = _Constants(
-            *astuple(rw), 1.0 / (1.0 + rw.target_speed), agent.finish_x, agent.progress_margin,
-            float(half_size), agent.max_episode_steps, agent.no_progress_steps,
-            layout.actuator_force.start)
+            *astuple(rw),
+            1.0 / (1.0 + rw.target_speed),
+            agent.finish_x,
+            agent.progress_margin,
+            float(half_size),
+            agent.max_episode_steps,
+            agent.no_progress_steps,
+            layout.actuator_force.start,
+        )
         self._at = (layout.joint_qpos.start, layout.joint_qvel.start, layout.contact.start)
 
-    def observe(self, qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
-                out: np.ndarray) -> np.ndarray:
+    def observe(
+        self, qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray, out: np.ndarray
+    ) -> np.ndarray:
         """53 dims: 18 joint angles, 18 joint velocities, torso linear + angular velocity,
         torso quaternion (w, x, y, z), torso y, 6 foot contacts (1 when the foot touches).
         A blown-up robot's (terminal) observation is zeros, never NaN."""
@@ -232,9 +294,14 @@ class HexapodTask:
         state.finished[rows] = False
         state.unstable[rows] = False
 
-    def step(self, qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray,
-             state: EpisodeState, obs: np.ndarray | None = None
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def step(
+        self,
+        qpos: np.ndarray,
+        qvel: np.ndarray,
+        sensordata: np.ndarray,
+        state: EpisodeState,
+        obs: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Reward and episode end after one control step; updates `state` in place and writes
         the new observation (`observe`) into `obs` if given (the same compiled call).
 
@@ -244,7 +311,23 @@ class HexapodTask:
         n = qpos.shape[0]
         reward, terms = np.empty(n), np.empty((n, len(REWARD_TERMS)))
         terminated, truncated = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
-        _step(self._c, self._at, qpos, qvel, sensordata, state.prev_heading, state.prev_y,
-              state.best_x, state.stalled, state.steps, state.finished, state.unstable, reward,
-              terminated, truncated, terms, np.empty((n, OBS_DIM)) if obs is None else obs)
+        _step(
+            self._c,
+            self._at,
+            qpos,
+            qvel,
+            sensordata,
+            state.prev_heading,
+            state.prev_y,
+            state.best_x,
+            state.stalled,
+            state.steps,
+            state.finished,
+            state.unstable,
+            reward,
+            terminated,
+            truncated,
+            terms,
+            np.empty((n, OBS_DIM)) if obs is None else obs,
+        )
         return reward, terminated, truncated, terms

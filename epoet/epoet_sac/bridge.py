@@ -20,6 +20,7 @@ actor standardises inside its network with the same statistics (epoet.rl.nets.Ob
 joined agent and a crossover child read the observations their parents read.
 `crossover` is Algorithm 3's crossover_single.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -48,7 +49,7 @@ class Mapped(NamedTuple):
     one terrain from the same starts (their gap: what the mapping loses)."""
 
     theta: np.ndarray
-    error: float            # distillation's mean squared action error; NaN for `random`
+    error: float  # distillation's mean squared action error; NaN for `random`
     score: float
     sac_score: float
 
@@ -63,14 +64,17 @@ def _actor_linears(policy_net: nn.Module) -> list[nn.Linear]:
     return [m for m in policy_net.modules() if isinstance(m, nn.Linear)]
 
 
-def random_mapping(policy_net: nn.Module, layer_sizes: Sequence[int],
-                   rng: np.random.Generator) -> np.ndarray:
+def random_mapping(
+    policy_net: nn.Module, layer_sizes: Sequence[int], rng: np.random.Generator
+) -> np.ndarray:
     """An ES vector whose layer l takes values drawn with replacement from the SAC actor's layer
     l (weights from weights, biases from biases; the output layer from the mean half only)."""
     linears = _actor_linears(policy_net)
     if len(linears) != len(layer_sizes) - 1:
-        raise ValueError(f"the SAC actor has {len(linears)} layers, the ES agent "
-                         f"{len(layer_sizes) - 1}: the random mapping pairs them one to one.")
+        raise ValueError(
+            f"the SAC actor has {len(linears)} layers, the ES agent "
+            f"{len(layer_sizes) - 1}: the random mapping pairs them one to one."
+        )
     theta = np.zeros(num_params(layer_sizes))
     act_dim = layer_sizes[-1]
     for i, ((w, b), linear) in enumerate(zip(unflatten(theta, layer_sizes), linears)):
@@ -91,8 +95,17 @@ def _es_module(layer_sizes: Sequence[int]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _fit(module: nn.Module, predict, states: torch.Tensor, targets: torch.Tensor, *,
-         epochs: int, batch: int, lr: float, generator: torch.Generator) -> float:
+def _fit(
+    module: nn.Module,
+    predict,
+    states: torch.Tensor,
+    targets: torch.Tensor,
+    *,
+    epochs: int,
+    batch: int,
+    lr: float,
+    generator: torch.Generator,
+) -> float:
     """Adam on the mean squared action error over shuffled minibatches; the final full-batch
     error."""
     optimizer = torch.optim.Adam([p for p in module.parameters() if p.requires_grad], lr=lr)
@@ -107,9 +120,18 @@ def _fit(module: nn.Module, predict, states: torch.Tensor, targets: torch.Tensor
         return float((predict(states) - targets).square().mean())
 
 
-def distill_into_es(policy_net: nn.Module, states: np.ndarray, layer_sizes: Sequence[int],
-                    init: np.ndarray, *, epochs: int, batch: int, lr: float, seed: int,
-                    standardizer: Standardizer | None = None) -> tuple[np.ndarray, float]:
+def distill_into_es(
+    policy_net: nn.Module,
+    states: np.ndarray,
+    layer_sizes: Sequence[int],
+    init: np.ndarray,
+    *,
+    epochs: int,
+    batch: int,
+    lr: float,
+    seed: int,
+    standardizer: Standardizer | None = None,
+) -> tuple[np.ndarray, float]:
     """An ES vector trained, from `init`, to output the SAC actor's deterministic actions on
     `states` (raw observations); returns it and the final mean squared action error. With the
     pool's `standardizer` the vector acts on standardised observations, as the pool's do."""
@@ -117,15 +139,25 @@ def distill_into_es(policy_net: nn.Module, states: np.ndarray, layer_sizes: Sequ
     with torch.no_grad():
         loc, _ = policy_net(obs)
         targets = torch.tanh(loc).double()
-    es_obs = torch.as_tensor(states if standardizer is None else
-                             (states - standardizer.mean) / standardizer.std, dtype=torch.float64)
+    es_obs = torch.as_tensor(
+        states if standardizer is None else (states - standardizer.mean) / standardizer.std,
+        dtype=torch.float64,
+    )
     student = _es_module(layer_sizes)
     with torch.no_grad():  # start from `init`, in the flat layout's (in, out) orientation
         for (w, b), linear in zip(unflatten(init.copy(), layer_sizes), _actor_linears(student)):
             linear.weight.copy_(torch.from_numpy(w.T.copy()))
             linear.bias.copy_(torch.from_numpy(b.copy()))
-    error = _fit(student, student, es_obs, targets, epochs=epochs, batch=batch, lr=lr,
-                 generator=torch.Generator().manual_seed(seed))
+    error = _fit(
+        student,
+        student,
+        es_obs,
+        targets,
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        generator=torch.Generator().manual_seed(seed),
+    )
     theta = np.zeros(num_params(layer_sizes))
     for (w, b), linear in zip(unflatten(theta, layer_sizes), _actor_linears(student)):
         w[...] = linear.weight.detach().numpy().T
@@ -133,12 +165,28 @@ def distill_into_es(policy_net: nn.Module, states: np.ndarray, layer_sizes: Sequ
     return theta, error
 
 
-def distill_into_actor(policy_net: nn.Module, theta: np.ndarray, states: np.ndarray,
-                       layer_sizes: Sequence[int], *, epochs: int, batch: int, lr: float,
-                       seed: int) -> float:
+def distill_into_actor(
+    policy_net: nn.Module,
+    theta: np.ndarray,
+    states: np.ndarray,
+    layer_sizes: Sequence[int],
+    *,
+    epochs: int,
+    batch: int,
+    lr: float,
+    seed: int,
+) -> float:
     """Train the SAC actor's mean, tanh(loc(s)), towards the ES agent's actions on `states`
     (in place); returns the final mean squared action error."""
     targets = torch.as_tensor(forward(theta, states, layer_sizes), dtype=torch.float32)
     obs = torch.as_tensor(states, dtype=torch.float32)
-    return _fit(policy_net, lambda s: torch.tanh(policy_net(s)[0]), obs, targets,
-                epochs=epochs, batch=batch, lr=lr, generator=torch.Generator().manual_seed(seed))
+    return _fit(
+        policy_net,
+        lambda s: torch.tanh(policy_net(s)[0]),
+        obs,
+        targets,
+        epochs=epochs,
+        batch=batch,
+        lr=lr,
+        generator=torch.Generator().manual_seed(seed),
+    )

@@ -8,6 +8,7 @@ per-step TensorDict work: 0.32 against 1.5 ms per frame on the workstation's lea
 frames of a cold start), else a draw of the actor's tanh-Gaussian, tanh(loc + scale * eps), as
 TorchRL's TanhNormal samples it on [-1, 1]; both from torch's generator, which the loop seeds.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,18 +22,20 @@ from epoet.rl.env import OBS
 
 
 @torch.no_grad()
-def collect(env: HexapodEnv, policy: nn.Module | None, frames: int, spawn_seed: int,
-            act_dim: int) -> TensorDict:
+def collect(
+    env: HexapodEnv, policy: nn.Module | None, frames: int, spawn_seed: int, act_dim: int
+) -> TensorDict:
     """`frames` transitions from a reset with `spawn_seed` on the env's terrain; `policy` maps
     a raw observation to (loc, scale)."""
     obs = np.empty((frames + 1, OBS_DIM), dtype=np.float32)
     next_obs = np.empty((frames, OBS_DIM), dtype=np.float32)
     reward = np.empty(frames, dtype=np.float32)
-    flags = np.zeros((4, frames), dtype=bool)   # terminated, truncated, done, finished
+    flags = np.zeros((4, frames), dtype=bool)  # terminated, truncated, done, finished
     episode_reward = np.empty(frames, dtype=np.float32)
     step_count = np.empty(frames, dtype=np.int64)
-    actions = (torch.rand(frames, act_dim) * 2.0 - 1.0 if policy is None
-               else torch.empty(frames, act_dim))
+    actions = (
+        torch.rand(frames, act_dim) * 2.0 - 1.0 if policy is None else torch.empty(frames, act_dim)
+    )
     obs[0] = env.reset(seed=spawn_seed)[0]
     total, steps = 0.0, 0
     for i in range(frames):
@@ -48,10 +51,20 @@ def collect(env: HexapodEnv, policy: nn.Module | None, frames: int, spawn_seed: 
             o, total, steps = env.reset()[0], 0.0, 0
         obs[i + 1] = o
     terminated, truncated, done, finished = (torch.from_numpy(f)[:, None] for f in flags)
-    return TensorDict({
-        OBS: torch.from_numpy(obs[:-1]), "action": actions,
-        "next": {OBS: torch.from_numpy(next_obs), "reward": torch.from_numpy(reward)[:, None],
-                 "terminated": terminated, "truncated": truncated, "done": done,
-                 "finished": finished,
-                 "episode_reward": torch.from_numpy(episode_reward)[:, None],
-                 "step_count": torch.from_numpy(step_count)[:, None]}}, batch_size=[frames])
+    return TensorDict(
+        {
+            OBS: torch.from_numpy(obs[:-1]),
+            "action": actions,
+            "next": {
+                OBS: torch.from_numpy(next_obs),
+                "reward": torch.from_numpy(reward)[:, None],
+                "terminated": terminated,
+                "truncated": truncated,
+                "done": done,
+                "finished": finished,
+                "episode_reward": torch.from_numpy(episode_reward)[:, None],
+                "step_count": torch.from_numpy(step_count)[:, None],
+            },
+        },
+        batch_size=[frames],
+    )

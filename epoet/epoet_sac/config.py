@@ -1,4 +1,5 @@
 """ePOET-SAC's settings (conf/algo/epoet_sac.yaml): ePOET's plus the SAC learner's and the join's."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,7 +8,6 @@ from typing import ClassVar, Optional
 from epoet.core.schema import check, non_negative, positive
 from epoet.poet.config import PoetConfig
 from epoet.rl.config import SacLearnerConfig
-
 
 # --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
 
@@ -21,7 +21,7 @@ class DistillConfig:
 
     KEY: ClassVar[str] = "algo.distill"
 
-    states: int                      # replay states per distillation
+    states: int  # replay states per distillation
     epochs: int
     batch: int
     lr: float
@@ -36,28 +36,36 @@ class EpoetSacConfig(PoetConfig):
 
     sac: SacLearnerConfig
     distill: DistillConfig
-    frames_per_iteration: int        # SAC's own environment steps per ePOET iteration (Train_SAC;
-                                     # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
-    updates_per_frame: float         # gradient updates per SAC frame (paper: 1)
-    es_episodes_per_pair: int        # ES-step episodes per active pair recorded into the replay
-    sac_terrain: str                 # pool: a sampled active environment; bowl: the reference's
-    mapping: str                     # the join's SAC actor -> ES mapping: distill | random
-    join_every_transfers: int        # the join at t mod (k N_transfer) = k N_transfer - 2
-    pretrain_iterations: int         # Train_SAC iterations before iteration 0 (reference: 500)
-    sac_init: Optional[str]          # None: cold; a SAC run (folder or MLflow run id) or
-                                     # reference:sac/42: its actor and critics (warm_start.py)
-    sac_threads: Optional[int]       # torch threads of the SAC learner; None: workers.num
+    frames_per_iteration: int  # SAC's own environment steps per ePOET iteration (Train_SAC;
+    # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
+    updates_per_frame: float  # gradient updates per SAC frame (paper: 1)
+    es_episodes_per_pair: int  # ES-step episodes per active pair recorded into the replay
+    sac_terrain: str  # pool: a sampled active environment; bowl: the reference's
+    mapping: str  # the join's SAC actor -> ES mapping: distill | random
+    join_every_transfers: int  # the join at t mod (k N_transfer) = k N_transfer - 2
+    pretrain_iterations: int  # Train_SAC iterations before iteration 0 (reference: 500)
+    sac_init: Optional[str]  # None: cold; a SAC run (folder or MLflow run id) or
+    # reference:sac/42: its actor and critics (warm_start.py)
+    sac_threads: Optional[int]  # torch threads of the SAC learner; None: workers.num
 
     def __post_init__(self) -> None:
         super().__post_init__()
         positive(self, "frames_per_iteration", "join_every_transfers")
         non_negative(self, "updates_per_frame", "es_episodes_per_pair", "pretrain_iterations")
-        check(self.sac_terrain in SAC_TERRAINS,
-              f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.")
-        check(self.mapping in JOIN_MAPPINGS,
-              f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.")
-        check(self.sac_threads is None or self.sac_threads > 0,
-              f"algo.sac_threads must be > 0 or null, got {self.sac_threads}.")
-        check(self.sac_init is None or bool(str(self.sac_init).strip()),
-              "algo.sac_init must be null (a cold start), a SAC run folder or MLflow run id, or "
-              "reference:sac/42.")
+        check(
+            self.sac_terrain in SAC_TERRAINS,
+            f"algo.sac_terrain must be one of {list(SAC_TERRAINS)}, got {self.sac_terrain!r}.",
+        )
+        check(
+            self.mapping in JOIN_MAPPINGS,
+            f"algo.mapping must be one of {list(JOIN_MAPPINGS)}, got {self.mapping!r}.",
+        )
+        check(
+            self.sac_threads is None or self.sac_threads > 0,
+            f"algo.sac_threads must be > 0 or null, got {self.sac_threads}.",
+        )
+        check(
+            self.sac_init is None or bool(str(self.sac_init).strip()),
+            "algo.sac_init must be null (a cold start), a SAC run folder or MLflow run id, or "
+            "reference:sac/42.",
+        )

@@ -22,6 +22,7 @@ pair's environment (a copy, not novel), keyed randomness (a resumed run equals a
 uninterrupted one), one set of observation statistics for the pool and the learner
 (`sync_obs_statistics`) and where SAC starts (`sac_init`, warm_start.py).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -35,8 +36,14 @@ from torchrl.envs import EnvBase
 
 from epoet.config import Config
 from epoet.core.timing import PhaseTimer
-from epoet.epoet_sac.bridge import (Mapped, ReplacedAgent, crossover, distill_into_actor,
-                                    distill_into_es, random_mapping)
+from epoet.epoet_sac.bridge import (
+    Mapped,
+    ReplacedAgent,
+    crossover,
+    distill_into_actor,
+    distill_into_es,
+    random_mapping,
+)
 from epoet.epoet_sac.collect import collect
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.replay_mix import ReplayMix
@@ -62,21 +69,42 @@ class EpoetSac:
     """The ePOET loop (its pool, service and steps), a SAC learner and the steps that move agents
     between them."""
 
-    def __init__(self, algo: EpoetSacConfig, terrain: TerrainConfig, evaluator: Evaluator,
-                 sac_env: EnvBase, *, seed: int, n_pairs: int, eval_episodes: int,
-                 score_scale: float, layer_sizes: tuple[int, ...],
-                 warm_start: WarmStart | None = None) -> None:
+    def __init__(
+        self,
+        algo: EpoetSacConfig,
+        terrain: TerrainConfig,
+        evaluator: Evaluator,
+        sac_env: EnvBase,
+        *,
+        seed: int,
+        n_pairs: int,
+        eval_episodes: int,
+        score_scale: float,
+        layer_sizes: tuple[int, ...],
+        warm_start: WarmStart | None = None,
+    ) -> None:
         self.cfg = algo
-        self.poet = EPOET(algo, terrain, evaluator, seed=seed, n_pairs=n_pairs,
-                          eval_episodes=eval_episodes, score_scale=score_scale,
-                          layer_sizes=layer_sizes)
+        self.poet = EPOET(
+            algo,
+            terrain,
+            evaluator,
+            seed=seed,
+            n_pairs=n_pairs,
+            eval_episodes=eval_episodes,
+            score_scale=score_scale,
+            layer_sizes=layer_sizes,
+        )
         self.service, self.pool = self.poet.service, self.poet.pool
         torch.manual_seed(self.service.seed(Key.SAC))  # the networks' initial weights
         self.sac_env = sac_env
         # With the pool's observation statistics, the actor and critics standardise inside
         # (the same statistics, `sync_obs_statistics`); the replay keeps raw observations.
-        self.learner = SacLearner(algo.sac, sac_env, standardize=self.service.obs_norm is not None,
-                                  scale_mapping=scale_mapping_for(algo.sac_init))
+        self.learner = SacLearner(
+            algo.sac,
+            sac_env,
+            standardize=self.service.obs_norm is not None,
+            scale_mapping=scale_mapping_for(algo.sac_init),
+        )
         if warm_start is not None:  # not on resume: the checkpoint holds the learner
             self.learner.warm_start(warm_start.actor, warm_start.critics)
         # a warm-started actor acts from the first frame; a cold one after uniform actions
@@ -95,8 +123,9 @@ class EpoetSac:
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
     @classmethod
-    def from_config(cls, cfg: Config, evaluator: Evaluator,
-                    warm_start: WarmStart | None = None) -> EpoetSac:
+    def from_config(
+        cls, cfg: Config, evaluator: Evaluator, warm_start: WarmStart | None = None
+    ) -> EpoetSac:
         """The `algo=epoet_sac` loop of a run: torch threads `algo.sac_threads` (null: as the
         workers; they take turns), SAC's own env (`close` closes it), the budget's population,
         evaluations and scale."""
@@ -105,10 +134,18 @@ class EpoetSac:
             torch.set_num_threads(cfg.algo.sac_threads)
         sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
         budget = cfg.budget
-        return cls(cfg.algo, cfg.terrain, evaluator, sac_env, seed=cfg.seed,
-                   n_pairs=budget.n_pairs, eval_episodes=budget.eval_episodes,
-                   score_scale=budget.score_scale, layer_sizes=policy_sizes(cfg.algo.es.hidden),
-                   warm_start=warm_start)
+        return cls(
+            cfg.algo,
+            cfg.terrain,
+            evaluator,
+            sac_env,
+            seed=cfg.seed,
+            n_pairs=budget.n_pairs,
+            eval_episodes=budget.eval_episodes,
+            score_scale=budget.score_scale,
+            layer_sizes=policy_sizes(cfg.algo.es.hidden),
+            warm_start=warm_start,
+        )
 
     @property
     def iteration(self) -> int:
@@ -143,21 +180,27 @@ class EpoetSac:
             with timer("transfer"):
                 moves = poet.transfer_moves(t)  # {target env: source env}
                 metrics["transfers"] = float(len(moves))
-                metrics["transfers/from_joined"] = float(sum(
-                    source in self.join_of for source in moves.values()))
+                metrics["transfers/from_joined"] = float(
+                    sum(source in self.join_of for source in moves.values())
+                )
                 metrics.update(self.update_actor_from_pool(t))
         if self.join_due(t):
             with timer("join"):
                 metrics.update(self.join(t))
-        metrics.update({"sac/buffer_size": float(len(self.learner.buffer)),
-                        "sac/es_transitions": float(self.mix.added["es"]),
-                        "sac/own_transitions": float(self.mix.added["sac"]),
-                        "sac/es_share": self.mix.share("es")})
+        metrics.update(
+            {
+                "sac/buffer_size": float(len(self.learner.buffer)),
+                "sac/es_transitions": float(self.mix.added["es"]),
+                "sac/own_transitions": float(self.mix.added["sac"]),
+                "sac/es_share": self.mix.share("es"),
+            }
+        )
         # The environment copies the joins pair with are not novel (not in ANNECS); the k-th
         # join's pair is lineage k (0: the ES lineage), the paper's ePOET-SAC_gen<k> curves.
         novel = [p for p in self.pool.pairs if p.env.index not in self.join_of]
-        return poet.end_iteration(metrics, timer, start, annecs(novel),
-                                  best_by_lineage(self.pool.active, self.lineage))
+        return poet.end_iteration(
+            metrics, timer, start, annecs(novel), best_by_lineage(self.pool.active, self.lineage)
+        )
 
     def join_due(self, t: int) -> bool:
         """Algorithm 1: t > 0 and t mod (k N_transfer) = k N_transfer - 2, with
@@ -180,8 +223,9 @@ class EpoetSac:
         the ES step), its networks' raw-observation functions kept (SacLearner)."""
         stats = self.service.obs_norm
         if stats is not None:
-            self.learner.set_obs_statistics(torch.from_numpy(stats.mean),
-                                            torch.from_numpy(stats.std))
+            self.learner.set_obs_statistics(
+                torch.from_numpy(stats.mean), torch.from_numpy(stats.std)
+            )
 
     def add_to_replay(self, episodes: list[Episodes]) -> None:
         """The recorded ES transitions (float32, from the workers) into SAC's replay buffer."""
@@ -190,12 +234,20 @@ class EpoetSac:
             return
         t = {k: np.concatenate([r[k] for r in recorded]) for k in recorded[0]}
         n = len(t["reward"])
-        self.learner.add(TensorDict({
-            OBS: torch.from_numpy(t["obs"]), "action": torch.from_numpy(t["action"]),
-            "next": {OBS: torch.from_numpy(t["next_obs"]),
-                     "reward": torch.from_numpy(t["reward"])[:, None],
-                     "terminated": torch.from_numpy(t["terminated"])[:, None]}},
-            batch_size=[n]))
+        self.learner.add(
+            TensorDict(
+                {
+                    OBS: torch.from_numpy(t["obs"]),
+                    "action": torch.from_numpy(t["action"]),
+                    "next": {
+                        OBS: torch.from_numpy(t["next_obs"]),
+                        "reward": torch.from_numpy(t["reward"])[:, None],
+                        "terminated": torch.from_numpy(t["terminated"])[:, None],
+                    },
+                },
+                batch_size=[n],
+            )
+        )
         self.mix.add("es", n)
 
     def sac_pair(self, t: int) -> Pair:
@@ -207,12 +259,16 @@ class EpoetSac:
         """Train_SAC on the sampled environment's terrain (or a bowl, `sac_terrain=bowl`)."""
         pair = self.sac_pair(t)
         if self.cfg.sac_terrain == "bowl":
-            terrain = make_terrain(dataclasses.replace(self.service.terrain_cfg, kind="bowl"),
-                                   seed=self.service.seed(Key.SAC_BOWL, t), iteration=t)
+            terrain = make_terrain(
+                dataclasses.replace(self.service.terrain_cfg, kind="bowl"),
+                seed=self.service.seed(Key.SAC_BOWL, t),
+                iteration=t,
+            )
         else:
             terrain = self.service.terrain(pair.env, t)
-        metrics = self._train_sac(terrain, self.service.seed(Key.SAC, t),
-                                  self.service.seed(Key.SAC_SPAWN, t))
+        metrics = self._train_sac(
+            terrain, self.service.seed(Key.SAC, t), self.service.seed(Key.SAC_SPAWN, t)
+        )
         metrics["sac/env"] = float(pair.env.index)
         return metrics
 
@@ -221,19 +277,23 @@ class EpoetSac:
         iteration 0 (0 by default: Algorithm 1 has none)."""
         metrics: dict[str, float] = {}
         for i in range(self.cfg.pretrain_iterations):
-            metrics = self._train_sac(self.service.terrain(self.pool.active[0].env, 0),
-                                      self.service.seed(Key.PRETRAIN, i, 0),
-                                      self.service.seed(Key.PRETRAIN, i, 1))
+            metrics = self._train_sac(
+                self.service.terrain(self.pool.active[0].env, 0),
+                self.service.seed(Key.PRETRAIN, i, 0),
+                self.service.seed(Key.PRETRAIN, i, 1),
+            )
         return metrics
 
-    def _train_sac(self, terrain: Terrain, torch_seed: int, spawn_seed: int
-                   ) -> dict[str, float]:
+    def _train_sac(self, terrain: Terrain, torch_seed: int, spawn_seed: int) -> dict[str, float]:
         """`frames_per_iteration` frames of the stochastic actor (uniform actions while fewer
         than `init_random_frames` were collected) on `terrain`, then the gradient updates."""
         hexapod(self.sac_env).set_terrain(terrain)
         torch.manual_seed(torch_seed)
-        data = self.collect(self.frames_per_iteration, spawn_seed,
-                            explore=self.mix.added["sac"] >= self.random_frames)
+        data = self.collect(
+            self.frames_per_iteration,
+            spawn_seed,
+            explore=self.mix.added["sac"] >= self.random_frames,
+        )
         learned = self.learner.learn(data, self.updates_per_iteration)
         self.mix.add("sac", data.numel())
         self.service.env_steps += data.numel()
@@ -242,8 +302,9 @@ class EpoetSac:
     def collect(self, frames: int, spawn_seed: int, explore: bool) -> TensorDict:
         """SAC's frames on its env's terrain (collect.py): the stochastic actor's, or uniform
         actions (`explore` False)."""
-        return collect(self.score_env, self.actor_net if explore else None, frames, spawn_seed,
-                       self.act_dim)
+        return collect(
+            self.score_env, self.actor_net if explore else None, frames, spawn_seed, self.act_dim
+        )
 
     # --- SAC actor <-> pool ----------------------------------------------------------------------
     def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
@@ -281,14 +342,21 @@ class EpoetSac:
         top = max(self.pool.active, key=lambda p: p.score)
         sac_score = self.actor_score(
             service.terrain(top.env, t),
-            service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t))
-        metrics = {"sac/score": sac_score, "sac/top_score": top.score,
-                   "sac/updated_from_pool": float(sac_score < top.score)}
+            service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t),
+        )
+        metrics = {
+            "sac/score": sac_score,
+            "sac/top_score": top.score,
+            "sac/updated_from_pool": float(sac_score < top.score),
+        }
         if sac_score < top.score:
             metrics["sac/distill_error"] = distill_into_actor(  # raw-observation agent
-                self.actor_net, service.policy(top.theta),
+                self.actor_net,
+                service.policy(top.theta),
                 self.replay_states(service.seed(Key.SAC, t, 1)),
-                service.layer_sizes, **self._distill_kwargs(service.seed(Key.SAC, t, 2)))
+                service.layer_sizes,
+                **self._distill_kwargs(service.seed(Key.SAC, t, 2)),
+            )
         return metrics
 
     def map_actor(self, t: int, mapping: str) -> tuple[np.ndarray, float]:
@@ -299,19 +367,26 @@ class EpoetSac:
             rng = np.random.default_rng(service.seed(Key.JOIN, t))
             return random_mapping(self.actor_net, sizes, rng), float("nan")
         init = init_params(service.seed(Key.JOIN, t, 0), sizes)
-        return distill_into_es(self.actor_net, self.replay_states(service.seed(Key.JOIN, t, 1)),
-                               sizes, init, standardizer=service.standardizer(),
-                               **self._distill_kwargs(service.seed(Key.JOIN, t, 2)))
+        return distill_into_es(
+            self.actor_net,
+            self.replay_states(service.seed(Key.JOIN, t, 1)),
+            sizes,
+            init,
+            standardizer=service.standardizer(),
+            **self._distill_kwargs(service.seed(Key.JOIN, t, 2)),
+        )
 
     def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
         """Map the SAC actor (random draws keyed by t), then score the mapped agent and the
         actor on `terrain` from the same starts (keyed by `ids`)."""
         service = self.service
         theta, error = self.map_actor(t, mapping)
-        score = float(service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL,
-                                                           *ids)])[0][0])
-        sac_score = self.actor_score(terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL,
-                                                            *ids))
+        score = float(
+            service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL, *ids)])[0][0]
+        )
+        sac_score = self.actor_score(
+            terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL, *ids)
+        )
         return Mapped(theta, error, score, sac_score)
 
     def join(self, t: int) -> dict[str, float]:
@@ -322,43 +397,66 @@ class EpoetSac:
         terrain = self.service.terrain(home.env, t)
         mapped = self.map_and_score(t, terrain, self.cfg.mapping, t)
         joins = self.joins + 1
-        env = Environment(index=self.pool.next_index, genome=home.env.genome,
-                          generation=home.env.generation, parent=home.env.index, created_at=t)
+        env = Environment(
+            index=self.pool.next_index,
+            genome=home.env.genome,
+            generation=home.env.generation,
+            parent=home.env.index,
+            created_at=t,
+        )
         pair = self.pool.admit(env, self.service.optimiser_for(env, mapped.theta))
         self.join_of[env.index] = joins
         self.service.keep_terrain(env, t, terrain)
         self.pool.record(pair, mapped.score)
-        outcome = self.crossover_with([p for p in self.pool.active if p is not pair],
-                                      mapped.theta, t)
-        metrics = {"joined": float(joins), "join/env": float(env.index),
-                   "join/sac_score": mapped.sac_score, "join/mapped_score": mapped.score,
-                   "join/mapping_error": mapped.error,
-                   "replaced": float(sum(new > old for old, new in outcome.values()))}
+        outcome = self.crossover_with(
+            [p for p in self.pool.active if p is not pair], mapped.theta, t
+        )
+        metrics = {
+            "joined": float(joins),
+            "join/env": float(env.index),
+            "join/sac_score": mapped.sac_score,
+            "join/mapped_score": mapped.score,
+            "join/mapping_error": mapped.error,
+            "replaced": float(sum(new > old for old, new in outcome.values())),
+        }
         for index, (old, new) in outcome.items():
             metrics[f"crossover/env{index}_old"] = old
             metrics[f"crossover/env{index}_new"] = new
             metrics[f"crossover/env{index}_replaced"] = float(new > old)
         return metrics
 
-    def crossover_with(self, pairs: list[Pair], donor: np.ndarray, t: int
-                       ) -> dict[int, tuple[float, float]]:
+    def crossover_with(
+        self, pairs: list[Pair], donor: np.ndarray, t: int
+    ) -> dict[int, tuple[float, float]]:
         """Algorithm 3: each agent and its crossover with `donor` are rolled out from the same
         starts on the agent's environment; the child replaces the agent only if its return is
         higher, and the original is archived. Returns {env index: (old, new) return}."""
         service = self.service
-        children = [crossover(p.theta, donor,
-                              np.random.default_rng(service.seed(Key.CROSSOVER, p.env.index, t)))
-                    for p in pairs]
-        scores = service.scores([service.eval_request(service.terrain(p.env, t),
-                                                      np.stack([p.theta, child]),
-                                                      Key.CROSSOVER_EVAL, p.env.index, t)
-                                 for p, child in zip(pairs, children)])
+        children = [
+            crossover(
+                p.theta, donor, np.random.default_rng(service.seed(Key.CROSSOVER, p.env.index, t))
+            )
+            for p in pairs
+        ]
+        scores = service.scores(
+            [
+                service.eval_request(
+                    service.terrain(p.env, t),
+                    np.stack([p.theta, child]),
+                    Key.CROSSOVER_EVAL,
+                    p.env.index,
+                    t,
+                )
+                for p, child in zip(pairs, children)
+            ]
+        )
         outcome = {}
         for pair, child, (old, new) in zip(pairs, children, scores):
             outcome[pair.env.index] = (float(old), float(new))
             if new > old:
-                self.replaced.append(ReplacedAgent(pair.env.index, t, pair.theta.copy(),
-                                                   float(old)))
+                self.replaced.append(
+                    ReplacedAgent(pair.env.index, t, pair.theta.copy(), float(old))
+                )
                 self.pool.replace_agent(pair, child, float(new))
         return outcome
 
@@ -367,24 +465,38 @@ class EpoetSac:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
         self.poet.log_artifacts(run_dir, tracker, choice)
         sac = self.cfg.sac
-        tracker.log_artifact(export_policy(run_dir / "sac_policy.pt", self.learner.actor,
-                                           self.sac_env, sac.hidden, sac.activation))
+        tracker.log_artifact(
+            export_policy(
+                run_dir / "sac_policy.pt",
+                self.learner.actor,
+                self.sac_env,
+                sac.hidden,
+                sac.activation,
+            )
+        )
         if self.replaced:
             folder = run_dir / "replaced"
             folder.mkdir(exist_ok=True)
             for agent in self.replaced:
-                np.savez(folder / f"env{agent.env}_it{agent.iteration}.npz", theta=agent.theta,
-                         score=agent.score, layer_sizes=np.array(self.service.layer_sizes))
+                np.savez(
+                    folder / f"env{agent.env}_it{agent.iteration}.npz",
+                    theta=agent.theta,
+                    score=agent.score,
+                    layer_sizes=np.array(self.service.layer_sizes),
+                )
             tracker.log_artifact(folder, "replaced")
 
     def close(self) -> None:
         self.sac_env.close()
 
     def state_dict(self) -> dict[str, Any]:
-        return {**self.poet.state_dict(), "sac": self.learner.state_dict(),
-                "mix": self.mix.state_dict(),
-                "replaced": [dataclasses.asdict(a) for a in self.replaced],
-                "join_of": dict(self.join_of)}
+        return {
+            **self.poet.state_dict(),
+            "sac": self.learner.state_dict(),
+            "mix": self.mix.state_dict(),
+            "replaced": [dataclasses.asdict(a) for a in self.replaced],
+            "join_of": dict(self.join_of),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.poet.load_state_dict(state)
@@ -393,6 +505,7 @@ class EpoetSac:
         self.replaced = [ReplacedAgent(**a) for a in state["replaced"]]
         # checkpoints of format 2 kept the join number on each pair
         self.join_of = state.get("join_of") or {
-            s["env"].index: s["sac_join"] for s in state["active"] + state["archived"]
-            if s.get("sac_join")}
-
+            s["env"].index: s["sac_join"]
+            for s in state["active"] + state["archived"]
+            if s.get("sac_join")
+        }

@@ -1,5 +1,6 @@
 """Where ePOET-SAC's replay buffer's transitions came from (the shared replay's `replay/*`
 metrics)."""
+
 from __future__ import annotations
 
 from collections import deque
@@ -16,14 +17,14 @@ class ReplayMix:
     def __init__(self, capacity: int) -> None:
         self.capacity = capacity
         self.added = dict.fromkeys(self.SOURCES, 0)
-        self._chunks: deque[list] = deque()     # [source, rows] in the order added
+        self._chunks: deque[list] = deque()  # [source, rows] in the order added
         self._held = 0
 
     def add(self, source: str, rows: int) -> None:
         self.added[source] += rows
         self._chunks.append([source, rows])
         self._held += rows
-        while self._held > self.capacity:       # the oldest rows were overwritten
+        while self._held > self.capacity:  # the oldest rows were overwritten
             drop = min(self._chunks[0][1], self._held - self.capacity)
             self._chunks[0][1] -= drop
             self._held -= drop

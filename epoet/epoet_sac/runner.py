@@ -4,6 +4,7 @@ loop.
 Imported only when a config names it: torch and TorchRL are heavy imports that ePOET runs never
 need.
 """
+
 from __future__ import annotations
 
 from contextlib import closing
@@ -30,12 +31,13 @@ def check_inputs(cfg: Config) -> None:
     warm_start_of(cfg)
 
 
-def train(cfg: Config, tracker: Tracker, run_dir: Path,
-          resume: dict[str, Any] | None) -> EpoetSac:
+def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EpoetSac:
     """Train ePOET-SAC for the budget's iterations (or hours); SAC's env closes at the end. A
     resumed run's learner comes from its checkpoint, so its warm start is not read again."""
     warm_start = warm_start_of(cfg) if resume is None else None
-    with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator, \
-            closing(EpoetSac.from_config(cfg, evaluator, warm_start)) as loop:
+    with (
+        evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator,
+        closing(EpoetSac.from_config(cfg, evaluator, warm_start)) as loop,
+    ):
         train_loop(loop, cfg, tracker, run_dir, resume)
     return loop

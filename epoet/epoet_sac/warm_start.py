@@ -17,6 +17,7 @@ exp(clamp(log_std, -20, 2)) for theirs (epoet/rl/nets.py says why no weights con
 the other). Anything else is refused in one sentence (ConfigError) before the run starts:
 `check_inputs` is called by epoet.run before the tracker opens.
 """
+
 from __future__ import annotations
 
 import json
@@ -57,8 +58,8 @@ class WarmStart:
 class _Found(NamedTuple):
     """A source's files, read and checked as files (`load_warm_start` checks the layout)."""
 
-    actor: dict[str, Any]     # the exported policy's plain data
-    critics: dict[str, Any]   # the critics file's plain data
+    actor: dict[str, Any]  # the exported policy's plain data
+    critics: dict[str, Any]  # the critics file's plain data
     scale_mapping: str
 
 
@@ -77,29 +78,36 @@ def _reference(spec: str) -> _Found:
     usable = [f"{REFERENCE}{n}" for n, e in agents.items() if e.get("critics")]
     entry = agents.get(spec.removeprefix(REFERENCE))
     if entry is None or not entry.get("critics"):
-        what = ("names no shipped agent" if entry is None
-                else f"is the authors' {entry['algo']} agent")
-        raise _fail(spec, f"{what}; a warm start takes a SAC actor with its critics "
-                          f"({', '.join(usable)})")
+        what = (
+            "names no shipped agent" if entry is None else f"is the authors' {entry['algo']} agent"
+        )
+        raise _fail(
+            spec, f"{what}; a warm start takes a SAC actor with its critics ({', '.join(usable)})"
+        )
     actor = REFERENCE_FOLDER / entry["file"]
     return _from_files(spec, actor, REFERENCE_FOLDER / entry["critics"], LOG_STD_SCALE)
 
 
-def _from_files(spec: str, policy: Path, critics: Path | dict[str, Any],
-                scale_mapping: str) -> _Found:
+def _from_files(
+    spec: str, policy: Path, critics: Path | dict[str, Any], scale_mapping: str
+) -> _Found:
     try:
         actor = read_torch_policy(policy)
         critic_spec = read_critics(critics) if isinstance(critics, Path) else critics
     except (AgentError, ValueError) as err:
         raise _fail(spec, f"has no usable SAC weights ({str(err).rstrip('.')})") from None
     if actor["obs_loc"] is not None:
-        raise _fail(spec, "reads clipped normalised observations (its algo.obs_norm=true), "
-                          "which do not fold into a layer; a warm start takes a SAC run on raw "
-                          "observations")
+        raise _fail(
+            spec,
+            "reads clipped normalised observations (its algo.obs_norm=true), "
+            "which do not fold into a layer; a warm start takes a SAC run on raw "
+            "observations",
+        )
     last = f"{2 * len(actor['hidden'])}.weight"
     if actor["state_dict"][last].shape[0] != 2 * ACT_DIM:
-        raise _fail(spec, "has no SAC actor (its output layer is not a mean and a scale per "
-                          "action)")
+        raise _fail(
+            spec, "has no SAC actor (its output layer is not a mean and a scale per action)"
+        )
     return _Found(actor, critic_spec, scale_mapping)
 
 
@@ -107,8 +115,9 @@ def _from_folder(spec: str, folder: Path) -> _Found:
     try:
         state = load_checkpoint(folder / CHECKPOINT_NAME)
     except CheckpointError as err:
-        raise _fail(spec, f"is not a run folder with a readable {CHECKPOINT_NAME} "
-                          f"({str(err).rstrip('.')})") from None
+        raise _fail(
+            spec, f"is not a run folder with a readable {CHECKPOINT_NAME} ({str(err).rstrip('.')})"
+        ) from None
     algo = state.get("algo")
     if algo != "sac":
         raise _not_sac(spec, algo)
@@ -119,19 +128,29 @@ def _from_folder(spec: str, folder: Path) -> _Found:
     if not critics_file.is_file():  # a run from before SAC runs exported their critics
         config = state["config"]["algo"]
         loss = state["learner"]["loss"]
-        critics = {"activation": config["activation"], "hidden": list(config["hidden"]),
-                   "state_dict": {k.removeprefix(CRITIC_PREFIX): v for k, v in loss.items()
-                                  if k.startswith(CRITIC_PREFIX)}}
+        critics = {
+            "activation": config["activation"],
+            "hidden": list(config["hidden"]),
+            "state_dict": {
+                k.removeprefix(CRITIC_PREFIX): v
+                for k, v in loss.items()
+                if k.startswith(CRITIC_PREFIX)
+            },
+        }
     return _from_files(spec, folder / POLICY_FILE, critics, SOFTPLUS_SCALE)
 
 
 def _not_sac(spec: str, algo: str | None) -> ConfigError:
-    return _fail(spec, f"is an algo={algo} run; a warm start takes the actor and critics of an "
-                       f"algo=sac run (its folder or MLflow run id) or of reference:sac/42")
+    return _fail(
+        spec,
+        f"is an algo={algo} run; a warm start takes the actor and critics of an "
+        f"algo=sac run (its folder or MLflow run id) or of reference:sac/42",
+    )
 
 
 def _from_store(spec: str, tracking_uri: str | None) -> _Found:
     from epoet.tracking import StoredRun, TrackingError  # mlflow: only for a run in the store
+
     try:
         stored = StoredRun.open(spec, tracking_uri)
     except TrackingError as err:
@@ -140,8 +159,11 @@ def _from_store(spec: str, tracking_uri: str | None) -> _Found:
         raise _not_sac(spec, stored.tags.get("algo"))
     for name in (POLICY_FILE, CRITICS_FILE):
         if not stored.has_artifact(name):
-            raise _fail(spec, f"has no {name} artifact (SAC runs log their critics from this "
-                              f"version on); give its run folder, whose checkpoint holds them")
+            raise _fail(
+                spec,
+                f"has no {name} artifact (SAC runs log their critics from this "
+                f"version on); give its run folder, whose checkpoint holds them",
+            )
     with tempfile.TemporaryDirectory(prefix="epoet-sac-init-") as tmp:
         policy = stored.download(POLICY_FILE, Path(tmp))
         critics = stored.download(CRITICS_FILE, Path(tmp))
@@ -159,8 +181,7 @@ def _resolve(spec: str, tracking_uri: str | None) -> _Found:
     raise _fail(spec, "is neither reference:sac/42, a SAC run folder nor an MLflow run id")
 
 
-def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None = None
-                    ) -> WarmStart:
+def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None = None) -> WarmStart:
     """The start `spec` names, checked against the learner's layout; ConfigError in one
     sentence for anything that cannot start this learner."""
     start = _resolve(spec, tracking_uri)
@@ -169,15 +190,24 @@ def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None =
     for what, spec_of in (("actor", actor), ("critics", critics)):
         theirs = ([int(n) for n in spec_of["hidden"]], spec_of["activation"])
         if theirs != mine:
-            raise _fail(spec, f"has a {theirs[0]} {theirs[1]} {what}, but algo.sac.hidden="
-                              f"{mine[0]} and algo.sac.activation={mine[1]}: a warm start loads "
-                              f"the weights as they are, so they must match")
+            raise _fail(
+                spec,
+                f"has a {theirs[0]} {theirs[1]} {what}, but algo.sac.hidden="
+                f"{mine[0]} and algo.sac.activation={mine[1]}: a warm start loads "
+                f"the weights as they are, so they must match",
+            )
     sizes = [OBS_DIM + ACT_DIM, *mine[0], 1]
-    expected = {**{f"weights.{i}": (2, a, b) for i, (a, b) in enumerate(zip(sizes, sizes[1:]))},
-                **{f"biases.{i}": (2, 1, b) for i, b in enumerate(sizes[1:])}}
+    expected = {
+        **{f"weights.{i}": (2, a, b) for i, (a, b) in enumerate(zip(sizes, sizes[1:]))},
+        **{f"biases.{i}": (2, 1, b) for i, b in enumerate(sizes[1:])},
+    }
     got = {k: tuple(v.shape) for k, v in critics["state_dict"].items()}
     if got != expected:
-        raise _fail(spec, f"has critics whose weights {got} are not twin Q networks of "
-                          f"{OBS_DIM} observations and {ACT_DIM} actions")
-    return WarmStart(spec, dict(actor["state_dict"]), dict(critics["state_dict"]),
-                     start.scale_mapping)
+        raise _fail(
+            spec,
+            f"has critics whose weights {got} are not twin Q networks of "
+            f"{OBS_DIM} observations and {ACT_DIM} actions",
+        )
+    return WarmStart(
+        spec, dict(actor["state_dict"]), dict(critics["state_dict"]), start.scale_mapping
+    )

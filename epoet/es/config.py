@@ -1,4 +1,5 @@
 """The OpenAI-ES settings of every ePOET pair (conf/algo/epoet.yaml `es`)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,15 +22,19 @@ class EsConfig:
     sigma_decay: float
     sigma_floor: float
     l2_coeff: float
-    obs_norm_episodes: int           # 0: raw observations; k: standardised, stats from k per pair
+    obs_norm_episodes: int  # 0: raw observations; k: standardised, stats from k per pair
 
     def __post_init__(self) -> None:
-        check(len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
-              f"algo.es.hidden must be a non-empty list of positive sizes, got {self.hidden}.")
+        check(
+            len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
+            f"algo.es.hidden must be a non-empty list of positive sizes, got {self.hidden}.",
+        )
         positive(self, "lr", "lr_floor", "sigma", "sigma_floor")
         non_negative(self, "l2_coeff", "obs_norm_episodes")
         for name in ("lr_decay", "sigma_decay"):
             value = getattr(self, name)
             check(0.0 < value <= 1.0, f"algo.es.{name} must be in (0, 1], got {value}.")
-        check(self.lr_floor <= self.lr and self.sigma_floor <= self.sigma,
-              "algo.es floors must not exceed the initial lr / sigma.")
+        check(
+            self.lr_floor <= self.lr and self.sigma_floor <= self.sigma,
+            "algo.es floors must not exceed the initial lr / sigma.",
+        )

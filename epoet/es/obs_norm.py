@@ -10,6 +10,7 @@ Deviation from Salimans et al.: no clipping of the standardised observation to [
 does not fold into a linear layer). As theirs, the variance has a floor of 1e-2, and the
 statistics grow from a small share of the ES episodes (their 1 %).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence

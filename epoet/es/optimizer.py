@@ -13,6 +13,7 @@ One step, for seeds s_1..s_n (n = n_pairs):
     theta <- theta + Adam step that minimises (-g + l2 * theta)
     lr <- max(lr * lr_decay, lr_floor); sigma <- max(sigma * sigma_decay, sigma_floor)
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -48,22 +49,30 @@ def centered_ranks(x: np.ndarray) -> np.ndarray:
     return (ranks / (x.size - 1) - 0.5).reshape(x.shape)
 
 
-def _check_returns(seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _check_returns(
+    seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     pos = np.asarray(returns_pos, dtype=np.float64)
     neg = np.asarray(returns_neg, dtype=np.float64)
     if len(seeds) < 1:
         raise ValueError("an ES step needs at least one seed.")
     if pos.shape != (len(seeds),) or neg.shape != (len(seeds),):
-        raise ValueError(f"returns_pos and returns_neg must each have one value per seed "
-                         f"({len(seeds)}), got shapes {pos.shape} and {neg.shape}.")
+        raise ValueError(
+            f"returns_pos and returns_neg must each have one value per seed "
+            f"({len(seeds)}), got shapes {pos.shape} and {neg.shape}."
+        )
     if not (np.isfinite(pos).all() and np.isfinite(neg).all()):
         raise ValueError("ES returns must be finite (got NaN or inf).")
     return pos, neg
 
 
-def es_gradient(seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray,
-                sigma: float, num_params: int) -> np.ndarray:
+def es_gradient(
+    seeds: Sequence[int] | np.ndarray,
+    returns_pos: np.ndarray,
+    returns_neg: np.ndarray,
+    sigma: float,
+    num_params: int,
+) -> np.ndarray:
     """Ascent direction g = sum_i (r+_i - r-_i) eps_i / (n sigma), r = centered ranks of all 2n."""
     pos, neg = _check_returns(seeds, returns_pos, returns_neg)
     if sigma <= 0:
@@ -77,9 +86,17 @@ def es_gradient(seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, retu
     return g / (n * sigma)
 
 
-def adam_step(theta: np.ndarray, grad: np.ndarray, m: np.ndarray, v: np.ndarray, t: int,
-              lr: float, beta1: float, beta2: float, eps: float
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def adam_step(
+    theta: np.ndarray,
+    grad: np.ndarray,
+    m: np.ndarray,
+    v: np.ndarray,
+    t: int,
+    lr: float,
+    beta1: float,
+    beta2: float,
+    eps: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """One Adam descent step on `grad`, returning new (theta, m, v, t); inputs are not modified.
 
     OpenAI-ES form: the bias correction is folded into the step size and eps is added to
@@ -100,8 +117,9 @@ class OpenAIES:
     without side effects, for transfer; `reset` accepts a transferred theta.
     """
 
-    def __init__(self, theta: np.ndarray, seed: int | np.random.Generator, cfg: EsConfig,
-                 n_pairs: int) -> None:
+    def __init__(
+        self, theta: np.ndarray, seed: int | np.random.Generator, cfg: EsConfig, n_pairs: int
+    ) -> None:
         self.n_pairs = n_pairs
         self.cfg = cfg
         self.rng = np.random.default_rng(seed)
@@ -124,24 +142,38 @@ class OpenAIES:
         """n_pairs perturbation seeds (int64) from this optimiser's own Generator."""
         return self.rng.integers(0, SEED_HIGH, size=self.n_pairs, dtype=np.int64)
 
-    def _step(self, theta: np.ndarray, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray,
-              returns_neg: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
+    def _step(
+        self,
+        theta: np.ndarray,
+        seeds: Sequence[int] | np.ndarray,
+        returns_pos: np.ndarray,
+        returns_neg: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
         """(new theta, m, v, t, g) of one step from `theta`; no attribute is modified."""
         theta = check_theta(theta)
         if theta.size != self.num_params:
-            raise ValueError(f"theta has {theta.size} parameters, the optimiser "
-                             f"{self.num_params}.")
+            raise ValueError(f"theta has {theta.size} parameters, the optimiser {self.num_params}.")
         g = es_gradient(seeds, returns_pos, returns_neg, self.sigma, self.num_params)
-        new_theta, m, v, t = adam_step(theta, -g + self.cfg.l2_coeff * theta, self.m, self.v,
-                                       self.t, self.lr, ADAM_BETA1, ADAM_BETA2, ADAM_EPS)
+        new_theta, m, v, t = adam_step(
+            theta,
+            -g + self.cfg.l2_coeff * theta,
+            self.m,
+            self.v,
+            self.t,
+            self.lr,
+            ADAM_BETA1,
+            ADAM_BETA2,
+            ADAM_EPS,
+        )
         return new_theta, m, v, t, g
 
-    def tell(self, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray
-             ) -> dict[str, float]:
+    def tell(
+        self, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray
+    ) -> dict[str, float]:
         """Apply one ES step from the returns of theta +- sigma*eps(seeds); return statistics."""
-        new_theta, self.m, self.v, self.t, g = self._step(self.theta, seeds, returns_pos,
-                                                          returns_neg)
+        new_theta, self.m, self.v, self.t, g = self._step(
+            self.theta, seeds, returns_pos, returns_neg
+        )
         update_norm = float(np.linalg.norm(new_theta - self.theta))
         stats = {
             "lr": self.lr,
@@ -156,8 +188,14 @@ class OpenAIES:
         self.sigma = max(self.sigma * self.cfg.sigma_decay, self.cfg.sigma_floor)
         return stats
 
-    def propose(self, seeds: Sequence[int] | np.ndarray, returns_pos: np.ndarray, returns_neg: np.ndarray,
-                theta: np.ndarray | None = None, step: str = "adam") -> np.ndarray:
+    def propose(
+        self,
+        seeds: Sequence[int] | np.ndarray,
+        returns_pos: np.ndarray,
+        returns_neg: np.ndarray,
+        theta: np.ndarray | None = None,
+        step: str = "adam",
+    ) -> np.ndarray:
         """One step's theta without touching any state (transfer's and admission's "proposal").
 
         `theta` is the point the population was sampled around (default: this optimiser's theta).
@@ -195,8 +233,9 @@ class OpenAIES:
         theta = check_theta(state["theta"])
         for name in ("m", "v"):
             if np.shape(state[name]) != theta.shape:
-                raise ValueError(f"ES state {name!r} has shape {np.shape(state[name])}, "
-                                 f"theta {theta.shape}.")
+                raise ValueError(
+                    f"ES state {name!r} has shape {np.shape(state[name])}, theta {theta.shape}."
+                )
         self.theta = theta.copy()
         self.m = np.array(state["m"], dtype=np.float64)
         self.v = np.array(state["v"], dtype=np.float64)

@@ -5,6 +5,7 @@ Logged by `MlflowTracker.log_agent` with this module as the pyfunc loader: MLflo
 policy file (ES `.npz` or exported `policy.pt`) as the model's data and calls `_load_pyfunc`
 with its local copy.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -26,8 +27,7 @@ class PolicyModel:
     def predict(self, model_input: Any, params: dict[str, Any] | None = None) -> np.ndarray:
         # a copy: MLflow's DataFrame may hand a read-only array, which torch warns about
         observations = np.atleast_2d(np.array(model_input, dtype=np.float64))
-        return np.stack([np.asarray(self.policy(obs), dtype=np.float64)
-                         for obs in observations])
+        return np.stack([np.asarray(self.policy(obs), dtype=np.float64) for obs in observations])
 
 
 def _load_pyfunc(data_path: str) -> PolicyModel:

@@ -7,6 +7,7 @@ scale) and, when there is one, the MLflow run to log results to. Two policy form
   `policies/env<N>.npz` (with their `score`); a run's agent is the pool's best by score;
 - exported torch policies (`policy.pt`, `epoet.rl.policy_file`): PPO, SAC and VMPO.
 """
+
 from __future__ import annotations
 
 import atexit
@@ -24,8 +25,14 @@ from omegaconf import OmegaConf
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from epoet.envs.config import AgentConfig
-from epoet.rollout.agent_files import (ES_POLICIES, TORCH_POLICY, AgentError, bad_agent,
-                                       read_es_policy, read_torch_policy)
+from epoet.rollout.agent_files import (
+    ES_POLICIES,
+    TORCH_POLICY,
+    AgentError,
+    bad_agent,
+    read_es_policy,
+    read_torch_policy,
+)
 from epoet.rollout.policy import forward
 from epoet.tracking import TrackingError
 
@@ -41,7 +48,7 @@ MODEL_URI = re.compile(r"^runs:/([0-9a-f]{32})/agent/?$")  # the run's MLflow mo
 class AgentSource:
     """A policy file and its format; picklable, so worker processes load it themselves."""
 
-    kind: str    # "es" | "torch"
+    kind: str  # "es" | "torch"
     path: Path
 
     def check(self) -> None:
@@ -58,6 +65,7 @@ class AgentSource:
             theta, sizes = read_es_policy(self.path)
             return lambda obs: forward(theta, obs, sizes)
         from epoet.rl.policy_file import load_policy  # torch only when a torch policy is used
+
         return load_policy(self.path)
 
 
@@ -66,12 +74,12 @@ class TrainedRun:
     """What `run=<spec>` resolved to."""
 
     agent: AgentSource
-    label: str                       # e.g. "epoet-s1 env3" or a file's stem
-    stored: StoredRun | None         # the MLflow run to log results to, when known
+    label: str  # e.g. "epoet-s1 env3" or a file's stem
+    stored: StoredRun | None  # the MLflow run to log results to, when known
     algo: str | None
     seed: str | None
-    config: dict[str, Any] | None    # the run's resolved config, when known
-    folder: Path | None              # the run folder, when given one
+    config: dict[str, Any] | None  # the run's resolved config, when known
+    folder: Path | None  # the run folder, when given one
 
     @property
     def run_id(self) -> str | None:
@@ -128,6 +136,7 @@ def _download_dir() -> Path:
 
 def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
     from epoet.tracking import StoredRun  # mlflow only for agents that live in the store
+
     stored = StoredRun.open(run_id, tracking_uri)
     folder = _download_dir()
     for artifact in (ES_POLICIES, TORCH_POLICY):
@@ -136,9 +145,11 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
             break
     found = policy_in(folder)
     if found is None:
-        raise AgentError(f"run {run_id} ({stored.name}, {stored.status}) has no policy artifact "
-                         f"({ES_POLICIES}/ or {TORCH_POLICY}): evaluate a run that finished "
-                         f"training.")
+        raise AgentError(
+            f"run {run_id} ({stored.name}, {stored.status}) has no policy artifact "
+            f"({ES_POLICIES}/ or {TORCH_POLICY}): evaluate a run that finished "
+            f"training."
+        )
     config = None
     if stored.has_artifact("config.yaml"):
         loaded = OmegaConf.load(stored.download("config.yaml", folder))
@@ -146,15 +157,18 @@ def _from_store(run_id: str, tracking_uri: str | None) -> TrainedRun:
     source, name = found
     source.check()
     label = stored.name if source.kind == "torch" else f"{stored.name} {name}"
-    return TrainedRun(source, label, stored, stored.tags.get("algo"), stored.tags.get("seed"),
-                      config, None)
+    return TrainedRun(
+        source, label, stored, stored.tags.get("algo"), stored.tags.get("seed"), config, None
+    )
 
 
 def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
     found = policy_in(folder)
     if found is None:
-        raise AgentError(f"run folder {folder} has no policy ({ES_POLICIES}/env<N>.npz or "
-                         f"{TORCH_POLICY}): evaluate a run that finished training.")
+        raise AgentError(
+            f"run folder {folder} has no policy ({ES_POLICIES}/env<N>.npz or "
+            f"{TORCH_POLICY}): evaluate a run that finished training."
+        )
     state: dict[str, Any] = {}
     if (folder / CHECKPOINT_NAME).is_file():
         try:
@@ -170,6 +184,7 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
     label = base if source.kind == "torch" else f"{base} {name}"
     # The run the checkpoint continues, opened now so a missing store fails before any work.
     from epoet.tracking import StoredRun
+
     stored = StoredRun.open(state["run_id"], tracking_uri) if state.get("run_id") else None
     return TrainedRun(source, label, stored, algo, seed, config, folder)
 
@@ -183,6 +198,7 @@ def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
     """
     if spec.startswith("reference:"):  # the authors' agents, shipped converted
         from epoet.eval.reference import resolve
+
         try:
             return resolve(spec, tracking_uri)
         except TrackingError as err:
@@ -201,5 +217,7 @@ def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
             return _from_store(model.group(1), tracking_uri)
     except TrackingError as err:
         raise AgentError(str(err)) from err
-    raise AgentError(f"run={spec} is neither a reference:<run>/<agent>, a policy file, a run "
-                     f"folder, an MLflow run id nor a model URI runs:/<run id>/agent.")
+    raise AgentError(
+        f"run={spec} is neither a reference:<run>/<agent>, a policy file, a run "
+        f"folder, an MLflow run id nor a model URI runs:/<run id>/agent."
+    )

@@ -25,6 +25,7 @@ with the tags `eval_suite/<name>` (the suite's fingerprint), `eval_course_scale/
 step and value: an evaluation interrupted after logging and run again on resume) is not logged
 twice.
 """
+
 from __future__ import annotations
 
 import json
@@ -44,24 +45,51 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.eval.agents import AgentError, AgentSource, TrainedRun, resolve_run
-from epoet.core.cli import fail
 from epoet.config import EvaluateConfig, compose, validate
-from epoet.core.schema import ConfigError
-from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
-from epoet.envs.hexapod_env import HexapodEnv
+from epoet.core.cli import fail
 from epoet.core.compute import default_workers
 from epoet.core.files import atomic_write
 from epoet.core.lifecycle import end_with
-from epoet.eval.keys import (EPISODES_TAG, RESULTS, SCALE_TAG, SHIPPED_NAME, SUITE_TAG,
-                             artifacts, metric, suite_argument, tag)
-from epoet.eval.suite import (LEVELS, Suite, SuiteError, SuiteTerrain, example_terrain,
-                                 load_suite, terrain_config_for)
+from epoet.core.schema import ConfigError
+from epoet.envs.config import AgentConfig
+from epoet.envs.hexapod_env import HexapodEnv
+from epoet.eval.agents import AgentError, AgentSource, TrainedRun, resolve_run
+from epoet.eval.keys import (
+    EPISODES_TAG,
+    RESULTS,
+    SCALE_TAG,
+    SHIPPED_NAME,
+    SUITE_TAG,
+    artifacts,
+    metric,
+    suite_argument,
+    tag,
+)
+from epoet.eval.suite import (
+    LEVELS,
+    Suite,
+    SuiteError,
+    SuiteTerrain,
+    example_terrain,
+    load_suite,
+    terrain_config_for,
+)
+from epoet.terrain.config import TerrainConfig
 from epoet.tracking import TrackingError
 
-COLUMNS = ["terrain", "level", "roughness", "episode", "start_seed", "return", "finished", "solved",
-           "forward_distance", "length", "path_roughness"]
+COLUMNS = [
+    "terrain",
+    "level",
+    "roughness",
+    "episode",
+    "start_seed",
+    "return",
+    "finished",
+    "solved",
+    "forward_distance",
+    "length",
+    "path_roughness",
+]
 
 
 @dataclass(frozen=True)
@@ -78,7 +106,7 @@ class Task:
     action_samples: int
 
 
-_cache: dict[str, Any] = {}   # per worker process: the env and policy, built once
+_cache: dict[str, Any] = {}  # per worker process: the env and policy, built once
 
 
 def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
@@ -91,9 +119,11 @@ def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
             # actor's one-observation forward passes slowed ~100x when each process's threads
             # fought over the cores.
             import torch
+
             torch.set_num_threads(1)
-        _cache.update(key=key, env=HexapodEnv(task.agent_cfg, task.terrain_cfg),
-                      policy=task.agent.load())
+        _cache.update(
+            key=key, env=HexapodEnv(task.agent_cfg, task.terrain_cfg), policy=task.agent.load()
+        )
     return _cache["env"], _cache["policy"]
 
 
@@ -129,32 +159,48 @@ def run_task(task: Task) -> tuple[int, list[list[Any]], list[np.ndarray], list[s
         keep = np.linspace(0, len(actions) - 1, min(task.action_samples, len(actions)))
         samples.append(taken[np.unique(np.rint(keep).astype(int))])
         finished = bool(info["finished"]) and not cut
-        rows.append([task.terrain.name, task.terrain.level, task.terrain.roughness, episode,
-                     seed, total, finished, finished and total >= task.solve_return,
-                     info["x"] - x0, info["steps"], float(np.mean(path))])
+        rows.append(
+            [
+                task.terrain.name,
+                task.terrain.level,
+                task.terrain.roughness,
+                episode,
+                seed,
+                total,
+                finished,
+                finished and total >= task.solve_return,
+                info["x"] - x0,
+                info["steps"],
+                float(np.mean(path)),
+            ]
+        )
     return task.index, rows, samples, broken
 
 
 def episode_seeds(seed: int, terrain: int, episodes: int) -> tuple[int, ...]:
-    return tuple(int(np.random.SeedSequence([seed, terrain, e]).generate_state(1)[0])
-                 for e in range(episodes))
+    return tuple(
+        int(np.random.SeedSequence([seed, terrain, e]).generate_state(1)[0])
+        for e in range(episodes)
+    )
 
 
 @dataclass
 class Evaluation:
     episodes: pd.DataFrame
-    actions: dict[str, np.ndarray]    # row, step, action
-    metrics: dict[str, float]         # keyed by the suite's name: suite/<name>/...
+    actions: dict[str, np.ndarray]  # row, step, action
+    metrics: dict[str, float]  # keyed by the suite's name: suite/<name>/...
     suite: Suite
 
 
 def summarize(episodes: pd.DataFrame, suite: str) -> dict[str, float]:
     """Success rate overall and per level (levels without terrains are left out), means; keyed
     by the suite's name."""
-    metrics = {metric(suite, "success_rate"): float(episodes.solved.mean()),
-               metric(suite, "return_mean"): float(episodes["return"].mean()),
-               metric(suite, "forward_distance_mean"): float(episodes.forward_distance.mean()),
-               metric(suite, "finish_rate"): float(episodes.finished.mean())}
+    metrics = {
+        metric(suite, "success_rate"): float(episodes.solved.mean()),
+        metric(suite, "return_mean"): float(episodes["return"].mean()),
+        metric(suite, "forward_distance_mean"): float(episodes.forward_distance.mean()),
+        metric(suite, "finish_rate"): float(episodes.finished.mean()),
+    }
     for level in LEVELS:
         rows = episodes[episodes.level == level]
         if len(rows):
@@ -175,39 +221,63 @@ def evaluation_pool(workers: int) -> Iterator[Executor | None]:
     # cheap fork instead of ~5 s of imports per process.
     ctx.set_forkserver_preload([__name__])
     # Workers end with this process, however it ends (epoet.core.lifecycle).
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=end_with,
-                             initargs=(os.getpid(),)) as pool:
+    with ProcessPoolExecutor(
+        workers, mp_context=ctx, initializer=end_with, initargs=(os.getpid(),)
+    ) as pool:
         yield pool
 
 
-def evaluate(run: TrainedRun, suite: Suite, cfg: EvaluateConfig, pool: Executor | None,
-             progress: bool = True) -> Evaluation:
+def evaluate(
+    run: TrainedRun, suite: Suite, cfg: EvaluateConfig, pool: Executor | None, progress: bool = True
+) -> Evaluation:
     """Every terrain's episodes, in parallel over `pool`'s processes (None: in this process)."""
     agent_cfg = suite.course.rules(run.agent_config(cfg.agent))
     terrain_cfg = terrain_config_for(suite.terrains)
-    tasks = [Task(k, terrain, run.agent, agent_cfg, terrain_cfg,
-                  episode_seeds(cfg.seed, k, cfg.episodes), cfg.solve_score * run.score_scale,
-                  cfg.action_samples)
-             for k, terrain in enumerate(suite.terrains)]
+    tasks = [
+        Task(
+            k,
+            terrain,
+            run.agent,
+            agent_cfg,
+            terrain_cfg,
+            episode_seeds(cfg.seed, k, cfg.episodes),
+            cfg.solve_score * run.score_scale,
+            cfg.action_samples,
+        )
+        for k, terrain in enumerate(suite.terrains)
+    ]
     results: dict[int, tuple[list, list, list]] = {}
-    done: Iterable = (map(run_task, tasks) if pool is None else
-                      (f.result() for f in as_completed([pool.submit(run_task, t)
-                                                         for t in tasks])))
-    with tqdm(total=len(tasks) * cfg.episodes, unit="episode", file=sys.stdout,
-              desc=f"evaluate {run.label}", disable=not progress) as bar:
+    done: Iterable = (
+        map(run_task, tasks)
+        if pool is None
+        else (f.result() for f in as_completed([pool.submit(run_task, t) for t in tasks]))
+    )
+    with tqdm(
+        total=len(tasks) * cfg.episodes,
+        unit="episode",
+        file=sys.stdout,
+        desc=f"evaluate {run.label}",
+        disable=not progress,
+    ) as bar:
         for index, rows, samples, broken in done:
             results[index] = (rows, samples, broken)
             bar.update(len(rows))
     broken = [note for k in sorted(results) for note in results[k][2]]
     if broken:  # one line, however many episodes
-        print(f"warning: {run.label} acted non-finite (NaN or inf) in {len(broken)} episodes, "
-              f"each recorded as failed (first: {broken[0]})", file=sys.stderr, flush=True)
+        print(
+            f"warning: {run.label} acted non-finite (NaN or inf) in {len(broken)} episodes, "
+            f"each recorded as failed (first: {broken[0]})",
+            file=sys.stderr,
+            flush=True,
+        )
     rows = [row for k in sorted(results) for row in results[k][0]]
     samples = [s for k in sorted(results) for s in results[k][1]]
     episodes = pd.DataFrame(rows, columns=COLUMNS)
-    actions = {"row": np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)]),
-               "step": np.concatenate([np.arange(len(s)) for s in samples]),
-               "action": np.concatenate(samples).astype(np.float32)}
+    actions = {
+        "row": np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)]),
+        "step": np.concatenate([np.arange(len(s)) for s in samples]),
+        "action": np.concatenate(samples).astype(np.float32),
+    }
     return Evaluation(episodes, actions, summarize(episodes, suite.name), suite)
 
 
@@ -232,8 +302,9 @@ def results_folder(cfg: EvaluateConfig, run: TrainedRun, suite: Suite) -> Path:
     return Path(RESULTS) / label / suite.name
 
 
-def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | None = None
-                 ) -> tuple[Evaluation, Path, TrainedRun]:
+def evaluate_run(
+    cfg: EvaluateConfig, progress: bool = True, pool: Executor | None = None
+) -> tuple[Evaluation, Path, TrainedRun]:
     """Resolve, check, evaluate, write and log: the whole command, for `make paper` too;
     returns the evaluation, its results folder and the agent's run. Episodes run on `pool`
     (`evaluation_pool`), or on a pool of `cfg.processes` opened for this evaluation."""
@@ -243,50 +314,80 @@ def evaluate_run(cfg: EvaluateConfig, progress: bool = True, pool: Executor | No
     folder = results_folder(cfg, run, suite)
     workers = cfg.processes or default_workers()  # `pool`'s, when given (one config made both)
     rules = suite.course.rules(run.agent_config(cfg.agent))
-    print(f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
-          f"episodes of suite {suite.name} ({suite.folder}), {workers} processes; course "
-          f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
-          flush=True)
+    print(
+        f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
+        f"episodes of suite {suite.name} ({suite.folder}), {workers} processes; course "
+        f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
+        flush=True,
+    )
     scale = suite.course.scale(run.agent_config(cfg.agent))
     with nullcontext(pool) if pool is not None else evaluation_pool(workers) as pool:
         result = evaluate(run, suite, cfg, pool, progress)
-    info = {"label": run.label, "run_id": run.run_id, "algo": run.algo, "seed": run.seed,
-            "suite_name": suite.name, "suite": str(suite.folder),
-            "suite_fingerprint": suite.fingerprint,
-            "course_scale": scale, "episodes_per_terrain": cfg.episodes, "eval_seed": cfg.seed}
+    info = {
+        "label": run.label,
+        "run_id": run.run_id,
+        "algo": run.algo,
+        "seed": run.seed,
+        "suite_name": suite.name,
+        "suite": str(suite.folder),
+        "suite_fingerprint": suite.fingerprint,
+        "course_scale": scale,
+        "episodes_per_terrain": cfg.episodes,
+        "eval_seed": cfg.seed,
+    }
     paths = write_results(result, folder, info)
     if run.stored is not None:
-        run.stored.log_results(result.metrics,
-                               tags={tag(SUITE_TAG, suite.name): suite.fingerprint,
-                                     tag(SCALE_TAG, suite.name): f"{scale:g}",
-                                     tag(EPISODES_TAG, suite.name): str(cfg.episodes)},
-                               artifacts={path: artifacts(suite.name) for path in paths.values()})
+        run.stored.log_results(
+            result.metrics,
+            tags={
+                tag(SUITE_TAG, suite.name): suite.fingerprint,
+                tag(SCALE_TAG, suite.name): f"{scale:g}",
+                tag(EPISODES_TAG, suite.name): str(cfg.episodes),
+            },
+            artifacts={path: artifacts(suite.name) for path in paths.values()},
+        )
     return result, folder, run
 
 
 def main(argv: list[str] | None = None) -> None:
     """CLI: bad input (config, run, suite, store) ends in one line and exit code 2."""
     try:
-        cfg: EvaluateConfig = validate(compose(sys.argv[1:] if argv is None else argv,
-                                               config_name="evaluate"))
+        cfg: EvaluateConfig = validate(
+            compose(sys.argv[1:] if argv is None else argv, config_name="evaluate")
+        )
         result, folder, run = evaluate_run(cfg)
-    except (ConfigError, AgentError, SuiteError, TrackingError, OSError, HydraException,
-            OmegaConfBaseException) as err:
+    except (
+        ConfigError,
+        AgentError,
+        SuiteError,
+        TrackingError,
+        OSError,
+        HydraException,
+        OmegaConfBaseException,
+    ) as err:
         fail(err)
     m, suite = result.metrics, result.suite
-    levels = ", ".join(f"{level} {m[key]:.0%}" for level in LEVELS
-                       if (key := metric(suite.name, f"success_rate_{level}")) in m)
-    print(f"suite {suite.name}: success rate {m[metric(suite.name, 'success_rate')]:.1%} "
-          f"({levels}); mean return {m[metric(suite.name, 'return_mean')]:.1f}; mean forward "
-          f"distance {m[metric(suite.name, 'forward_distance_mean')]:.2f} m")
+    levels = ", ".join(
+        f"{level} {m[key]:.0%}"
+        for level in LEVELS
+        if (key := metric(suite.name, f"success_rate_{level}")) in m
+    )
+    print(
+        f"suite {suite.name}: success rate {m[metric(suite.name, 'success_rate')]:.1%} "
+        f"({levels}); mean return {m[metric(suite.name, 'return_mean')]:.1f}; mean forward "
+        f"distance {m[metric(suite.name, 'forward_distance_mean')]:.2f} m"
+    )
     print(f"  results:  {folder}/ (episodes.csv, actions.npz, summary.json)")
     if run.stored is not None:
         print(f"  logged to MLflow run {run.run_id} under {artifacts(suite.name)}/")
         print(f"  runs:     {run.stored.ui_hint()}")
-    where = ("" if suite.name == SHIPPED_NAME else
-             f" suite={suite_argument(suite.name, suite.folder)}")
-    print(f"  render:   python -m epoet.eval.render run={cfg.run} "
-          f"terrain={example_terrain(suite=suite)}{where}")
+    where = (
+        "" if suite.name == SHIPPED_NAME else f" suite={suite_argument(suite.name, suite.folder)}"
+    )
+    print(
+        f"  render:   python -m epoet.eval.render run={cfg.run} "
+        f"terrain={example_terrain(suite=suite)}{where}"
+    )
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ iterations 0, 25, 50, ... so S grows by the schedule) and each terrain's npz in 
 terrain=bowl there is nothing to mutate: the panels are fresh bowls along the same schedule.
 Bad values end with one line on stderr and exit status 2.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,8 +16,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
-from epoet.core.cli import fail
 from epoet.config import CONF_DIR, GalleryConfig, run_hydra_app, validate
+from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
@@ -32,8 +33,9 @@ def chain(cfg: GalleryConfig) -> list[Terrain]:
     terrains = [make_terrain(cfg.terrain, seeds[0], iteration=0)]
     for k in range(1, cfg.n):
         if cfg.terrain.kind == "cppn":
-            terrains.append(mutate_terrain(terrains[-1], cfg.terrain, seeds[k],
-                                           iteration=k * ITERATION_STEP))
+            terrains.append(
+                mutate_terrain(terrains[-1], cfg.terrain, seeds[k], iteration=k * ITERATION_STEP)
+            )
         else:
             terrains.append(make_terrain(cfg.terrain, seeds[k], iteration=k * ITERATION_STEP))
     return terrains

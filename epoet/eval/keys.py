@@ -16,14 +16,15 @@ end-of-run evaluation was on it).
 
 No heavy imports: the sweep callback reads these names too.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-RESULTS = "evaluation"    # the artifact folder, and the default results folder name
+RESULTS = "evaluation"  # the artifact folder, and the default results folder name
 SHIPPED_NAME = "shipped"  # the shipped suite's name (epoet/suite/)
-PAPER_NAME = "paper"      # the paper's suite (epoet/reference/suite/)
+PAPER_NAME = "paper"  # the paper's suite (epoet/reference/suite/)
 SUITE_TAG = "eval_suite"
 SCALE_TAG = "eval_course_scale"
 EPISODES_TAG = "eval_episodes"
@@ -48,7 +49,7 @@ def artifacts(suite: str) -> str:
 class Logged:
     """A run's evaluation on one suite, as its tags record it."""
 
-    artifacts: str        # the folder holding episodes.csv, actions.npz, summary.json
+    artifacts: str  # the folder holding episodes.csv, actions.npz, summary.json
     course_scale: str
 
 
@@ -58,8 +59,7 @@ def suite_argument(suite: str, folder: object) -> str:
     return suite if suite in (SHIPPED_NAME, PAPER_NAME) else str(folder)
 
 
-def logged_evaluation(tags: Mapping[str, str], suite: str, fingerprint: str
-                      ) -> Logged | None:
+def logged_evaluation(tags: Mapping[str, str], suite: str, fingerprint: str) -> Logged | None:
     """The run's evaluation on the suite named `suite` with this fingerprint; None without one
     (none under that name, or one of other contents: another folder of the same name)."""
     if tags.get(tag(SUITE_TAG, suite)) == fingerprint:

@@ -23,6 +23,7 @@ imageio-ffmpeg).
 Bad input (config, run, terrain, suite, store, a missing GL backend or video writer) ends in
 one line on stderr and exit code 2, before the episode starts.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -43,19 +44,21 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.eval.agents import AgentError, TrainedRun, resolve_run
-from epoet.core.cli import fail
 from epoet.config import RenderConfig, compose, validate
+from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
+from epoet.eval.agents import AgentError, TrainedRun, resolve_run
 from epoet.eval.film import Film, caption_text
 from epoet.terrain import Terrain, TerrainFileError
 from epoet.tracking import TrackingError
 
-VIDEOS = "videos"   # the default output folder, and the artifact folder in the MLflow run
+VIDEOS = "videos"  # the default output folder, and the artifact folder in the MLflow run
 NO_GL = "MuJoCo cannot render offscreen"
-GL_HELP = ("for CPU rendering install Mesa's EGL, `sudo apt-get install libegl1 libegl-mesa0 "
-           "libgl1-mesa-dri` (MUJOCO_GL=egl), or OSMesa, `sudo apt-get install libosmesa6` "
-           "with MUJOCO_GL=osmesa")
+GL_HELP = (
+    "for CPU rendering install Mesa's EGL, `sudo apt-get install libegl1 libegl-mesa0 "
+    "libgl1-mesa-dri` (MUJOCO_GL=egl), or OSMesa, `sudo apt-get install libosmesa6` "
+    "with MUJOCO_GL=osmesa"
+)
 
 
 class RenderError(RuntimeError):
@@ -74,8 +77,9 @@ def parse_args(argv: list[str]) -> RenderConfig:
         raw.terrain = terrains[-1]
     cfg: RenderConfig = validate(raw)
     if cfg.width % 2 or cfg.height % 2:  # H.264's 4:2:0 chroma halves both sides
-        raise ConfigError(f"width and height must be even for an mp4, got {cfg.width} x "
-                          f"{cfg.height}.")
+        raise ConfigError(
+            f"width and height must be even for an mp4, got {cfg.width} x {cfg.height}."
+        )
     return cfg
 
 
@@ -84,10 +88,12 @@ def require_imageio() -> ModuleType:
     try:
         import imageio.v2 as imageio
         import imageio_ffmpeg
+
         imageio_ffmpeg.get_ffmpeg_exe()  # the wheel ships ffmpeg; fails if it is missing
     except (ImportError, RuntimeError) as err:
-        raise RenderError("writing mp4 needs imageio and imageio-ffmpeg: "
-                          "pip install 'epoet[video]'") from err
+        raise RenderError(
+            "writing mp4 needs imageio and imageio-ffmpeg: pip install 'epoet[video]'"
+        ) from err
     return imageio
 
 
@@ -102,6 +108,7 @@ def open_gl() -> str:
     backend = os.environ["MUJOCO_GL"] = os.environ.get("MUJOCO_GL") or "egl"
     try:
         import mujoco
+
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # glfw warns, then the Renderer fails: one line
             mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16).close()
@@ -116,6 +123,7 @@ def load_terrain(spec: str, suite: str | None) -> tuple[Any, str, Any]:
     if spec.endswith(".npz") or Path(spec).is_file():
         return Terrain.load(spec), Path(spec).stem, None
     from epoet.eval.suite import load_suite  # imports mujoco: after open_gl
+
     loaded = load_suite(suite)
     return loaded.by_name(spec), spec, loaded.course
 
@@ -140,8 +148,14 @@ def video_writer(path: Path, fps: float, imageio: ModuleType) -> Iterator[Any]:
     os.close(fd)
     try:
         # macro_block_size=2 keeps the frame size (the default 16 would resize e.g. 100 x 60).
-        with imageio.get_writer(tmp, format="FFMPEG", fps=fps, codec="libx264",
-                                macro_block_size=2, ffmpeg_log_level="error") as writer:
+        with imageio.get_writer(
+            tmp,
+            format="FFMPEG",
+            fps=fps,
+            codec="libx264",
+            macro_block_size=2,
+            ffmpeg_log_level="error",
+        ) as writer:
             yield writer
         os.replace(tmp, path)
     except BaseException:
@@ -158,16 +172,19 @@ class Video:
     fps: float
     episode_return: float
     finished: bool
-    render_fps: float    # frames simulated, rendered and encoded per second of wall time
+    render_fps: float  # frames simulated, rendered and encoded per second of wall time
 
     def summary(self) -> str:
-        return (f"{self.frames} frames ({self.frames / self.fps:.1f} s at {self.fps:g} fps, "
-                f"rendered at {self.render_fps:.1f} frames/s), return "
-                f"{self.episode_return:.1f}, finished {self.finished}: {self.path}")
+        return (
+            f"{self.frames} frames ({self.frames / self.fps:.1f} s at {self.fps:g} fps, "
+            f"rendered at {self.render_fps:.1f} frames/s), return "
+            f"{self.episode_return:.1f}, finished {self.finished}: {self.path}"
+        )
 
 
-def record(cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str, course: Any,
-           imageio: ModuleType) -> Video:
+def record(
+    cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str, course: Any, imageio: ModuleType
+) -> Video:
     """One episode of the run's agent on the terrain (on `course`, as evaluation runs it, when
     it is a suite terrain), every frame (captioned, see `Film`) into the mp4."""
     from epoet.envs.hexapod_env import HexapodEnv  # imports mujoco: after open_gl
@@ -192,20 +209,25 @@ def record(cfg: RenderConfig, run: TrainedRun, terrain: Any, name: str, course: 
             film = Film(env, cfg.width, cfg.height)  # after reset: the terrain is in
             start_x, total, step, done = info["x"], 0.0, 0, False
             writer.append_data(film.frame(caption_text(run.label, where, 0, steps, 0.0, 0.0)))
-            with tqdm(total=steps, unit="step", file=sys.stdout,
-                      desc=f"{run.label} on {name}") as bar:
+            with tqdm(
+                total=steps, unit="step", file=sys.stdout, desc=f"{run.label} on {name}"
+            ) as bar:
                 while not done:
                     obs, reward, terminated, truncated, info = env.step(policy(obs))
                     total, step, done = total + reward, step + 1, terminated or truncated
-                    writer.append_data(film.frame(caption_text(
-                        run.label, where, step, steps, info["x"] - start_x, total)))
+                    writer.append_data(
+                        film.frame(
+                            caption_text(run.label, where, step, steps, info["x"] - start_x, total)
+                        )
+                    )
                     bar.update()
     finally:
         if film is not None:
             film.close()
         env.close()
-    return Video(path, step + 1, fps, total, info["finished"],
-                 (step + 1) / (time.perf_counter() - start))
+    return Video(
+        path, step + 1, fps, total, info["finished"], (step + 1) / (time.perf_counter() - start)
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -216,12 +238,19 @@ def main(argv: list[str] | None = None) -> None:
         assert cfg.run is not None and cfg.terrain is not None  # required: RenderConfig checks
         run = resolve_run(cfg.run, cfg.tracking.uri)  # needs no mujoco: checked before GL
         open_gl()
-    except (ConfigError, RenderError, AgentError, HydraException, OmegaConfBaseException,
-            OSError) as err:
+    except (
+        ConfigError,
+        RenderError,
+        AgentError,
+        HydraException,
+        OmegaConfBaseException,
+        OSError,
+    ) as err:
         fail(err)
     # Imported only now, as in `record`: they import mujoco.
     from epoet.envs.model import TerrainMismatchError
     from epoet.eval.suite import SuiteError
+
     try:
         terrain, name, course = load_terrain(cfg.terrain, cfg.suite)
         video = record(cfg, run, terrain, name, course, imageio)
@@ -230,8 +259,14 @@ def main(argv: list[str] | None = None) -> None:
             run.stored.log_results({}, artifacts={video.path: VIDEOS})
             print(f"  logged to MLflow run {run.run_id} under {VIDEOS}/")
             print(f"  runs:     {run.stored.ui_hint()}")
-    except (SuiteError, TerrainFileError, TerrainMismatchError, TrackingError, AgentError,
-            OSError) as err:  # AgentError: the policy file changed since resolve_run checked it
+    except (
+        SuiteError,
+        TerrainFileError,
+        TerrainMismatchError,
+        TrackingError,
+        AgentError,
+        OSError,
+    ) as err:  # AgentError: the policy file changed since resolve_run checked it
         fail(err)
     except KeyboardInterrupt:
         print("interrupted (an unfinished video is removed)", file=sys.stderr)

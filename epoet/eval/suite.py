@@ -30,6 +30,7 @@ Suite folder format (any folder in this format can be evaluated, `suite=<folder>
 A suite's NAME keys its evaluations in a run (`epoet.eval.keys`): "shipped" (epoet/suite/),
 "paper" (epoet/reference/suite/), the two `SUITES`, or another folder's (`suite_name`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,25 +40,24 @@ import json
 import math
 import pickle
 import re
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 import hydra
+import numpy as np
 from omegaconf import DictConfig
 
-from epoet.core.cli import fail
 from epoet.config import CONF_DIR, SuiteConfig, load, run_hydra_app, validate
+from epoet.core.cli import fail
+from epoet.core.files import atomic_write
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
-from epoet.core.files import atomic_write
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
+from epoet.terrain.config import TerrainConfig
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain
@@ -66,9 +66,9 @@ from epoet.terrain.terrain import Terrain
 SUITE_FORMAT = "epoet-suite/2"
 SHIPPED = Path(__file__).resolve().parent.parent / "suite"
 PAPER = Path(__file__).resolve().parent.parent / "reference" / "suite"
-SUITES = {SHIPPED_NAME: SHIPPED, PAPER_NAME: PAPER}   # the named suites
+SUITES = {SHIPPED_NAME: SHIPPED, PAPER_NAME: PAPER}  # the named suites
 LEVELS = ("easy", "medium", "hard", "extreme")
-LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)   # m^2 of patch variance between consecutive levels
+LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)  # m^2 of patch variance between consecutive levels
 _QUANT = 65535
 
 
@@ -90,8 +90,7 @@ class Course:
 
     @classmethod
     def of(cls, agent: AgentConfig, episode_ratio: float) -> Course:
-        return cls(agent.start_x, agent.finish_x, FOOTPRINT, agent.max_episode_steps,
-                   episode_ratio)
+        return cls(agent.start_x, agent.finish_x, FOOTPRINT, agent.max_episode_steps, episode_ratio)
 
     def scale(self, agent: AgentConfig) -> float:
         """The course's share an agent trained on shorter episodes walks (1 at full length)."""
@@ -105,8 +104,11 @@ class Course:
         the episode walks a fifth of the course in a fifth of the time."""
         length = (self.finish_x - self.start_x) * self.scale(agent)
         return dataclasses.replace(
-            agent, start_x=self.start_x, finish_x=self.start_x + length,
-            max_episode_steps=max(1, round(self.episode_ratio * agent.max_episode_steps)))
+            agent,
+            start_x=self.start_x,
+            finish_x=self.start_x + length,
+            max_episode_steps=max(1, round(self.episode_ratio * agent.max_episode_steps)),
+        )
 
     def roughness(self, heightmap: np.ndarray, max_height: float, size: float) -> float:
         """Mean 5 x 5 patch variance of the heights (metres) over the course's cells."""
@@ -121,9 +123,12 @@ def terrain_config_for(terrains: Sequence[Any]) -> TerrainConfig:
     """The CPPN terrain config with these terrains' grid and extent and room for their tallest
     S: the env's heightfield is compiled from it, so any suite or terrain file fits."""
     base = load(["algo=epoet"]).terrain
-    return dataclasses.replace(base, grid=terrains[0].heightmap.shape[0], size=terrains[0].size,
-                               max_height_limit=max(base.max_height_limit,
-                                                    *(t.max_height for t in terrains)))
+    return dataclasses.replace(
+        base,
+        grid=terrains[0].heightmap.shape[0],
+        size=terrains[0].size,
+        max_height_limit=max(base.max_height_limit, *(t.max_height for t in terrains)),
+    )
 
 
 def level_of(roughness: float) -> str:
@@ -136,8 +141,11 @@ def _miss(roughness: float, level: str) -> float:
     lo = LEVEL_BOUNDS[k - 1] if k > 0 else 0.0
     hi = LEVEL_BOUNDS[k] if k < len(LEVEL_BOUNDS) else math.inf
     r = max(roughness, 1e-12)
-    return max(0.0, math.log10(lo) - math.log10(r) if lo > 0 else 0.0,
-               math.log10(r) - math.log10(hi) if hi < math.inf else 0.0)
+    return max(
+        0.0,
+        math.log10(lo) - math.log10(r) if lo > 0 else 0.0,
+        math.log10(r) - math.log10(hi) if hi < math.inf else 0.0,
+    )
 
 
 @dataclass(frozen=True)
@@ -171,14 +179,16 @@ class Suite:
     folder: Path
     terrains: list[SuiteTerrain]
     course: Course
-    name: str                       # the key of its evaluations in a run (module docstring)
+    name: str  # the key of its evaluations in a run (module docstring)
 
     def by_name(self, name: str) -> SuiteTerrain:
         for terrain in self.terrains:
             if terrain.name == name:
                 return terrain
-        raise SuiteError(f"suite {self.folder} has no terrain {name!r} (it has "
-                         f"{self.terrains[0].name} .. {self.terrains[-1].name}).")
+        raise SuiteError(
+            f"suite {self.folder} has no terrain {name!r} (it has "
+            f"{self.terrains[0].name} .. {self.terrains[-1].name})."
+        )
 
     @functools.cached_property
     def fingerprint(self) -> str:
@@ -204,6 +214,7 @@ def _dequantize(q: np.ndarray) -> np.ndarray:
 
 # --- generation -----------------------------------------------------------------------------
 
+
 def _at_height(cfg: TerrainConfig, max_height: float) -> TerrainConfig:
     """The terrain config with S fixed at `max_height` (the bowl part's level depends on S)."""
     return dataclasses.replace(cfg, max_height=max_height, max_height_step=0.0)
@@ -222,24 +233,40 @@ def generate(cfg: SuiteConfig, progress: bool = False) -> tuple[list[Terrain], l
         target = LEVELS[min(rnd, len(LEVELS) - 1)]
         tcfg = _at_height(cfg.terrain, height)
         for lineage in range(cfg.children):
-            tries = np.random.SeedSequence(cfg.seed, spawn_key=(rnd, lineage)).generate_state(
-                cfg.max_tries).tolist()
+            tries = (
+                np.random.SeedSequence(cfg.seed, spawn_key=(rnd, lineage))
+                .generate_state(cfg.max_tries)
+                .tolist()
+            )
             child, rough = _search(parents[lineage], tcfg, course, target, tries)
             parents[lineage] = child
             name = f"r{rnd}l{lineage}"
             terrains.append(child)
-            entries.append({"name": name, "level": level_of(rough), "roughness": rough,
-                            "max_height": height, "round": rnd, "lineage": lineage,
-                            "target": target, "seed": child.seed,
-                            "generation": child.generation})
+            entries.append(
+                {
+                    "name": name,
+                    "level": level_of(rough),
+                    "roughness": rough,
+                    "max_height": height,
+                    "round": rnd,
+                    "lineage": lineage,
+                    "target": target,
+                    "seed": child.seed,
+                    "generation": child.generation,
+                }
+            )
             if progress:
-                print(f"  {name}: S={height:.2f} m roughness={rough:.5f} -> {level_of(rough)} "
-                      f"(aimed at {target})", flush=True)
+                print(
+                    f"  {name}: S={height:.2f} m roughness={rough:.5f} -> {level_of(rough)} "
+                    f"(aimed at {target})",
+                    flush=True,
+                )
     return terrains, entries
 
 
-def _search(parent: Terrain, cfg: TerrainConfig, course: Course, target: str,
-            seeds: list[int]) -> tuple[Terrain, float]:
+def _search(
+    parent: Terrain, cfg: TerrainConfig, course: Course, target: str, seeds: list[int]
+) -> tuple[Terrain, float]:
     """Mutate until a child lands in `target`; otherwise climb towards it from the closest."""
     best: tuple[float, Terrain, float] | None = None
     current = parent
@@ -257,25 +284,38 @@ def _search(parent: Terrain, cfg: TerrainConfig, course: Course, target: str,
         if miss == 0.0:
             break
     if best is None:
-        raise CppnMutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} "
-                                f"tries.")
+        raise CppnMutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} tries.")
     return best[1], best[2]
 
 
-def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict],
-                course: Course) -> None:
+def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict], course: Course) -> None:
     """Write the three files, each atomically (a failed write leaves the old file)."""
     folder.mkdir(parents=True, exist_ok=True)
     size = terrains[0].size
-    index = {"format": SUITE_FORMAT, "size": size, "grid": terrains[0].grid,
-             "course": dataclasses.asdict(course), "levels": dict(zip(LEVELS[1:], LEVEL_BOUNDS)),
-             "terrains": entries}
+    index = {
+        "format": SUITE_FORMAT,
+        "size": size,
+        "grid": terrains[0].grid,
+        "course": dataclasses.asdict(course),
+        "levels": dict(zip(LEVELS[1:], LEVEL_BOUNDS)),
+        "terrains": entries,
+    }
     with atomic_write(folder / "heights.npz") as f:
-        np.savez_compressed(f, **{e["name"]: quantize(t.heightmap)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
-                                  for t, e in zip(terrains, entries)})
+        np.savez_compressed(
+            f,
+            **{
+                e["name"]: quantize(t.heightmap)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
+                for t, e in zip(terrains, entries)
+            },
+        )
     with atomic_write(folder / "genomes.npz") as f:
-        np.savez_compressed(f, **{e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
-                                  for t, e in zip(terrains, entries)})
+        np.savez_compressed(
+            f,
+            **{
+                e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
+                for t, e in zip(terrains, entries)
+            },
+        )
     with atomic_write(folder / "suite.json") as f:
         f.write((json.dumps(index, indent=1) + "\n").encode())
 
@@ -285,7 +325,7 @@ def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> l
     bit; a suite made with fewer rounds is compared with the folder's first rounds)."""
     load_suite(folder)  # a malformed folder fails here, with its own message
     index = json.loads((folder / "suite.json").read_text())
-    stored = index["terrains"][:len(entries)]
+    stored = index["terrains"][: len(entries)]
     if [e["name"] for e in stored] != [e["name"] for e in entries]:
         return [f"terrain names differ: {[e['name'] for e in stored]}"]
     found = []
@@ -303,10 +343,14 @@ def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> l
 
 # --- loading --------------------------------------------------------------------------------
 
+
 def example_terrain(level: str = "medium", suite: Suite | None = None) -> str:
     """A terrain of `level` (else the first) of `suite` (None: the shipped one), for hints."""
-    entries = ([{"name": t.name, "level": t.level} for t in suite.terrains] if suite else
-               json.loads((SHIPPED / "suite.json").read_text())["terrains"])
+    entries = (
+        [{"name": t.name, "level": t.level} for t in suite.terrains]
+        if suite
+        else json.loads((SHIPPED / "suite.json").read_text())["terrains"]
+    )
     return next((e["name"] for e in entries if e.get("level") == level), entries[0]["name"])
 
 
@@ -330,8 +374,10 @@ def load_suite(folder: str | Path | None = None) -> Suite:
     try:
         index = json.loads((folder / "suite.json").read_text())
         if index.get("format") != SUITE_FORMAT:
-            raise ValueError(f"format is {index.get('format')!r}, not {SUITE_FORMAT!r} "
-                             "(regenerate it with python -m epoet.eval.suite out=<folder>)")
+            raise ValueError(
+                f"format is {index.get('format')!r}, not {SUITE_FORMAT!r} "
+                "(regenerate it with python -m epoet.eval.suite out=<folder>)"
+            )
         size, grid = float(index["size"]), int(index["grid"])
         course = Course(**index["course"])
         terrains = []
@@ -342,8 +388,9 @@ def load_suite(folder: str | Path | None = None) -> Suite:
                     raise ValueError(f"heights.npz has no array {name!r}")
                 hm = _dequantize(heights[name])
                 if hm.shape != (grid, grid) or not (hm.min() >= 0.0 and hm.max() <= 1.0):
-                    raise ValueError(f"{name} must be a ({grid}, {grid}) array in [0, 1], got "
-                                     f"shape {hm.shape}")
+                    raise ValueError(
+                        f"{name} must be a ({grid}, {grid}) array in [0, 1], got shape {hm.shape}"
+                    )
                 if not height >= 0.0:
                     raise ValueError(f"{name} has max_height {height}")
                 hm.setflags(write=False)
@@ -351,8 +398,11 @@ def load_suite(folder: str | Path | None = None) -> Suite:
                 level = entry.get("level") or level_of(rough)
                 if level not in LEVELS:
                     raise ValueError(f"{name} has level {level!r}, not one of {list(LEVELS)}")
-                info = {k: v for k, v in entry.items()
-                        if k not in ("name", "level", "roughness", "max_height")}
+                info = {
+                    k: v
+                    for k, v in entry.items()
+                    if k not in ("name", "level", "roughness", "max_height")
+                }
                 terrains.append(SuiteTerrain(name, level, rough, hm, height, size, info))
     except Exception as err:  # json, zip, missing keys, wrong shapes
         raise SuiteError(f"suite {folder} is malformed: {str(err).splitlines()[0]}.") from err
@@ -365,13 +415,16 @@ def load_suite(folder: str | Path | None = None) -> Suite:
 
 # --- command --------------------------------------------------------------------------------
 
+
 @hydra.main(config_path=str(CONF_DIR), config_name="suite", version_base="1.3")
 def _app(raw: DictConfig) -> None:
     try:
         cfg: SuiteConfig = validate(raw)
         folder = SHIPPED if cfg.out is None else Path(cfg.out)
-        print(f"generating {len(cfg.max_heights)} rounds x {cfg.children} terrains "
-              f"(seed {cfg.seed})", flush=True)
+        print(
+            f"generating {len(cfg.max_heights)} rounds x {cfg.children} terrains (seed {cfg.seed})",
+            flush=True,
+        )
         terrains, entries = generate(cfg, progress=True)
         if cfg.check:
             found = differences(folder, terrains, entries)
@@ -379,14 +432,19 @@ def _app(raw: DictConfig) -> None:
             if stored != len(entries):
                 found.append(f"{stored} terrains stored, {len(entries)} generated")
             if found:
-                fail(SuiteError(f"suite {folder} differs from the regenerated one: "
-                                f"{'; '.join(found[:5])}."))
+                fail(
+                    SuiteError(
+                        f"suite {folder} differs from the regenerated one: {'; '.join(found[:5])}."
+                    )
+                )
             print(f"suite {folder} matches the regenerated suite bit for bit")
             return
         write_suite(folder, terrains, entries, Course.of(cfg.agent, cfg.episode_ratio))
         counts = load_suite(folder).level_counts()
-        print(f"wrote {len(terrains)} terrains to {folder}/: "
-              + ", ".join(f"{n} {level}" for level, n in counts.items()))
+        print(
+            f"wrote {len(terrains)} terrains to {folder}/: "
+            + ", ".join(f"{n} {level}" for level, n in counts.items())
+        )
     except (ConfigError, CppnMutationError, SuiteError, OSError) as err:
         fail(err)
 

@@ -1,4 +1,5 @@
 """ePOET's settings (conf/algo/epoet.yaml)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -15,14 +16,14 @@ class PoetConfig:
 
     KEY: ClassVar[str] = "algo"
 
-    _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
+    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
     es: EsConfig
     iterations_before_transfer: int  # the transfer interval
-    adjust_interval: int             # reproduction every adjust_interval transfer intervals
-    later_adjust_interval: int       # after the first reproduction, every this many
-    transfer_bar_window: int         # a transfer must beat the best of this many evaluations
-    proposal_step: str               # sgd | adam: the fine-tuning step of transfer and admission
+    adjust_interval: int  # reproduction every adjust_interval transfer intervals
+    later_adjust_interval: int  # after the first reproduction, every this many
+    transfer_bar_window: int  # a transfer must beat the best of this many evaluations
+    proposal_step: str  # sgd | adam: the fine-tuning step of transfer and admission
     max_num_envs: int
     num_children: int
     max_admitted: int
@@ -32,19 +33,33 @@ class PoetConfig:
     novelty_k: int
 
     def __post_init__(self) -> None:
-        positive(self, "iterations_before_transfer", "adjust_interval", "later_adjust_interval",
-                 "max_num_envs", "num_children", "max_admitted", "novelty_k",
-                 "transfer_bar_window")
-        check(self.proposal_step in ("sgd", "adam"),
-              f"algo.proposal_step must be 'sgd' or 'adam', got {self.proposal_step!r}.")
-        check(self.mc_lower < self.mc_upper,
-              f"algo.mc_lower ({self.mc_lower}) must be below algo.mc_upper ({self.mc_upper}).")
+        positive(
+            self,
+            "iterations_before_transfer",
+            "adjust_interval",
+            "later_adjust_interval",
+            "max_num_envs",
+            "num_children",
+            "max_admitted",
+            "novelty_k",
+            "transfer_bar_window",
+        )
+        check(
+            self.proposal_step in ("sgd", "adam"),
+            f"algo.proposal_step must be 'sgd' or 'adam', got {self.proposal_step!r}.",
+        )
+        check(
+            self.mc_lower < self.mc_upper,
+            f"algo.mc_lower ({self.mc_lower}) must be below algo.mc_upper ({self.mc_upper}).",
+        )
 
     def check_run(self, cfg: Any) -> None:
         """What ePOET needs of the run's other settings (`cfg`: the root Config)."""
-        check(cfg.terrain.kind == "cppn",
-              f"algo={self.name} evolves CPPN terrains, so it needs terrain=cppn "
-              f"(got terrain={cfg.terrain.kind}).")
+        check(
+            cfg.terrain.kind == "cppn",
+            f"algo={self.name} evolves CPPN terrains, so it needs terrain=cppn "
+            f"(got terrain={cfg.terrain.kind}).",
+        )
 
     def unused_keys(self) -> list[str]:
         """Settings of the run an ES run never reads: none."""

@@ -1,5 +1,6 @@
 """What each keyed seed of an ePOET run is for: with the ids after it, a key names one random
 stream, a function of the run seed alone (epoet.poet.service `Service.seeds`)."""
+
 from __future__ import annotations
 
 from enum import IntEnum
@@ -8,33 +9,33 @@ from enum import IntEnum
 class Key(IntEnum):
     """What a keyed seed is for; with the ids after it, it names one random stream."""
 
-    ROOT_GENOME = 0     # (0,)
-    ROOT_AGENT = 1      # (0,)
-    OPTIMISER = 2       # (env, iteration admitted): the pair's ES noise stream
-    BOWL = 3            # (env, iteration): the bowl part of an environment's terrain
-    ES_SPAWN = 4        # (env, iteration): starts of the ES episodes
-    EVAL = 5            # (env, iteration): starts of the evaluation episodes
-    TRANSFER = 6        # (target env, iteration, candidate + 1 or 0 for direct transfers)
+    ROOT_GENOME = 0  # (0,)
+    ROOT_AGENT = 1  # (0,)
+    OPTIMISER = 2  # (env, iteration admitted): the pair's ES noise stream
+    BOWL = 3  # (env, iteration): the bowl part of an environment's terrain
+    ES_SPAWN = 4  # (env, iteration): starts of the ES episodes
+    EVAL = 5  # (env, iteration): starts of the evaluation episodes
+    TRANSFER = 6  # (target env, iteration, candidate + 1 or 0 for direct transfers)
     PROPOSAL_NOISE = 7  # (target env, iteration, candidate)
     PROPOSAL_SPAWN = 8  # (target env, iteration, candidate)
-    PARENTS = 9         # (iteration,): which eligible parent each child slot mutates
-    CHILD_GENOME = 10   # (parent env, iteration, slot)
-    CHILD_BOWL = 11     # (iteration, slot)
-    MC = 12             # (iteration, slot)
-    PATA = 13           # (env, iteration) for existing environments
-    CHILD_PATA = 14     # (iteration, slot)
-    ADMIT = 15          # (iteration, slot, candidate + 1 or 0 for direct transfers)
-    ADMIT_NOISE = 16    # (iteration, slot, candidate)
-    ADMIT_SPAWN = 17    # (iteration, slot, candidate)
+    PARENTS = 9  # (iteration,): which eligible parent each child slot mutates
+    CHILD_GENOME = 10  # (parent env, iteration, slot)
+    CHILD_BOWL = 11  # (iteration, slot)
+    MC = 12  # (iteration, slot)
+    PATA = 13  # (env, iteration) for existing environments
+    CHILD_PATA = 14  # (iteration, slot)
+    ADMIT = 15  # (iteration, slot, candidate + 1 or 0 for direct transfers)
+    ADMIT_NOISE = 16  # (iteration, slot, candidate)
+    ADMIT_SPAWN = 17  # (iteration, slot, candidate)
     # ePOET-SAC (epoet_sac/loop.py)
-    SAC_ENV = 18        # (iteration,): which active environment Train_SAC uses
-    SAC = 19            # torch's stream: () initial weights, (iteration,) Train_SAC,
-                        # (iteration, 1 | 2) the transfer step's replay states | distillation
-    SAC_SPAWN = 20      # (iteration,): starts of SAC's own episodes
-    SAC_BOWL = 21       # (iteration,): the bowl of `sac_terrain=bowl`
-    JOIN = 22           # (iteration,) random mapping, (iteration, 0 | 1 | 2) distillation's
-                        # initial ES vector | replay states | shuffling
-    JOIN_EVAL = 23      # (iteration,): the mapped agent and the SAC actor on one terrain
-    CROSSOVER = 24      # (env, iteration): the coin flips of Algorithm 3
+    SAC_ENV = 18  # (iteration,): which active environment Train_SAC uses
+    SAC = 19  # torch's stream: () initial weights, (iteration,) Train_SAC,
+    # (iteration, 1 | 2) the transfer step's replay states | distillation
+    SAC_SPAWN = 20  # (iteration,): starts of SAC's own episodes
+    SAC_BOWL = 21  # (iteration,): the bowl of `sac_terrain=bowl`
+    JOIN = 22  # (iteration,) random mapping, (iteration, 0 | 1 | 2) distillation's
+    # initial ES vector | replay states | shuffling
+    JOIN_EVAL = 23  # (iteration,): the mapped agent and the SAC actor on one terrain
+    CROSSOVER = 24  # (env, iteration): the coin flips of Algorithm 3
     CROSSOVER_EVAL = 25  # (env, iteration): old and new agent on the same starts
-    PRETRAIN = 26       # (i, 0 | 1): the i-th pre-training Train_SAC's torch | spawn seed
+    PRETRAIN = 26  # (i, 0 | 1): the i-th pre-training Train_SAC's torch | spawn seed

@@ -13,6 +13,7 @@ The pool (pairs.py) holds the pairs; the service (service.py) gives every step i
 terrains and episodes, one call to the workers per step. A run of iterations, with checkpoints
 and the budget's end, is the runner's (runner.py `train_loop`).
 """
+
 from __future__ import annotations
 
 import time
@@ -43,16 +44,37 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports t
 class EPOET:
     """The pool of environment-agent pairs and the three steps that change it."""
 
-    def __init__(self, algo: PoetConfig, terrain: TerrainConfig, evaluator: Evaluator, *,
-                 seed: int, n_pairs: int, eval_episodes: int, score_scale: float,
-                 layer_sizes: tuple[int, ...]) -> None:
+    def __init__(
+        self,
+        algo: PoetConfig,
+        terrain: TerrainConfig,
+        evaluator: Evaluator,
+        *,
+        seed: int,
+        n_pairs: int,
+        eval_episodes: int,
+        score_scale: float,
+        layer_sizes: tuple[int, ...],
+    ) -> None:
         self.cfg = algo
-        self.service = Service(evaluator, terrain, algo.es, seed=seed, n_pairs=n_pairs,
-                               eval_episodes=eval_episodes, layer_sizes=layer_sizes)
-        self.pool = Pool(algo.max_num_envs,
-                         Thresholds(algo.mc_lower * score_scale, algo.mc_upper * score_scale,
-                                    algo.repro_threshold * score_scale),
-                         self.service.policy)
+        self.service = Service(
+            evaluator,
+            terrain,
+            algo.es,
+            seed=seed,
+            n_pairs=n_pairs,
+            eval_episodes=eval_episodes,
+            layer_sizes=layer_sizes,
+        )
+        self.pool = Pool(
+            algo.max_num_envs,
+            Thresholds(
+                algo.mc_lower * score_scale,
+                algo.mc_upper * score_scale,
+                algo.repro_threshold * score_scale,
+            ),
+            self.service.policy,
+        )
         self.layer_sizes = layer_sizes
         every = algo.iterations_before_transfer
         self.transfer_interval = every
@@ -63,19 +85,32 @@ class EPOET:
         self.elapsed = 0.0  # seconds of iterations, summed over resumes
         self.best_score = -np.inf  # the best `score` (best active pair's) of any iteration so far
         service = self.service
-        root = Environment(index=0, genome=new_genome(terrain.cppn,
-                                                      service.seed(Key.ROOT_GENOME, 0)),
-                           generation=0, parent=None, created_at=0)
-        self.pool.admit(root, service.optimiser_for(
-            root, init_params(service.seed(Key.ROOT_AGENT, 0), layer_sizes)))
+        root = Environment(
+            index=0,
+            genome=new_genome(terrain.cppn, service.seed(Key.ROOT_GENOME, 0)),
+            generation=0,
+            parent=None,
+            created_at=0,
+        )
+        self.pool.admit(
+            root,
+            service.optimiser_for(root, init_params(service.seed(Key.ROOT_AGENT, 0), layer_sizes)),
+        )
 
     @classmethod
     def from_config(cls, cfg: Config, evaluator: Evaluator) -> EPOET:
         """The `algo=epoet` loop of a run: the budget's population, evaluations and scale."""
         budget = cast("PoetBudgetConfig", cfg.budget)  # ePOET's YAML picks the ePOET family's
-        return cls(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
-                   eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                   layer_sizes=policy_sizes(cfg.algo.es.hidden))
+        return cls(
+            cfg.algo,
+            cfg.terrain,
+            evaluator,
+            seed=cfg.seed,
+            n_pairs=budget.n_pairs,
+            eval_episodes=budget.eval_episodes,
+            score_scale=budget.score_scale,
+            layer_sizes=policy_sizes(cfg.algo.es.hidden),
+        )
 
     # --- one iteration ----------------------------------------------------------------------
     def run_iteration(self) -> dict[str, float]:
@@ -92,8 +127,13 @@ class EPOET:
         if self.transfer_due(t):
             with timer("transfer"):
                 metrics["transfers"] = float(self.transfer(t))
-        return self.end_iteration(metrics, timer, start, annecs(self.pool.pairs),
-                                  best_by_lineage(self.pool.active, lambda p: p.env.generation))
+        return self.end_iteration(
+            metrics,
+            timer,
+            start,
+            annecs(self.pool.pairs),
+            best_by_lineage(self.pool.active, lambda p: p.env.generation),
+        )
 
     def reproduce_due(self, t: int) -> bool:
         """At the first interval, then every later interval (the reference: 75, then every 15;
@@ -116,21 +156,34 @@ class EPOET:
         standardizer = service.standardizer()
         if service.obs_norm is not None:
             record = max(record, self.cfg.es.obs_norm_episodes)
-        requests = [Request(service.terrain(pair.env, t),
-                            Mirrored.of(pair.theta, seeds, pair.es.sigma,
-                                        service.seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t),
-                                        standardizer),
-                            record=record)
-                    for pair, seeds in zip(active, noise)]
+        requests = [
+            Request(
+                service.terrain(pair.env, t),
+                Mirrored.of(
+                    pair.theta,
+                    seeds,
+                    pair.es.sigma,
+                    service.seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t),
+                    standardizer,
+                ),
+                record=record,
+            )
+            for pair, seeds in zip(active, noise)
+        ]
         metrics: dict[str, float] = {}
         results = service.run(requests)
         for pair, seeds, episodes in zip(active, noise, results):
             n = len(seeds)
             stats = pair.es.tell(seeds, episodes.returns[:n], episodes.returns[n:])
             prefix = f"pair{pair.env.index}"
-            metrics.update({f"{prefix}/return_mean": float(episodes.returns.mean()),
-                            f"{prefix}/return_max": float(episodes.returns.max()),
-                            f"{prefix}/lr": stats["lr"], f"{prefix}/sigma": stats["sigma"]})
+            metrics.update(
+                {
+                    f"{prefix}/return_mean": float(episodes.returns.mean()),
+                    f"{prefix}/return_max": float(episodes.returns.max()),
+                    f"{prefix}/lr": stats["lr"],
+                    f"{prefix}/sigma": stats["sigma"],
+                }
+            )
         if service.obs_norm is not None:  # the new statistics take effect from the evaluation on
             for episodes in results:
                 assert episodes.transitions is not None  # recorded while obs_norm is on
@@ -141,8 +194,14 @@ class EPOET:
     def evaluate_pairs(self, t: int) -> dict[str, float]:
         """Each active agent's score on its own environment this iteration."""
         service, active = self.service, self.pool.active
-        scores = service.scores([service.eval_request(service.terrain(p.env, t), p.theta[None],
-                                                      Key.EVAL, p.env.index, t) for p in active])
+        scores = service.scores(
+            [
+                service.eval_request(
+                    service.terrain(p.env, t), p.theta[None], Key.EVAL, p.env.index, t
+                )
+                for p in active
+            ]
+        )
         metrics: dict[str, float] = {}
         for pair, score in zip(active, scores):
             self.pool.record(pair, float(score[0]))
@@ -165,9 +224,14 @@ class EPOET:
     def start_iteration(self) -> tuple[float, int]:
         return time.perf_counter(), self.service.env_steps
 
-    def end_iteration(self, metrics: dict[str, float], timer: PhaseTimer,
-                      start: tuple[float, int], annecs: int, generations: dict[str, float]
-                      ) -> dict[str, float]:
+    def end_iteration(
+        self,
+        metrics: dict[str, float],
+        timer: PhaseTimer,
+        start: tuple[float, int],
+        annecs: int,
+        generations: dict[str, float],
+    ) -> dict[str, float]:
         """Close iteration `self.iteration`: add the run-level metrics to its own and move on."""
         elapsed = time.perf_counter() - start[0]
         self.elapsed += elapsed
@@ -175,19 +239,21 @@ class EPOET:
         self.best_score = max(self.best_score, score)
         metrics.update(timer.metrics())
         metrics.update(generations)
-        metrics.update({
-            "best_score": self.best_score,
-            "active_envs": float(len(self.pool.active)),
-            "archived_envs": float(len(self.pool.archived)),
-            "annecs": float(annecs),
-            "env_steps": float(self.service.env_steps),
-            "steps_per_second": (self.service.env_steps - start[1]) / elapsed,
-            "time/iteration": elapsed,
-            # The axes and the score every algorithm logs (the baselines: their evaluation
-            # return), so MLflow charts can put ePOET and the baselines side by side.
-            "elapsed": self.elapsed,
-            "score": score,
-        })
+        metrics.update(
+            {
+                "best_score": self.best_score,
+                "active_envs": float(len(self.pool.active)),
+                "archived_envs": float(len(self.pool.archived)),
+                "annecs": float(annecs),
+                "env_steps": float(self.service.env_steps),
+                "steps_per_second": (self.service.env_steps - start[1]) / elapsed,
+                "time/iteration": elapsed,
+                # The axes and the score every algorithm logs (the baselines: their evaluation
+                # return), so MLflow charts can put ePOET and the baselines side by side.
+                "elapsed": self.elapsed,
+                "score": score,
+            }
+        )
         self.iteration += 1
         return metrics
 
@@ -207,39 +273,65 @@ class EPOET:
                 final = self.service.policy(pair.theta)
                 best = pair.best_theta if pair.best_theta is not None else final
                 chosen = (best, pair.best_score) if choice == "best" else (final, pair.score)
-                np.savez(policies / f"{name}.npz", theta=chosen[0], score=chosen[1],
-                         choice=choice, best_theta=best, best_score=pair.best_score,
-                         final_theta=final, final_score=pair.score,
-                         layer_sizes=np.array(self.layer_sizes),
-                         status=status, generation=pair.env.generation,
-                         parent=-1 if pair.env.parent is None else pair.env.parent)
+                np.savez(
+                    policies / f"{name}.npz",
+                    theta=chosen[0],
+                    score=chosen[1],
+                    choice=choice,
+                    best_theta=best,
+                    best_score=pair.best_score,
+                    final_theta=final,
+                    final_score=pair.score,
+                    layer_sizes=np.array(self.layer_sizes),
+                    status=status,
+                    generation=pair.env.generation,
+                    parent=-1 if pair.env.parent is None else pair.env.parent,
+                )
         tracker.log_artifact(terrains, "terrains")
         tracker.log_artifact(policies, "policies")
 
     def state_dict(self) -> dict[str, Any]:
         def pair_state(p: Pair) -> dict[str, Any]:
-            return {"env": p.env, "es": p.es.state_dict(), "scores": list(p.scores),
-                    "best_score": p.best_score, "best_theta": p.best_theta}
+            return {
+                "env": p.env,
+                "es": p.es.state_dict(),
+                "scores": list(p.scores),
+                "best_score": p.best_score,
+                "best_theta": p.best_theta,
+            }
+
         obs_norm = self.service.obs_norm
-        return {"iteration": self.iteration, "next_index": self.pool.next_index,
-                "transfers": self.transfers, "env_steps": self.service.env_steps,
-                "elapsed": self.elapsed, "best_score": self.best_score,
-                "obs_norm": None if obs_norm is None else obs_norm.state_dict(),
-                "active": [pair_state(p) for p in self.pool.active],
-                "archived": [pair_state(p) for p in self.pool.archived]}
+        return {
+            "iteration": self.iteration,
+            "next_index": self.pool.next_index,
+            "transfers": self.transfers,
+            "env_steps": self.service.env_steps,
+            "elapsed": self.elapsed,
+            "best_score": self.best_score,
+            "obs_norm": None if obs_norm is None else obs_norm.state_dict(),
+            "active": [pair_state(p) for p in self.pool.active],
+            "archived": [pair_state(p) for p in self.pool.archived],
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         def restore(s: dict[str, Any]) -> Pair:
             es = self.service.new_es(s["es"]["theta"], 0)
             es.load_state_dict(s["es"])
-            return Pair(env=s["env"], es=es, scores=list(s["scores"]),
-                        best_score=s["best_score"], best_theta=s["best_theta"])
+            return Pair(
+                env=s["env"],
+                es=es,
+                scores=list(s["scores"]),
+                best_score=s["best_score"],
+                best_theta=s["best_theta"],
+            )
+
         self.iteration, self.transfers = state["iteration"], state["transfers"]
         self.elapsed = state["elapsed"]
         self.service.env_steps = state["env_steps"]
         # checkpoints older than the run-level best: the pairs' bests are the closest record
-        self.best_score = state.get("best_score", max(
-            s["best_score"] for s in state["active"] + state["archived"]))
+        self.best_score = state.get(
+            "best_score", max(s["best_score"] for s in state["active"] + state["archived"])
+        )
         if self.service.obs_norm is not None:
             self.service.obs_norm.load_state_dict(state["obs_norm"])
         self.pool.next_index = state["next_index"]

@@ -12,6 +12,7 @@ Two decisions differ from the reference code:
   ranking. With average ranks an all-tied environment is the zero vector.
 - A single agent (reference defect 6: 0/0) gets rank 0.0, the middle of the range.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,8 +26,10 @@ def pata_ec(scores: np.ndarray, mc_lower: float, mc_upper: float) -> np.ndarray:
     """
     scores = np.asarray(scores, dtype=np.float64)
     if scores.ndim not in (1, 2) or scores.shape[-1] == 0:
-        raise ValueError(f"scores must have shape (n_agents,) or (n_envs, n_agents) with "
-                         f"n_agents >= 1, got {scores.shape}.")
+        raise ValueError(
+            f"scores must have shape (n_agents,) or (n_envs, n_agents) with "
+            f"n_agents >= 1, got {scores.shape}."
+        )
     if np.isnan(scores).any():
         raise ValueError("PATA-EC scores contain NaN.")
     n_agents = scores.shape[-1]
@@ -41,8 +44,10 @@ def _check_archive(archive: np.ndarray, n_agents: int) -> np.ndarray:
     if archive.ndim == 1 and archive.size == 0:
         archive = archive.reshape(0, n_agents)  # "no environments yet" written as []
     if archive.ndim != 2 or archive.shape[1] != n_agents:
-        raise ValueError(f"archive must have shape (m, {n_agents}) to match the candidate's "
-                         f"{n_agents} agents, got {archive.shape}.")
+        raise ValueError(
+            f"archive must have shape (m, {n_agents}) to match the candidate's "
+            f"{n_agents} agents, got {archive.shape}."
+        )
     return archive
 
 
@@ -55,8 +60,9 @@ def novelty(candidate: np.ndarray, archive: np.ndarray, k: int) -> float:
     """
     candidate = np.asarray(candidate, dtype=np.float64)
     if candidate.ndim != 1 or candidate.size == 0:
-        raise ValueError(f"candidate must be a non-empty (n_agents,) vector, got "
-                         f"{candidate.shape}.")
+        raise ValueError(
+            f"candidate must be a non-empty (n_agents,) vector, got {candidate.shape}."
+        )
     return float(novelties(candidate[None, :], archive, k)[0])
 
 
@@ -64,20 +70,22 @@ def novelties(candidates: np.ndarray, archive: np.ndarray, k: int) -> np.ndarray
     """`novelty` of each row of `candidates` (c, n_agents) against the same `archive`."""
     candidates = np.asarray(candidates, dtype=np.float64)
     if candidates.ndim != 2 or candidates.shape[1] == 0:
-        raise ValueError(f"candidates must have shape (c, n_agents) with n_agents >= 1, "
-                         f"got {candidates.shape}.")
+        raise ValueError(
+            f"candidates must have shape (c, n_agents) with n_agents >= 1, got {candidates.shape}."
+        )
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}.")
     archive = _check_archive(archive, candidates.shape[1])
     if archive.shape[0] == 0:
         return np.full(candidates.shape[0], np.inf)
     distances = np.linalg.norm(candidates[:, None, :] - archive[None, :, :], axis=-1)
-    nearest = np.sort(distances, axis=1)[:, :min(k, archive.shape[0])]
+    nearest = np.sort(distances, axis=1)[:, : min(k, archive.shape[0])]
     return nearest.mean(axis=1)
 
 
-def rank_by_novelty(candidates: np.ndarray, archive: np.ndarray, k: int
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def rank_by_novelty(
+    candidates: np.ndarray, archive: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray]:
     """(order, novelties): candidate indices most novel first (ties by index) and their novelty."""
     scores = novelties(candidates, archive, k)
     # Stable sort on -novelty: equal novelties (e.g. all +inf) keep the proposal order.

@@ -1,6 +1,7 @@
 """Environment-agent pairs, what the ePOET loop keeps for each environment it has admitted, the
 pool that holds them, and the small records its steps pass around (thresholds, proposed
 children)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -22,12 +23,12 @@ class Environment:
     height grows, paper appendix "Generated Environments"), so the pool stores what is fixed.
     """
 
-    index: int                  # admission order: 0 is the root environment
-    genome: Any                 # neat-python genome of the CPPN part
+    index: int  # admission order: 0 is the root environment
+    genome: Any  # neat-python genome of the CPPN part
     generation: int
-    parent: int | None          # index of the parent environment
-    created_at: int             # iteration of admission
-    solved: bool = False        # its agent reached the reproduction threshold at some point
+    parent: int | None  # index of the parent environment
+    created_at: int  # iteration of admission
+    solved: bool = False  # its agent reached the reproduction threshold at some point
 
 
 @dataclass
@@ -36,7 +37,7 @@ class Pair:
 
     env: Environment
     es: OpenAIES
-    scores: list[float] = field(default_factory=list)   # evaluation score per iteration
+    scores: list[float] = field(default_factory=list)  # evaluation score per iteration
     best_score: float = -np.inf  # the best evaluation score on this environment so far,
     best_theta: np.ndarray | None = None  # and the policy that scored it (EPOET.policy)
 
@@ -77,14 +78,15 @@ class Pool:
     """The environment-agent pairs of a run: the active ones, optimised every iteration, and the
     archive of those that left it (Enhanced POET's optimizers and archived optimizers)."""
 
-    def __init__(self, max_active: int, thresholds: Thresholds,
-                 policy: Callable[[np.ndarray], np.ndarray]) -> None:
+    def __init__(
+        self, max_active: int, thresholds: Thresholds, policy: Callable[[np.ndarray], np.ndarray]
+    ) -> None:
         self.active: list[Pair] = []
         self.archived: list[Pair] = []
-        self.next_index = 0          # the index the next admitted environment gets
+        self.next_index = 0  # the index the next admitted environment gets
         self.max_active = max_active
         self.thresholds = thresholds
-        self.policy = policy         # ES parameters -> the policy a pair's best score keeps
+        self.policy = policy  # ES parameters -> the policy a pair's best score keeps
 
     @property
     def pairs(self) -> list[Pair]:

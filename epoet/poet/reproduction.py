@@ -3,6 +3,7 @@ parents propose mutated children, the minimal criterion keeps those neither too 
 easy for their parent's agent, and the most novel (PATA-EC) are admitted with the best agent
 that passes the minimal criterion on them. Plain steps over the pool and the service.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,8 +28,9 @@ def reproduce(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
     return admit_most_novel(pool, service, cfg, passing, t)
 
 
-def propose_children(service: Service, cfg: PoetConfig, parents: list[Pair], t: int
-                     ) -> list[tuple[Child, Pair]]:
+def propose_children(
+    service: Service, cfg: PoetConfig, parents: list[Pair], t: int
+) -> list[tuple[Child, Pair]]:
     """Up to `num_children` valid CPPN mutations of randomly chosen eligible parents."""
     rng = np.random.default_rng(service.seed(Key.PARENTS, t))
     tc = service.terrain_cfg
@@ -36,43 +38,62 @@ def propose_children(service: Service, cfg: PoetConfig, parents: list[Pair], t: 
     for slot in range(cfg.num_children):
         parent = parents[int(rng.integers(len(parents)))]
         try:
-            genome = mutate_genome(parent.env.genome, tc.cppn, tc.mutation,
-                                   service.seed(Key.CHILD_GENOME, parent.env.index, t, slot),
-                                   cppn_inputs(tc))
+            genome = mutate_genome(
+                parent.env.genome,
+                tc.cppn,
+                tc.mutation,
+                service.seed(Key.CHILD_GENOME, parent.env.index, t, slot),
+                cppn_inputs(tc),
+            )
         except CppnMutationError:
             continue  # this parent yielded no valid child in max_tries; propose the next
-        env = Environment(index=-1, genome=genome, generation=parent.env.generation + 1,
-                          parent=parent.env.index, created_at=t)
+        env = Environment(
+            index=-1,
+            genome=genome,
+            generation=parent.env.generation + 1,
+            parent=parent.env.index,
+            created_at=t,
+        )
         terrain = service.make_terrain(env, service.seed(Key.CHILD_BOWL, t, slot), t)
         children.append((Child(env, terrain, slot), parent))
     return children
 
 
-def minimal_criterion(pool: Pool, service: Service, children: list[tuple[Child, Pair]], t: int
-                      ) -> list[Child]:
+def minimal_criterion(
+    pool: Pool, service: Service, children: list[tuple[Child, Pair]], t: int
+) -> list[Child]:
     """Children on which their parent's agent neither fails nor already excels."""
     if not children:
         return []
-    scores = service.scores([service.eval_request(child.terrain, parent.theta[None], Key.MC, t,
-                                                  child.slot) for child, parent in children])
-    return [child for (child, _), score in zip(children, scores)
-            if pool.thresholds.passes_mc(float(score[0]))]
+    scores = service.scores(
+        [
+            service.eval_request(child.terrain, parent.theta[None], Key.MC, t, child.slot)
+            for child, parent in children
+        ]
+    )
+    return [
+        child
+        for (child, _), score in zip(children, scores)
+        if pool.thresholds.passes_mc(float(score[0]))
+    ]
 
 
-def admit_most_novel(pool: Pool, service: Service, cfg: PoetConfig, passing: list[Child],
-                     t: int) -> int:
+def admit_most_novel(
+    pool: Pool, service: Service, cfg: PoetConfig, passing: list[Child], t: int
+) -> int:
     """In order of PATA-EC novelty, admit children whose best transferred agent also passes
     the minimal criterion (the reference's rule), at most `max_admitted` of them."""
     th = pool.thresholds
     pairs = pool.pairs
     agents = np.stack([p.theta for p in pairs])
-    requests = ([service.eval_request(service.terrain(p.env, t), agents, Key.PATA, p.env.index, t)
-                 for p in pairs]
-                + [service.eval_request(c.terrain, agents, Key.CHILD_PATA, t, c.slot)
-                   for c in passing])
+    requests = [
+        service.eval_request(service.terrain(p.env, t), agents, Key.PATA, p.env.index, t)
+        for p in pairs
+    ] + [service.eval_request(c.terrain, agents, Key.CHILD_PATA, t, c.slot) for c in passing]
     ranks = [pata_ec(s, th.mc_lower, th.mc_upper) for s in service.scores(requests)]
-    order, _ = rank_by_novelty(np.stack(ranks[len(pairs):]), np.stack(ranks[:len(pairs)]),
-                               k=cfg.novelty_k)
+    order, _ = rank_by_novelty(
+        np.stack(ranks[len(pairs) :]), np.stack(ranks[: len(pairs)]), k=cfg.novelty_k
+    )
     admitted = 0
     for i in order:
         child = passing[i]
@@ -88,21 +109,31 @@ def admit_most_novel(pool: Pool, service: Service, cfg: PoetConfig, passing: lis
     return admitted
 
 
-def best_agent_for(pool: Pool, service: Service, cfg: PoetConfig, child: Child, t: int
-                   ) -> tuple[float, np.ndarray]:
+def best_agent_for(
+    pool: Pool, service: Service, cfg: PoetConfig, child: Child, t: int
+) -> tuple[float, np.ndarray]:
     """(score, theta) of the best active agent on a child, directly or after one fine-tuning ES
     step (`proposal_step`) with a fresh optimiser, as the reference's candidate pair takes it."""
     slot = child.slot
     thetas = np.stack([p.theta for p in pool.active])
-    direct = service.scores([service.eval_request(child.terrain, thetas, Key.ADMIT, t, slot,
-                                                  0)])[0]
+    direct = service.scores([service.eval_request(child.terrain, thetas, Key.ADMIT, t, slot, 0)])[0]
     # A fresh optimiser per candidate: initial lr and sigma, no Adam state (its own noise
     # stream is unused: the step's noise comes from keyed seeds).
-    tuned = service.fine_tune([FineTune(service.new_es(theta, 0), child.terrain, theta,
-                                        (t, slot, j)) for j, theta in enumerate(thetas)],
-                              Key.ADMIT_NOISE, Key.ADMIT_SPAWN, cfg.proposal_step)
-    scores = service.scores([service.eval_request(child.terrain, theta[None], Key.ADMIT, t, slot,
-                                                  j + 1) for j, theta in enumerate(tuned)])
+    tuned = service.fine_tune(
+        [
+            FineTune(service.new_es(theta, 0), child.terrain, theta, (t, slot, j))
+            for j, theta in enumerate(thetas)
+        ],
+        Key.ADMIT_NOISE,
+        Key.ADMIT_SPAWN,
+        cfg.proposal_step,
+    )
+    scores = service.scores(
+        [
+            service.eval_request(child.terrain, theta[None], Key.ADMIT, t, slot, j + 1)
+            for j, theta in enumerate(tuned)
+        ]
+    )
     best = int(np.argmax(direct))
     best_score, best_theta = float(direct[best]), thetas[best]
     for theta, score in zip(tuned, scores):

@@ -1,5 +1,6 @@
 """`algo=epoet`: the loop's iterations for the budget, tracked and resumable (`train_loop` runs
 them for ePOET-SAC's loop too: epoet/epoet_sac/runner.py)."""
+
 from __future__ import annotations
 
 import time
@@ -45,8 +46,9 @@ class Loop(Protocol):
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str) -> None: ...
 
 
-def train_loop(loop: Loop, cfg: Config, tracker: Tracker, run_dir: Path,
-               resume: dict[str, Any] | None) -> None:
+def train_loop(
+    loop: Loop, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
+) -> None:
     """Run `loop`'s iterations until `budget.iterations` (or `budget.hours`), logging each one's
     metrics and checkpointing every `checkpoint_every` iterations, at the end and on a stop
     signal; then tag why it stopped and log the pool's artifacts."""
@@ -71,8 +73,15 @@ def train_loop(loop: Loop, cfg: Config, tracker: Tracker, run_dir: Path,
         if loop.iteration % cfg.checkpoint_every == 0 or done() or stop_requested():
             save_run_state(run_dir, tracker, cfg, {"poet": loop.state_dict()})
             raise_if_stopped(f"after iteration {loop.iteration}")
-    report_stop(tracker, cfg.algo.name, budget, loop.iteration < budget.iterations,
-                loop.iteration, "iterations", loop.elapsed)
+    report_stop(
+        tracker,
+        cfg.algo.name,
+        budget,
+        loop.iteration < budget.iterations,
+        loop.iteration,
+        "iterations",
+        loop.elapsed,
+    )
     loop.log_artifacts(run_dir, tracker, cfg.agent_choice)
 
 
@@ -84,11 +93,16 @@ def _progress(cfg: Config, iteration: int, metrics: dict[str, float], elapsed: f
     if "sac/score" in metrics:
         extra += f" sac_score={metrics['sac/score']:.1f}"
     if "join/mapped_score" in metrics:  # ePOET-SAC's join
-        extra += (f" join: {cfg.algo.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
-                  f" vs the SAC actor's {metrics['join/sac_score']:.1f}")
+        extra += (
+            f" join: {cfg.algo.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
+            f" vs the SAC actor's {metrics['join/sac_score']:.1f}"
+        )
     iterations = cast(PoetBudgetConfig, cfg.budget).iterations
-    print(f"[{cfg.algo.name}] it {iteration}/{iterations} "
-          f"pairs={int(metrics['active_envs'])} archived={int(metrics['archived_envs'])} "
-          f"score={metrics['score']:.1f} best={metrics['best_score']:.1f} "
-          f"annecs={int(metrics['annecs'])} steps/s={metrics['steps_per_second']:,.0f} "
-          f"elapsed={elapsed:.0f}s{extra}", flush=True)
+    print(
+        f"[{cfg.algo.name}] it {iteration}/{iterations} "
+        f"pairs={int(metrics['active_envs'])} archived={int(metrics['archived_envs'])} "
+        f"score={metrics['score']:.1f} best={metrics['best_score']:.1f} "
+        f"annecs={int(metrics['annecs'])} steps/s={metrics['steps_per_second']:,.0f} "
+        f"elapsed={elapsed:.0f}s{extra}",
+        flush=True,
+    )

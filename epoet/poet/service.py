@@ -7,6 +7,7 @@ workers and a checkpoint/resume never change what a run does. Each call to `run`
 `scores` and `fine_tune`) is one call to the workers for every request it is given, so no worker
 waits at a per-pair barrier.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -39,8 +40,17 @@ class FineTune(NamedTuple):
 class Service:
     """Seeds, terrains and episodes for one run, over one evaluator; counts environment steps."""
 
-    def __init__(self, evaluator: Evaluator, terrain: TerrainConfig, es: EsConfig, *, seed: int,
-                 n_pairs: int, eval_episodes: int, layer_sizes: tuple[int, ...]) -> None:
+    def __init__(
+        self,
+        evaluator: Evaluator,
+        terrain: TerrainConfig,
+        es: EsConfig,
+        *,
+        seed: int,
+        n_pairs: int,
+        eval_episodes: int,
+        layer_sizes: tuple[int, ...],
+    ) -> None:
         self.evaluator = evaluator
         self.terrain_cfg = terrain
         self.es_cfg = es
@@ -86,8 +96,14 @@ class Service:
     def make_terrain(self, env: Environment, bowl_seed: int, t: int) -> Terrain:
         """Heightmap of `env` with its lineage in the terrain's provenance (saved artifacts)."""
         parent = None if env.parent is None else f"env{env.parent}"
-        return make_terrain(self.terrain_cfg, seed=bowl_seed, iteration=t, genome=env.genome,
-                            generation=env.generation, parent_id=parent)
+        return make_terrain(
+            self.terrain_cfg,
+            seed=bowl_seed,
+            iteration=t,
+            genome=env.genome,
+            generation=env.generation,
+            parent_id=parent,
+        )
 
     def forget_terrains(self) -> None:
         """After a resume: the terrains are made again from their keys."""
@@ -118,23 +134,36 @@ class Service:
 
     def eval_request(self, terrain: Terrain, thetas: np.ndarray, key: Key, *ids: int) -> Request:
         """`eval_episodes` seeded episodes of each agent in `thetas` (K, P) on `terrain`."""
-        return Request(terrain, Agents.of(self.policy(thetas),
-                                          self.seeds(self.eval_episodes, key, *ids)))
+        return Request(
+            terrain, Agents.of(self.policy(thetas), self.seeds(self.eval_episodes, key, *ids))
+        )
 
     def scores(self, requests: list[Request]) -> list[np.ndarray]:
         """Mean return of each agent of each evaluation request."""
         return [e.returns.mean(axis=1) for e in self.run(requests)]
 
-    def fine_tune(self, jobs: list[FineTune], noise_key: Key, spawn_key: Key, step: str
-                  ) -> list[np.ndarray]:
+    def fine_tune(
+        self, jobs: list[FineTune], noise_key: Key, spawn_key: Key, step: str
+    ) -> list[np.ndarray]:
         """The theta each job's ES step (`step`: sgd | adam) proposes; no optimiser's state
         changes."""
         noise = [self.seeds(self.n_pairs, noise_key, *job.ids) for job in jobs]
-        requests = [Request(job.terrain,
-                            Mirrored.of(job.theta, seeds, job.es.sigma,
-                                        self.seeds(self.n_pairs, spawn_key, *job.ids),
-                                        self.standardizer()))
-                    for job, seeds in zip(jobs, noise)]
-        return [job.es.propose(seeds, e.returns[:len(seeds)], e.returns[len(seeds):],
-                               theta=job.theta, step=step)
-                for job, seeds, e in zip(jobs, noise, self.run(requests))]
+        requests = [
+            Request(
+                job.terrain,
+                Mirrored.of(
+                    job.theta,
+                    seeds,
+                    job.es.sigma,
+                    self.seeds(self.n_pairs, spawn_key, *job.ids),
+                    self.standardizer(),
+                ),
+            )
+            for job, seeds in zip(jobs, noise)
+        ]
+        return [
+            job.es.propose(
+                seeds, e.returns[: len(seeds)], e.returns[len(seeds) :], theta=job.theta, step=step
+            )
+            for job, seeds, e in zip(jobs, noise, self.run(requests))
+        ]

@@ -2,6 +2,7 @@
 on every other active environment, and the best fine-tuned one that beats the incumbent's recent
 best replaces it. A plain step over the pool and the service.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,23 +26,55 @@ def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> dict[int,
     active = pool.active
     thetas = np.stack([p.theta for p in active])  # agents before any replacement
     others = [[j for j in range(len(active)) if j != m] for m in range(len(active))]
-    bars = [max(p.scores[-cfg.transfer_bar_window:]) for p in active]
-    direct = service.scores([service.eval_request(service.terrain(target.env, t),
-                                                  thetas[others[m]], Key.TRANSFER,
-                                                  target.env.index, t, 0)
-                             for m, target in enumerate(active)])
-    candidates = [(m, j) for m in range(len(active))
-                  for j, score in zip(others[m], direct[m]) if score > bars[m]]
+    bars = [max(p.scores[-cfg.transfer_bar_window :]) for p in active]
+    direct = service.scores(
+        [
+            service.eval_request(
+                service.terrain(target.env, t),
+                thetas[others[m]],
+                Key.TRANSFER,
+                target.env.index,
+                t,
+                0,
+            )
+            for m, target in enumerate(active)
+        ]
+    )
+    candidates = [
+        (m, j)
+        for m in range(len(active))
+        for j, score in zip(others[m], direct[m])
+        if score > bars[m]
+    ]
     if not candidates:
         return {}
-    proposals = service.fine_tune([FineTune(active[m].es, service.terrain(active[m].env, t),
-                                            thetas[j], (active[m].env.index, t, j))
-                                   for m, j in candidates],
-                                  Key.PROPOSAL_NOISE, Key.PROPOSAL_SPAWN, cfg.proposal_step)
-    scores = service.scores([service.eval_request(service.terrain(active[m].env, t),
-                                                  proposal[None], Key.TRANSFER,
-                                                  active[m].env.index, t, j + 1)
-                             for (m, j), proposal in zip(candidates, proposals)])
+    proposals = service.fine_tune(
+        [
+            FineTune(
+                active[m].es,
+                service.terrain(active[m].env, t),
+                thetas[j],
+                (active[m].env.index, t, j),
+            )
+            for m, j in candidates
+        ],
+        Key.PROPOSAL_NOISE,
+        Key.PROPOSAL_SPAWN,
+        cfg.proposal_step,
+    )
+    scores = service.scores(
+        [
+            service.eval_request(
+                service.terrain(active[m].env, t),
+                proposal[None],
+                Key.TRANSFER,
+                active[m].env.index,
+                t,
+                j + 1,
+            )
+            for (m, j), proposal in zip(candidates, proposals)
+        ]
+    )
     best: dict[int, tuple[float, np.ndarray, int]] = {}
     for (m, j), proposal, score in zip(candidates, proposals, scores):
         if score[0] > max(bars[m], best.get(m, (-np.inf,))[0]):

@@ -1,11 +1,11 @@
 """The RL baselines' settings (conf/algo/{ppo,sac,vmpo}.yaml, conf/learner/sac.yaml)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any, ClassVar, Optional
 
 from epoet.core.schema import check, config_key, non_negative, positive
-
 
 # --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, docs/reference.md) -----------------
 # Sizes are per collector batch of `frames_per_batch` frames; budget.frames is the total
@@ -18,12 +18,16 @@ RL_ACTIVATIONS = ("tanh", "relu", "elu")
 
 def _check_network(obj: Any) -> None:
     """The checks of an RL network config (hidden sizes, activation, lr, discount)."""
-    check(len(obj.hidden) > 0 and all(h > 0 for h in obj.hidden),
-          f"{config_key(obj, 'hidden')} must be a non-empty list of positive sizes, got "
-          f"{obj.hidden}.")
-    check(obj.activation in RL_ACTIVATIONS,
-          f"{config_key(obj, 'activation')} must be one of {list(RL_ACTIVATIONS)}, got "
-          f"{obj.activation!r}.")
+    check(
+        len(obj.hidden) > 0 and all(h > 0 for h in obj.hidden),
+        f"{config_key(obj, 'hidden')} must be a non-empty list of positive sizes, got "
+        f"{obj.hidden}.",
+    )
+    check(
+        obj.activation in RL_ACTIVATIONS,
+        f"{config_key(obj, 'activation')} must be one of {list(RL_ACTIVATIONS)}, got "
+        f"{obj.activation!r}.",
+    )
     positive(obj, "lr")
     check(0.0 < obj.gamma <= 1.0, f"{config_key(obj, 'gamma')} must be in (0, 1], got {obj.gamma}.")
 
@@ -35,9 +39,11 @@ class BaselineConfig:
 
     def check_run(self, cfg: Any) -> None:
         """What a baseline needs of the run's other settings (`cfg`: the root Config)."""
-        check(cfg.workers.backend == "local",
-              f"workers={cfg.workers.backend} runs ES rollouts, and algo={self.name} "
-              f"has none (it collects in-process): use workers=local.")
+        check(
+            cfg.workers.backend == "local",
+            f"workers={cfg.workers.backend} runs ES rollouts, and algo={self.name} "
+            f"has none (it collects in-process): use workers=local.",
+        )
 
     def unused_keys(self) -> list[str]:
         """Settings an RL run never reads: it has no ES workers."""
@@ -50,14 +56,14 @@ class RlConfig(BaselineConfig):
 
     KEY: ClassVar[str] = "algo"
 
-    _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
+    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
     hidden: list[int]
     activation: str
-    lr: float                        # one Adam over all parameters (Table 2: policy = value lr)
+    lr: float  # one Adam over all parameters (Table 2: policy = value lr)
     gamma: float
-    frames_per_batch: int            # the paper's trajectory_length
-    obs_norm: bool                   # running observation normalisation (PPO and VMPO in the paper)
+    frames_per_batch: int  # the paper's trajectory_length
+    obs_norm: bool  # running observation normalisation (PPO and VMPO in the paper)
 
     def __post_init__(self) -> None:
         _check_network(self)
@@ -68,19 +74,23 @@ class RlConfig(BaselineConfig):
 class OnPolicyConfig(RlConfig):
     """PPO and VMPO: GAE on each batch, then `epochs` passes of shuffled minibatches."""
 
-    gae_lambda: float                # Table 2 calls it "tau"
+    gae_lambda: float  # Table 2 calls it "tau"
     epochs: int
     minibatch: int
     critic_coeff: float
-    max_grad_norm: Optional[float]   # not in the paper; None disables clipping
+    max_grad_norm: Optional[float]  # not in the paper; None disables clipping
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check(0.0 <= self.gae_lambda <= 1.0,
-              f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.")
+        check(
+            0.0 <= self.gae_lambda <= 1.0,
+            f"algo.gae_lambda must be in [0, 1], got {self.gae_lambda}.",
+        )
         positive(self, "epochs", "minibatch", "critic_coeff")
-        check(self.max_grad_norm is None or self.max_grad_norm > 0,
-              f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.")
+        check(
+            self.max_grad_norm is None or self.max_grad_norm > 0,
+            f"algo.max_grad_norm must be > 0 or null, got {self.max_grad_norm}.",
+        )
 
 
 @dataclass
@@ -89,7 +99,7 @@ class PpoConfig(OnPolicyConfig):
 
     clip: float
     entropy_coeff: float
-    normalize_advantage: bool        # not in the paper; the common PPO implementation detail
+    normalize_advantage: bool  # not in the paper; the common PPO implementation detail
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -109,8 +119,10 @@ class VmpoConfig(OnPolicyConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check(0.0 < self.top_fraction <= 1.0,
-              f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.")
+        check(
+            0.0 < self.top_fraction <= 1.0,
+            f"algo.top_fraction must be in (0, 1], got {self.top_fraction}.",
+        )
         positive(self, "eta_init", "eps_eta", "alpha_init", "eps_alpha")
 
 
@@ -123,25 +135,28 @@ class SacLearnerConfig:
 
     hidden: list[int]
     activation: str
-    lr: float                        # actor, critics and the entropy temperature
+    lr: float  # actor, critics and the entropy temperature
     gamma: float
     batch_size: int
-    tau: float                       # soft target update rate
+    tau: float  # soft target update rate
     alpha_init: float
     target_entropy: Optional[float]  # None: -(action dimensions), the usual heuristic
     reward_scale: float
-    init_random_frames: int          # Table 3 pretrain_epoch 1: the first frames act uniformly
+    init_random_frames: int  # Table 3 pretrain_epoch 1: the first frames act uniformly
     buffer_size: int
 
     def __post_init__(self) -> None:
         _check_network(self)
         positive(self, "batch_size", "alpha_init", "reward_scale", "buffer_size")
         non_negative(self, "init_random_frames")
-        check(0.0 < self.tau <= 1.0,
-              f"{config_key(self, 'tau')} must be in (0, 1], got {self.tau}.")
-        check(self.buffer_size >= self.batch_size,
-              f"{config_key(self, 'buffer_size')} ({self.buffer_size}) must hold at least one batch "
-              f"({config_key(self, 'batch_size')}={self.batch_size}).")
+        check(
+            0.0 < self.tau <= 1.0, f"{config_key(self, 'tau')} must be in (0, 1], got {self.tau}."
+        )
+        check(
+            self.buffer_size >= self.batch_size,
+            f"{config_key(self, 'buffer_size')} ({self.buffer_size}) must hold at least one batch "
+            f"({config_key(self, 'batch_size')}={self.batch_size}).",
+        )
 
 
 @dataclass
@@ -150,11 +165,11 @@ class SacConfig(SacLearnerConfig, BaselineConfig):
 
     KEY: ClassVar[str] = "algo"
 
-    _target_: str                    # the runner epoet.run calls (conf/algo/*.yaml names it)
+    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
     name: str
-    frames_per_batch: int            # the paper's trajectory_length
-    obs_norm: bool                   # false: the paper normalises for PPO and VMPO only
-    updates_per_batch: int           # gradient updates per collector batch
+    frames_per_batch: int  # the paper's trajectory_length
+    obs_norm: bool  # false: the paper normalises for PPO and VMPO only
+    updates_per_batch: int  # gradient updates per collector batch
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -162,6 +177,8 @@ class SacConfig(SacLearnerConfig, BaselineConfig):
 
     def check_run(self, cfg: Any) -> None:
         super().check_run(cfg)
-        check(cfg.budget.frames >= self.batch_size,
-              f"budget.frames ({cfg.budget.frames}) must be at least algo.batch_size "
-              f"({self.batch_size}), or SAC never updates.")
+        check(
+            cfg.budget.frames >= self.batch_size,
+            f"budget.frames ({cfg.budget.frames}) must be at least algo.batch_size "
+            f"({self.batch_size}), or SAC never updates.",
+        )

@@ -18,6 +18,7 @@ Decisions (the paper's tables do not fix them):
   (seen on this env in the first steps). The statistics are checkpointed and written into the
   policy.
 """
+
 from __future__ import annotations
 
 import random
@@ -28,8 +29,17 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Categorical, Composite
-from torchrl.envs import (ClipTransform, Compose, DoubleToFloat, EnvBase, GymWrapper,
-                          ObservationNorm, RewardSum, StepCounter, TransformedEnv)
+from torchrl.envs import (
+    ClipTransform,
+    Compose,
+    DoubleToFloat,
+    EnvBase,
+    GymWrapper,
+    ObservationNorm,
+    RewardSum,
+    StepCounter,
+    TransformedEnv,
+)
 from torchrl.envs.gym_like import BaseInfoDictReader
 
 from epoet.config import Config
@@ -37,7 +47,7 @@ from epoet.envs.hexapod_env import HexapodEnv
 
 OBS = "observation"
 OBS_NORM = "observation_norm"
-OBS_CLIP = 10.0             # normalised observations are clipped to +-OBS_CLIP
+OBS_CLIP = 10.0  # normalised observations are clipped to +-OBS_CLIP
 EVAL_SEED_OFFSET = 1_000_003  # evaluation terrains never coincide with the training env's seeds
 
 
@@ -79,8 +89,9 @@ class _FinishedReader(BaseInfoDictReader):
         return self._spec
 
 
-def make_env(cfg: Config, *, obs_norm: bool, seed: int, resample_terrain: bool = True
-             ) -> TransformedEnv:
+def make_env(
+    cfg: Config, *, obs_norm: bool, seed: int, resample_terrain: bool = True
+) -> TransformedEnv:
     """The hexapod task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode
     (`resample_terrain=False`: the terrain last given to `hexapod(env).set_terrain`, ePOET-SAC).
 
@@ -90,15 +101,23 @@ def make_env(cfg: Config, *, obs_norm: bool, seed: int, resample_terrain: bool =
     GymWrapper around the env object (not GymEnv on the registered id) keeps gymnasium's checker
     wrappers out of the per-step path.
     """
-    base = GymWrapper(HexapodEnv(agent=cfg.agent, terrain=cfg.terrain,
-                                 resample_terrain=resample_terrain))
+    base = GymWrapper(
+        HexapodEnv(agent=cfg.agent, terrain=cfg.terrain, resample_terrain=resample_terrain)
+    )
     base.set_info_dict_reader(_FinishedReader())
     transforms: list = [DoubleToFloat()]
     if obs_norm:
         obs_dim = base.observation_spec[OBS].shape[-1]
-        transforms += [ObservationNorm(loc=torch.zeros(obs_dim), scale=torch.ones(obs_dim),
-                                       in_keys=[OBS], out_keys=[OBS_NORM], standard_normal=True),
-                       ClipTransform(in_keys=[OBS_NORM], low=-OBS_CLIP, high=OBS_CLIP)]
+        transforms += [
+            ObservationNorm(
+                loc=torch.zeros(obs_dim),
+                scale=torch.ones(obs_dim),
+                in_keys=[OBS],
+                out_keys=[OBS_NORM],
+                standard_normal=True,
+            ),
+            ClipTransform(in_keys=[OBS_NORM], low=-OBS_CLIP, high=OBS_CLIP),
+        ]
     transforms += [RewardSum(), StepCounter()]
     env = TransformedEnv(base, Compose(*transforms))
     env.set_seed(seed)
@@ -137,7 +156,7 @@ class RunningObsNorm:
         dim = transform.loc.shape[-1]
         self.count = 0
         self.mean = torch.zeros(dim, dtype=torch.float64)
-        self.m2 = torch.zeros(dim, dtype=torch.float64)   # sum of squared deviations
+        self.m2 = torch.zeros(dim, dtype=torch.float64)  # sum of squared deviations
 
     def update(self, obs: torch.Tensor) -> None:
         obs = obs.reshape(-1, obs.shape[-1]).double()
@@ -145,7 +164,7 @@ class RunningObsNorm:
         mean = obs.mean(0)
         delta = mean - self.mean
         total = self.count + n
-        self.m2 += ((obs - mean) ** 2).sum(0) + delta ** 2 * self.count * n / total
+        self.m2 += ((obs - mean) ** 2).sum(0) + delta**2 * self.count * n / total
         self.mean += delta * n / total
         self.count = total
         self._write()
@@ -169,6 +188,8 @@ def episode_metrics(batch: TensorDictBase) -> dict[str, float]:
     done = batch["next", "done"].squeeze(-1)
     if not bool(done.any()):
         return {}
-    return {"episode_return": float(batch["next", "episode_reward"][done].mean()),
-            "episode_length": float(batch["next", "step_count"][done].float().mean()),
-            "finish_rate": float(batch["next", "finished"][done].float().mean())}
+    return {
+        "episode_return": float(batch["next", "episode_reward"][done].mean()),
+        "episode_length": float(batch["next", "step_count"][done].float().mean()),
+        "finish_rate": float(batch["next", "finished"][done].float().mean()),
+    }

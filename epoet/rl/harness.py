@@ -23,6 +23,7 @@ deterministic policy on a separate env whose terrains come from a fixed seed, at
 env's current point of the height schedule, at frame 0, every `budget.eval_every` frames and at
 the end. It runs under `fork_rng`, so it never changes the training's random streams.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -46,15 +47,16 @@ from tqdm import tqdm
 from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import stop_requested
-from epoet.run_state import report_stop, save_run_state
 from epoet.rl.env import RunningObsNorm, Seeds, episode_metrics, hexapod, make_env, obs_norm_of
 from epoet.rl.policy_file import POLICY_FILE, export_policy
+from epoet.run_state import report_stop, save_run_state
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
 
 
 # --- the compute plan and the collector -----------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class BatchPlan:
@@ -83,8 +85,7 @@ class BatchPlan:
 def batch_plan(cfg: Config) -> BatchPlan:
     budget = cast(BaselineBudgetConfig, cfg.budget)  # a baseline's YAML picks the baselines'
     frames = min(cfg.algo.frames_per_batch, budget.frames)
-    return BatchPlan(frames, math.ceil(budget.frames / frames),
-                     frames / cfg.algo.frames_per_batch)
+    return BatchPlan(frames, math.ceil(budget.frames / frames), frames / cfg.algo.frames_per_batch)
 
 
 def set_threads(cfg: Config) -> int:
@@ -94,25 +95,41 @@ def set_threads(cfg: Config) -> int:
     return threads
 
 
-def make_collector(env: EnvBase, actor: ProbabilisticActor, plan: BatchPlan,
-                   random_frames: int = 0) -> Collector:
+def make_collector(
+    env: EnvBase, actor: ProbabilisticActor, plan: BatchPlan, random_frames: int = 0
+) -> Collector:
     """Batches of `plan.frames_per_batch` frames from the stochastic actor, forever (the loop
     counts); the first `random_frames` frames use uniform random actions (SAC)."""
-    return Collector(env, actor, frames_per_batch=plan.frames_per_batch, total_frames=-1,
-                     init_random_frames=random_frames, exploration_type=ExplorationType.RANDOM,
-                     auto_register_policy_transforms=False)  # the policy is not recurrent
+    return Collector(
+        env,
+        actor,
+        frames_per_batch=plan.frames_per_batch,
+        total_frames=-1,
+        init_random_frames=random_frames,
+        exploration_type=ExplorationType.RANDOM,
+        auto_register_policy_transforms=False,
+    )  # the policy is not recurrent
 
 
-def evaluate(env: EnvBase, actor: ProbabilisticActor, episodes: int, seed: int,
-             episode_index: int, max_steps: int) -> dict[str, float]:
+def evaluate(
+    env: EnvBase,
+    actor: ProbabilisticActor,
+    episodes: int,
+    seed: int,
+    episode_index: int,
+    max_steps: int,
+) -> dict[str, float]:
     """Mean return, length and finish rate of `episodes` deterministic-policy episodes.
 
     Terrains come from `seed` at height-schedule position `episode_index`, so evaluations at the
     same schedule point see the same terrains.
     """
     returns, lengths, finished = [], [], []
-    with torch.random.fork_rng(devices=[]), torch.no_grad(), \
-            set_exploration_type(ExplorationType.DETERMINISTIC):
+    with (
+        torch.random.fork_rng(devices=[]),
+        torch.no_grad(),
+        set_exploration_type(ExplorationType.DETERMINISTIC),
+    ):
         env.set_seed(seed)
         hexapod(env).episodes = episode_index
         for _ in range(episodes):
@@ -120,11 +137,16 @@ def evaluate(env: EnvBase, actor: ProbabilisticActor, episodes: int, seed: int,
             returns.append(float(td["next", "reward"].sum()))
             lengths.append(td.shape[0])
             finished.append(bool(td["next", "finished"].any()))
-    return {"return_mean": float(np.mean(returns)), "return_std": float(np.std(returns)),
-            "length_mean": float(np.mean(lengths)), "finish_rate": float(np.mean(finished))}
+    return {
+        "return_mean": float(np.mean(returns)),
+        "return_std": float(np.std(returns)),
+        "length_mean": float(np.mean(lengths)),
+        "finish_rate": float(np.mean(finished)),
+    }
 
 
 # --- the run's state ------------------------------------------------------------------------------
+
 
 class Learner(Protocol):
     """What a run checkpoints of an algorithm: networks, optimisers, learned multipliers, the
@@ -141,12 +163,12 @@ class LoopState:
 
     frames: int = 0
     batches: int = 0
-    episodes: int = 0               # finished training episodes
-    next_eval: int = 0              # frame count of the next evaluation
+    episodes: int = 0  # finished training episodes
+    next_eval: int = 0  # frame count of the next evaluation
     last_eval_frames: int = -1
     last_eval: dict[str, float] = dataclasses.field(default_factory=dict)
-    wall_time: float = 0.0          # seconds of training, summed over resumes
-    best_score: float = -math.inf   # the best evaluation return so far
+    wall_time: float = 0.0  # seconds of training, summed over resumes
+    best_score: float = -math.inf  # the best evaluation return so far
 
 
 @dataclass
@@ -162,9 +184,13 @@ class TrainResult:
 
 def _rng_state(env: EnvBase) -> dict[str, Any]:
     gym_env = hexapod(env)
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(),
-            "python": random.getstate(), "env": gym_env.np_random.bit_generator.state,
-            "env_episodes": gym_env.episodes}
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+        "env": gym_env.np_random.bit_generator.state,
+        "env_episodes": gym_env.episodes,
+    }
 
 
 def _set_rng_state(env: EnvBase, state: dict[str, Any]) -> None:
@@ -183,8 +209,9 @@ class Harness:
     length_mean, finish_rate), `score` (eval/return_mean) and `best_score` (its best so far),
     `frames`, `fps`, `time/batch`, and `final/*` (the last evaluation) at the end."""
 
-    def __init__(self, cfg: Config, tracker: Tracker, run_dir: Path,
-                 resume: dict[str, Any] | None) -> None:
+    def __init__(
+        self, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
+    ) -> None:
         set_threads(cfg)
         self.cfg, self.tracker, self.run_dir, self.resume = cfg, tracker, run_dir, resume
         self.plan = batch_plan(cfg)
@@ -203,8 +230,12 @@ class Harness:
     def __enter__(self) -> Harness:
         return self
 
-    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
-                 traceback: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
         if self.progress is not None:
             self.progress.close()
         if self.collector is not None:
@@ -224,20 +255,27 @@ class Harness:
                 self.obs_stats.load_state_dict(self.resume["obs_norm"])
             _set_rng_state(self.env, self.resume["rng"])
             collector.reset()
-        self.progress = tqdm(total=self.plan.total_frames, initial=self.state.frames,
-                             unit="frame", desc=self.cfg.algo.name, disable=None,
-                             dynamic_ncols=True)
+        self.progress = tqdm(
+            total=self.plan.total_frames,
+            initial=self.state.frames,
+            unit="frame",
+            desc=self.cfg.algo.name,
+            disable=None,
+            dynamic_ncols=True,
+        )
 
     def budget_spent(self) -> bool:
         """The budget's batches are collected or its hours are used."""
-        return (self.state.batches >= self.plan.batches
-                or self.cfg.budget.time_is_up(self.state.wall_time))
+        return self.state.batches >= self.plan.batches or self.cfg.budget.time_is_up(
+            self.state.wall_time
+        )
 
     def checkpoint_due(self) -> bool:
         """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
         signal asked the run to stop."""
-        return ((self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested())
-                and not self.budget_spent())
+        return (
+            self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested()
+        ) and not self.budget_spent()
 
     def log(self, batch: TensorDictBase, learned: dict[str, float], started: float) -> None:
         """Count the batch (collected from time.perf_counter() = `started` on) and send its
@@ -250,7 +288,8 @@ class Harness:
         if broken:
             raise FloatingPointError(
                 f"{self.cfg.algo.name} produced non-finite {broken} in the batch ending at "
-                f"frame {self.state.frames + batch.numel()}.")
+                f"frame {self.state.frames + batch.numel()}."
+            )
         metrics = {f"train/{k}": v for k, v in {**episode_metrics(batch), **learned}.items()}
         elapsed = time.perf_counter() - started
         state = self.state
@@ -260,9 +299,16 @@ class Harness:
         state.wall_time += elapsed
         # env_steps and elapsed are the x-axes every algorithm logs (ePOET too), so MLflow can
         # chart all algorithms against environment steps or training time.
-        metrics.update({"frames": state.frames, "fps": batch.numel() / elapsed,
-                        "time/batch": elapsed, "train/episodes": state.episodes,
-                        "env_steps": state.frames, "elapsed": state.wall_time})
+        metrics.update(
+            {
+                "frames": state.frames,
+                "fps": batch.numel() / elapsed,
+                "time/batch": elapsed,
+                "train/episodes": state.episodes,
+                "env_steps": state.frames,
+                "elapsed": state.wall_time,
+            }
+        )
         self.tracker.log_metrics(state.frames, metrics)
         assert self.progress is not None  # opened before the first batch
         self.progress.update(batch.numel())
@@ -275,42 +321,73 @@ class Harness:
             assert eval_norm is not None and train_norm is not None  # both envs normalise
             eval_norm.load_state_dict(train_norm.state_dict())
         state = self.state
-        state.last_eval = evaluate(self.eval_env, actor, self.cfg.budget.eval_episodes,
-                                   self.seeds.eval, hexapod(self.env).episodes,
-                                   self.cfg.budget.episode_steps)
+        state.last_eval = evaluate(
+            self.eval_env,
+            actor,
+            self.cfg.budget.eval_episodes,
+            self.seeds.eval,
+            hexapod(self.env).episodes,
+            self.cfg.budget.episode_steps,
+        )
         state.last_eval_frames = state.frames
         state.best_score = max(state.best_score, state.last_eval["return_mean"])
         while state.next_eval <= state.frames:
             state.next_eval += cast(BaselineBudgetConfig, self.cfg.budget).eval_every
-        metrics = {**{f"eval/{k}": v for k, v in state.last_eval.items()},
-                   "score": state.last_eval["return_mean"], "best_score": state.best_score}
+        metrics = {
+            **{f"eval/{k}": v for k, v in state.last_eval.items()},
+            "score": state.last_eval["return_mean"],
+            "best_score": state.best_score,
+        }
         if state.batches == 0:  # later evaluations follow a batch that logged the axes already
             metrics.update({"env_steps": state.frames, "elapsed": state.wall_time})
         self.tracker.log_metrics(state.frames, metrics)
         assert self.progress is not None  # opened before the first batch
-        self.progress.write(f"[{self.cfg.algo.name}] frames={state.frames} eval return="
-                            f"{state.last_eval['return_mean']:.1f} "
-                            f"finish={state.last_eval['finish_rate']:.2f}")
+        self.progress.write(
+            f"[{self.cfg.algo.name}] frames={state.frames} eval return="
+            f"{state.last_eval['return_mean']:.1f} "
+            f"finish={state.last_eval['finish_rate']:.2f}"
+        )
 
     def checkpoint(self, learner: Learner) -> None:
         """Save the counters, `learner`, the normaliser and every random stream."""
-        save_run_state(self.run_dir, self.tracker, self.cfg, {
-            "loop": dataclasses.asdict(self.state), "learner": learner.state_dict(),
-            "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
-            "rng": _rng_state(self.env), "seeds": dataclasses.asdict(self.seeds)})
+        save_run_state(
+            self.run_dir,
+            self.tracker,
+            self.cfg,
+            {
+                "loop": dataclasses.asdict(self.state),
+                "learner": learner.state_dict(),
+                "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
+                "rng": _rng_state(self.env),
+                "seeds": dataclasses.asdict(self.seeds),
+            },
+        )
 
     def finish(self, actor: ProbabilisticActor, learner: Learner) -> TrainResult:
         """Log the last evaluation as `final/*`, checkpoint, export the policy, say why the run
         stopped."""
-        self.tracker.log_metrics(self.state.frames,
-                                 {f"final/{k}": v for k, v in self.state.last_eval.items()})
+        self.tracker.log_metrics(
+            self.state.frames, {f"final/{k}": v for k, v in self.state.last_eval.items()}
+        )
         self.checkpoint(learner)
-        policy_path = export_policy(self.run_dir / POLICY_FILE, actor, self.env,
-                                    self.cfg.algo.hidden, self.cfg.algo.activation)
+        policy_path = export_policy(
+            self.run_dir / POLICY_FILE,
+            actor,
+            self.env,
+            self.cfg.algo.hidden,
+            self.cfg.algo.activation,
+        )
         self.tracker.log_artifact(policy_path)
-        report_stop(self.tracker, self.cfg.algo.name, self.cfg.budget,
-                    self.state.batches < self.plan.batches, self.state.frames, "frames",
-                    self.state.wall_time)
+        report_stop(
+            self.tracker,
+            self.cfg.algo.name,
+            self.cfg.budget,
+            self.state.batches < self.plan.batches,
+            self.state.frames,
+            "frames",
+            self.state.wall_time,
+        )
         self.tracker.flush()
-        return TrainResult(self.state.frames, self.state.batches, dict(self.state.last_eval),
-                           policy_path, learner)
+        return TrainResult(
+            self.state.frames, self.state.batches, dict(self.state.last_eval), policy_path, learner
+        )

@@ -14,13 +14,18 @@ warm-started from their weights (epoet.epoet_sac.warm_start) keeps their scales 
 weights of a linear layer turn one mapping into the other (softplus(z + b) + 0.01 = exp(x) needs
 z = log(expm1(exp(x) - 0.01)) - b, not linear in x).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
 import torch
-from tensordict.nn import (AddStateIndependentNormalScale, NormalParamExtractor, TensorDictModule,
-                           add_custom_mapping)
+from tensordict.nn import (
+    AddStateIndependentNormalScale,
+    NormalParamExtractor,
+    TensorDictModule,
+    add_custom_mapping,
+)
 from torch import nn
 from torchrl.envs import EnvBase, ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
@@ -32,7 +37,8 @@ from epoet.rl.env import OBS, policy_key
 # nn.ReLU for "relu", ...
 ACTIVATIONS: dict[str, type[nn.Module]] = {
     name: next(getattr(nn, attr) for attr in dir(nn) if attr.lower() == name)
-    for name in RL_ACTIVATIONS}
+    for name in RL_ACTIVATIONS
+}
 
 
 # TorchRL's default scale mapping, and the authors' (module docstring): a log-std clamped to
@@ -62,14 +68,24 @@ class ObsStandardize(nn.Module):
 
 def mlp(in_features: int, out_features: int, hidden: list[int], activation: str) -> MLP:
     """[Linear, act] * len(hidden) + Linear: the layout `load_policy` rebuilds."""
-    return MLP(in_features=in_features, out_features=out_features, num_cells=list(hidden),
-               activation_class=ACTIVATIONS[activation])
+    return MLP(
+        in_features=in_features,
+        out_features=out_features,
+        num_cells=list(hidden),
+        activation_class=ACTIVATIONS[activation],
+    )
 
 
-def make_actor(env: EnvBase, hidden: list[int], activation: str, *,
-               state_independent_scale: bool, safe_tanh: bool = True,
-               scale_mapping: str = SOFTPLUS_SCALE,
-               standardize: ObsStandardize | None = None) -> ProbabilisticActor:
+def make_actor(
+    env: EnvBase,
+    hidden: list[int],
+    activation: str,
+    *,
+    state_independent_scale: bool,
+    safe_tanh: bool = True,
+    scale_mapping: str = SOFTPLUS_SCALE,
+    standardize: ObsStandardize | None = None,
+) -> ProbabilisticActor:
     """A tanh-Gaussian policy on [-1, 1]^act_dim (the hexapod's action space).
 
     PPO and VMPO learn one log-std per action dimension (`state_independent_scale`, paper
@@ -85,30 +101,41 @@ def make_actor(env: EnvBase, hidden: list[int], activation: str, *,
     obs_dim = env.observation_spec[OBS].shape[-1]
     act_dim = spec.shape[-1]
     if state_independent_scale:
-        net = nn.Sequential(mlp(obs_dim, act_dim, hidden, activation),
-                            AddStateIndependentNormalScale(act_dim))
+        net = nn.Sequential(
+            mlp(obs_dim, act_dim, hidden, activation), AddStateIndependentNormalScale(act_dim)
+        )
     else:
-        net = nn.Sequential(mlp(obs_dim, 2 * act_dim, hidden, activation),
-                            NormalParamExtractor(scale_mapping, SCALE_FLOORS[scale_mapping]))
+        net = nn.Sequential(
+            mlp(obs_dim, 2 * act_dim, hidden, activation),
+            NormalParamExtractor(scale_mapping, SCALE_FLOORS[scale_mapping]),
+        )
     if standardize is not None:
         net = nn.Sequential(standardize, *net)
     # bounds as Python numbers: TanhNormal then skips per-call tensor checks on them
     return ProbabilisticActor(
         TensorDictModule(net, in_keys=[policy_key(env)], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"], spec=spec, distribution_class=TanhNormal,
+        in_keys=["loc", "scale"],
+        spec=spec,
+        distribution_class=TanhNormal,
         distribution_kwargs={"low": -1.0, "high": 1.0, "safe_tanh": safe_tanh},
-        return_log_prob=True, default_interaction_type=ExplorationType.RANDOM)
+        return_log_prob=True,
+        default_interaction_type=ExplorationType.RANDOM,
+    )
 
 
 def make_value(env: EnvBase, hidden: list[int], activation: str) -> ValueOperator:
     """V(s) for PPO and VMPO."""
-    return ValueOperator(mlp(env.observation_spec[OBS].shape[-1], 1, hidden, activation),
-                         in_keys=[policy_key(env)])
+    return ValueOperator(
+        mlp(env.observation_spec[OBS].shape[-1], 1, hidden, activation), in_keys=[policy_key(env)]
+    )
 
 
-def step_if_finite(optimizer: torch.optim.Optimizer, total: torch.Tensor,
-                   clip: Sequence[Iterable[nn.Parameter]] = (),
-                   max_grad_norm: float | None = None) -> bool:
+def step_if_finite(
+    optimizer: torch.optim.Optimizer,
+    total: torch.Tensor,
+    clip: Sequence[Iterable[nn.Parameter]] = (),
+    max_grad_norm: float | None = None,
+) -> bool:
     """Backpropagate `total` and step, unless the loss or a clipped gradient norm is not finite:
     then nothing changes (weights and optimiser state) and False is returned, so one bad batch
     cannot poison the networks. The caller counts the skips (`skipped_updates`)."""

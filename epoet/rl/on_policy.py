@@ -1,5 +1,6 @@
 """The on-policy update PPO (ppo.py) and V-MPO (vmpo.py) share; only their TorchRL loss module
 differs."""
+
 from __future__ import annotations
 
 import math
@@ -30,8 +31,14 @@ class OnPolicyLearner:
     learned scalars (VMPO's eta and alpha) are not clipped.
     """
 
-    def __init__(self, cfg: OnPolicyConfig, plan: BatchPlan, actor: ProbabilisticActor,
-                 critic: ValueOperator, loss: LossModule) -> None:
+    def __init__(
+        self,
+        cfg: OnPolicyConfig,
+        plan: BatchPlan,
+        actor: ProbabilisticActor,
+        critic: ValueOperator,
+        loss: LossModule,
+    ) -> None:
         self.actor, self.critic, self.loss = actor, critic, loss
         self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic)
         self.optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
@@ -42,7 +49,9 @@ class OnPolicyLearner:
         self.minibatches = math.ceil(plan.frames_per_batch / minibatch)
         self.buffer = TensorDictReplayBuffer(
             storage=LazyTensorStorage(plan.frames_per_batch),
-            sampler=SamplerWithoutReplacement(), batch_size=minibatch)
+            sampler=SamplerWithoutReplacement(),
+            batch_size=minibatch,
+        )
 
     def learn(self, batch: TensorDictBase) -> dict[str, float]:
         """One batch: advantages, then the epochs of minibatch steps; the mean of each loss
@@ -57,9 +66,12 @@ class OnPolicyLearner:
             for _ in range(self.minibatches):
                 out = self.loss(self.buffer.sample())
                 total = sum(v for k, v in out.items() if k.startswith("loss_"))
-                if not step_if_finite(self.optimizer, total,
-                                      (self.actor.parameters(), self.critic.parameters()),
-                                      self.max_grad_norm):
+                if not step_if_finite(
+                    self.optimizer,
+                    total,
+                    (self.actor.parameters(), self.critic.parameters()),
+                    self.max_grad_norm,
+                ):
                     skipped += 1
                     continue
                 steps += 1

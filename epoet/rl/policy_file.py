@@ -5,6 +5,7 @@ rendering without TorchRL or the training state.
 TorchRL and epoet.rl.env and nets (which import MuJoCo) are imported where used, so reading
 POLICY_FORMAT to check a file (epoet.eval.agents) imports neither.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,8 +15,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from epoet.rollout.agent_files import POLICY_FORMAT, read_torch_policy
 from epoet.core.files import atomic_write
+from epoet.rollout.agent_files import POLICY_FORMAT, read_torch_policy
 
 if TYPE_CHECKING:
     from torchrl.envs import EnvBase
@@ -28,11 +29,13 @@ CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.rl.sac_loss), plu
 
 def _actor_mlp(actor: ProbabilisticActor) -> MLP:
     from torchrl.modules import MLP
+
     return next(m for m in actor.modules() if isinstance(m, MLP))
 
 
-def export_policy(path: Path, actor: ProbabilisticActor, env: EnvBase, hidden: list[int],
-                  activation: str) -> Path:
+def export_policy(
+    path: Path, actor: ProbabilisticActor, env: EnvBase, hidden: list[int], activation: str
+) -> Path:
     """Write the deterministic policy as plain data: architecture, normaliser and weights.
 
     `load_policy` rebuilds it with nothing but torch: a reader needs neither TorchRL nor the
@@ -42,6 +45,7 @@ def export_policy(path: Path, actor: ProbabilisticActor, env: EnvBase, hidden: l
     """
     from epoet.rl.env import OBS, OBS_CLIP, obs_norm_of
     from epoet.rl.nets import ObsStandardize
+
     norm = obs_norm_of(env)
     net = _actor_mlp(actor)
     weights = {k: v.detach().clone() for k, v in net.state_dict().items()}
@@ -70,8 +74,12 @@ def export_critics(path: Path, critics: nn.Module, hidden: list[int], activation
     """Write SAC's twin Q networks (a TwinQ on raw observations and actions) as plain data, the
     format of the authors' converted critics (epoet/reference/agents/sac/42.critics.pt), so a
     warm start (`algo.sac_init`) can load a run's critics without its checkpoint."""
-    spec = {"format": CRITICS_FORMAT, "activation": activation, "hidden": list(hidden),
-            "state_dict": {k: v.detach().clone() for k, v in critics.state_dict().items()}}
+    spec = {
+        "format": CRITICS_FORMAT,
+        "activation": activation,
+        "hidden": list(hidden),
+        "state_dict": {k: v.detach().clone() for k, v in critics.state_dict().items()},
+    }
     with atomic_write(path) as file:
         torch.save(spec, file)
     return path
@@ -84,8 +92,11 @@ def read_critics(path: Path) -> dict:
         spec = torch.load(path, weights_only=True, map_location="cpu")
     except Exception:  # torch raises many types
         raise ValueError(f"{path} is not a readable torch file.") from None
-    if not isinstance(spec, dict) or spec.get("format") != CRITICS_FORMAT or not all(
-            k in spec for k in ("activation", "hidden", "state_dict")):
+    if (
+        not isinstance(spec, dict)
+        or spec.get("format") != CRITICS_FORMAT
+        or not all(k in spec for k in ("activation", "hidden", "state_dict"))
+    ):
         raise ValueError(f"{path} is not an epoet critics file ({CRITICS_FORMAT}).")
     return spec
 
@@ -97,6 +108,7 @@ def load_policy(path: str | Path) -> Callable[[np.ndarray], np.ndarray]:
     A file that is not such a policy for the task raises epoet.eval.agents.AgentError.
     """
     from epoet.rl.nets import ACTIVATIONS
+
     spec = read_torch_policy(Path(path))
     sizes = [spec["obs_dim"], *spec["hidden"]]
     layers: list[nn.Module] = []

@@ -18,6 +18,7 @@ parameter swaps or distribution objects), one fused Adam steps the actor, both c
 temperature together (the three losses touch disjoint parameters), and replay samples are drawn
 SAMPLE_CHUNK batches per call and split.
 """
+
 from __future__ import annotations
 
 import time
@@ -26,18 +27,16 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 from tensordict import TensorDictBase
-from torch import nn
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
 from torchrl.modules import MLP
 
 from epoet.config import Config
-from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.core.lifecycle import raise_if_stopped
+from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.rl.env import OBS, policy_key
 from epoet.rl.harness import Harness, TrainResult, make_collector
-from epoet.rl.nets import (ACTIVATIONS, SOFTPLUS_SCALE, ObsStandardize, make_actor,
-                           step_if_finite)
+from epoet.rl.nets import ACTIVATIONS, SOFTPLUS_SCALE, ObsStandardize, make_actor, step_if_finite
 from epoet.rl.policy_file import CRITICS_FILE, export_critics
 from epoet.rl.sac_loss import SacLoss, TwinQ
 
@@ -56,22 +55,41 @@ class SacLearner:
     `scale_mapping` is the actor's scale head (epoet.rl.nets), and `warm_start` loads trained
     weights."""
 
-    def __init__(self, algo: SacLearnerConfig, env: EnvBase, *, standardize: bool = False,
-                 scale_mapping: str = SOFTPLUS_SCALE) -> None:
+    def __init__(
+        self,
+        algo: SacLearnerConfig,
+        env: EnvBase,
+        *,
+        standardize: bool = False,
+        scale_mapping: str = SOFTPLUS_SCALE,
+    ) -> None:
         obs_dim, act_dim = env.observation_spec[OBS].shape[-1], env.action_spec.shape[-1]
         self.obs_dim = obs_dim
         self.standardize = ObsStandardize(obs_dim) if standardize else None
-        self.actor = make_actor(env, algo.hidden, algo.activation, state_independent_scale=False,
-                                safe_tanh=False, scale_mapping=scale_mapping,
-                                standardize=self.standardize)
+        self.actor = make_actor(
+            env,
+            algo.hidden,
+            algo.activation,
+            state_independent_scale=False,
+            safe_tanh=False,
+            scale_mapping=scale_mapping,
+            standardize=self.standardize,
+        )
         critics = TwinQ(obs_dim + act_dim, algo.hidden, ACTIVATIONS[algo.activation])
         target_entropy = -float(act_dim) if algo.target_entropy is None else algo.target_entropy
-        self.loss = SacLoss(self.actor, critics, obs_key=policy_key(env), gamma=algo.gamma,
-                            alpha_init=algo.alpha_init, target_entropy=target_entropy,
-                            standardize=self.standardize)
+        self.loss = SacLoss(
+            self.actor,
+            critics,
+            obs_key=policy_key(env),
+            gamma=algo.gamma,
+            alpha_init=algo.alpha_init,
+            target_entropy=target_entropy,
+            standardize=self.standardize,
+        )
         self.tau = algo.tau
         self.optimizer = torch.optim.Adam(
-            [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True)
+            [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True
+        )
         # LazyTensorStorage reserves all rows at the first write; memory becomes resident as
         # rows are written, and checkpoints hold the written rows only (state_dict)
         self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(algo.buffer_size))
@@ -85,8 +103,7 @@ class SacLearner:
         return next(m for m in self.actor.modules() if isinstance(m, MLP))
 
     @torch.no_grad()
-    def warm_start(self, actor: dict[str, torch.Tensor], critics: dict[str, torch.Tensor]
-                   ) -> None:
+    def warm_start(self, actor: dict[str, torch.Tensor], critics: dict[str, torch.Tensor]) -> None:
         """Start from trained weights: the actor's MLP (the exported policy's state dict) and
         the twin critics (TwinQ's), the target critics a copy of them; weights that act on raw
         observations (they are re-expressed for the current statistics when standardising).
@@ -112,12 +129,12 @@ class SacLearner:
         if torch.equal(new_mean, old.mean) and torch.equal(new_std, old.std):
             return
         ratio, shift = new_std / old.std, (new_mean - old.mean) / old.std
-        first = self.mlp[0]                                  # (out, in)
+        first = self.mlp[0]  # (out, in)
         first.bias += first.weight @ shift
         first.weight *= ratio
         for twin in (self.loss.critics, self.loss.target_critics):
-            w, b = twin.weights[0], twin.biases[0]           # (n, in, out), (n, 1, out)
-            obs_w = w[:, :self.obs_dim, :]
+            w, b = twin.weights[0], twin.biases[0]  # (n, in, out), (n, 1, out)
+            obs_w = w[:, : self.obs_dim, :]
             b += (shift @ obs_w)[:, None, :]
             obs_w *= ratio[:, None]
         old.mean.copy_(new_mean)
@@ -171,8 +188,12 @@ class SacLearner:
         """Networks, optimiser and the replay buffer's filled rows only (in storage order, with
         the write cursor), so a checkpoint grows with the data, not with the capacity."""
         rows = self.buffer[:].exclude("index") if len(self.buffer) else None
-        return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict(),
-                "replay": rows, "writer": self.buffer.writer.state_dict()}
+        return {
+            "loss": self.loss.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "replay": rows,
+            "writer": self.buffer.writer.state_dict(),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.loss.load_state_dict(state["loss"])
@@ -182,8 +203,9 @@ class SacLearner:
         self.buffer.writer.load_state_dict(state["writer"])
 
 
-def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
-          ) -> TrainResult:
+def train(
+    cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
+) -> TrainResult:
     """The `algo=sac` runner (conf/algo/sac.yaml `_target_`)."""
     algo: SacConfig = cfg.algo
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
@@ -201,20 +223,23 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
         batches = iter(collector)
         while not run.budget_spent():  # budget.frames or budget.hours
             started = time.perf_counter()
-            batch = next(batches)                                    # collect
-            learned = learner.learn(batch, updates)                  # store, then learn
+            batch = next(batches)  # collect
+            learned = learner.learn(batch, updates)  # store, then learn
             if run.obs_stats is not None:  # after learning: one normalisation per batch
                 run.obs_stats.update(batch[OBS])
-            run.log(batch, learned, started)                         # log
-            if state.frames >= state.next_eval:                      # evaluate
+            run.log(batch, learned, started)  # log
+            if state.frames >= state.next_eval:  # evaluate
                 run.evaluate(learner.actor)
-            if run.checkpoint_due():                                 # checkpoint
+            if run.checkpoint_due():  # checkpoint
                 run.checkpoint(learner)
                 raise_if_stopped(f"at frame {state.frames}")  # a stop signal ends the run here
                 collector.reset()  # checkpoints end the running episode (harness.py)
         if state.last_eval_frames != state.frames:  # the final policy, unless just evaluated
             run.evaluate(learner.actor)
         # the critics beside the policy: what ePOET-SAC's warm start (algo.sac_init) loads
-        tracker.log_artifact(export_critics(run_dir / CRITICS_FILE, learner.loss.critics,
-                                            algo.hidden, algo.activation))
+        tracker.log_artifact(
+            export_critics(
+                run_dir / CRITICS_FILE, learner.loss.critics, algo.hidden, algo.activation
+            )
+        )
         return run.finish(learner.actor, learner)

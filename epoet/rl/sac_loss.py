@@ -22,6 +22,7 @@ With a `standardize` module (ePOET-SAC with observation normalisation) the criti
 standardised observation, as the actor does (the module sits in the actor's network too); the
 replay keeps raw observations.
 """
+
 from __future__ import annotations
 
 import copy
@@ -40,8 +41,9 @@ class TwinQ(nn.Module):
     """`n` Q networks with the same layout as one ensemble: layer l holds (n, in, out) weights,
     so all critics run in one batched matmul per layer. Initialised as nn.Linear layers are."""
 
-    def __init__(self, in_features: int, hidden: list[int], activation: type[nn.Module],
-                 n: int = 2) -> None:
+    def __init__(
+        self, in_features: int, hidden: list[int], activation: type[nn.Module], n: int = 2
+    ) -> None:
         super().__init__()
         sizes = [in_features, *hidden, 1]
         self.weights = nn.ParameterList()
@@ -52,8 +54,9 @@ class TwinQ(nn.Module):
             self.biases.append(nn.Parameter(torch.empty(n, 1, n_out).uniform_(-bound, bound)))
         self.activation = activation()
 
-    def forward(self, obs: torch.Tensor, action: torch.Tensor, detach: bool = False
-                ) -> torch.Tensor:
+    def forward(
+        self, obs: torch.Tensor, action: torch.Tensor, detach: bool = False
+    ) -> torch.Tensor:
         """Q values (n, batch); `detach` evaluates without a gradient path to the weights."""
         h = torch.cat([obs, action], -1)
         last = len(self.weights) - 1
@@ -70,18 +73,31 @@ class SacLoss(nn.Module):
     """The three SAC losses of a batch (see the module docstring); holds the target critics and
     the learned log-temperature."""
 
-    def __init__(self, actor: ProbabilisticActor, critics: TwinQ, *, obs_key: str, gamma: float,
-                 alpha_init: float, target_entropy: float,
-                 standardize: nn.Module | None = None) -> None:
+    def __init__(
+        self,
+        actor: ProbabilisticActor,
+        critics: TwinQ,
+        *,
+        obs_key: str,
+        gamma: float,
+        alpha_init: float,
+        target_entropy: float,
+        standardize: nn.Module | None = None,
+    ) -> None:
         super().__init__()
-        self.policy_net = actor.module[0].module    # obs -> (loc, scale): the collector's net
+        self.policy_net = actor.module[0].module  # obs -> (loc, scale): the collector's net
         self.critic_input = nn.Identity() if standardize is None else standardize
         self.critics = critics
         self.target_critics = copy.deepcopy(critics).requires_grad_(False)
         self.log_alpha = nn.Parameter(torch.tensor(math.log(alpha_init)))
         self.obs_key, self.gamma, self.target_entropy = obs_key, gamma, target_entropy
-        self.in_keys = [obs_key, "action", ("next", obs_key), ("next", "reward"),
-                        ("next", "terminated")]
+        self.in_keys = [
+            obs_key,
+            "action",
+            ("next", obs_key),
+            ("next", "reward"),
+            ("next", "terminated"),
+        ]
 
     def _sample(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """A reparameterised tanh-Gaussian action and its log-probability (TorchRL's TanhNormal
@@ -89,16 +105,31 @@ class SacLoss(nn.Module):
         loc, scale = self.policy_net(obs)
         noise = torch.empty_like(loc).normal_()  # the draw torch.distributions.Normal makes
         pre_tanh = loc + scale * noise
-        log_prob = (-0.5 * noise.square() - scale.log() - HALF_LOG_2PI
-                    - 2.0 * (LOG_2 - pre_tanh - nn.functional.softplus(-2.0 * pre_tanh))).sum(-1)
+        log_prob = (
+            -0.5 * noise.square()
+            - scale.log()
+            - HALF_LOG_2PI
+            - 2.0 * (LOG_2 - pre_tanh - nn.functional.softplus(-2.0 * pre_tanh))
+        ).sum(-1)
         return torch.tanh(pre_tanh), log_prob
 
     def forward(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
-        return self.losses(batch[self.obs_key], batch["action"], batch["next", self.obs_key],
-                           batch["next", "reward"], batch["next", "terminated"])
+        return self.losses(
+            batch[self.obs_key],
+            batch["action"],
+            batch["next", self.obs_key],
+            batch["next", "reward"],
+            batch["next", "terminated"],
+        )
 
-    def losses(self, obs: torch.Tensor, action: torch.Tensor, next_obs: torch.Tensor,
-               reward: torch.Tensor, terminated: torch.Tensor) -> dict[str, torch.Tensor]:
+    def losses(
+        self,
+        obs: torch.Tensor,
+        action: torch.Tensor,
+        next_obs: torch.Tensor,
+        reward: torch.Tensor,
+        terminated: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
         """The three losses on plain tensors (what bench/epoet_sac_cost.py --compile compiles)."""
         alpha = self.log_alpha.exp().detach()
         with torch.no_grad():
@@ -112,12 +143,17 @@ class SacLoss(nn.Module):
         q_new = self.critics(q_obs, new_action, detach=True).min(0).values
         loss_actor = (alpha * log_prob - q_new).mean()
         loss_alpha = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
-        return {"loss_actor": loss_actor, "loss_qvalue": loss_qvalue, "loss_alpha": loss_alpha,
-                "alpha": alpha, "entropy": -log_prob.detach().mean()}
+        return {
+            "loss_actor": loss_actor,
+            "loss_qvalue": loss_qvalue,
+            "loss_alpha": loss_alpha,
+            "alpha": alpha,
+            "entropy": -log_prob.detach().mean(),
+        }
 
     @torch.no_grad()
     def update_targets(self, tau: float) -> None:
         """Soft target update: target <- (1 - tau) target + tau online."""
-        torch._foreach_lerp_(list(self.target_critics.parameters()),
-                             list(self.critics.parameters()), tau)
-
+        torch._foreach_lerp_(
+            list(self.target_critics.parameters()), list(self.critics.parameters()), tau
+        )

@@ -10,6 +10,7 @@ collection time, which is how VMPOLoss rebuilds the old policy for the KL. Setti
 conf/algo/vmpo.yaml. What every baseline's run shares (seeds, envs, counters, evaluation,
 checkpoints): harness.py.
 """
+
 from __future__ import annotations
 
 import time
@@ -17,8 +18,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from epoet.config import Config
-from epoet.rl.config import VmpoConfig
 from epoet.core.lifecycle import raise_if_stopped
+from epoet.rl.config import VmpoConfig
 from epoet.rl.env import OBS
 from epoet.rl.harness import Harness, TrainResult, make_collector
 from epoet.rl.nets import make_actor, make_value
@@ -29,16 +30,24 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report 
     from epoet.tracking import Tracker
 
 
-def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
-          ) -> TrainResult:
+def train(
+    cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
+) -> TrainResult:
     """The `algo=vmpo` runner (conf/algo/vmpo.yaml `_target_`)."""
     algo: VmpoConfig = cfg.algo
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)
         critic = make_value(run.env, algo.hidden, algo.activation)
-        loss = VMPOLoss(actor, critic, top_fraction=algo.top_fraction, eta_init=algo.eta_init,
-                        eps_eta=algo.eps_eta, alpha_init=algo.alpha_init,
-                        eps_alpha=algo.eps_alpha, critic_coeff=algo.critic_coeff)
+        loss = VMPOLoss(
+            actor,
+            critic,
+            top_fraction=algo.top_fraction,
+            eta_init=algo.eta_init,
+            eps_eta=algo.eps_eta,
+            alpha_init=algo.alpha_init,
+            eps_alpha=algo.eps_alpha,
+            critic_coeff=algo.critic_coeff,
+        )
         learner = OnPolicyLearner(algo, run.plan, actor, critic, loss)
         collector = make_collector(run.env, actor, run.plan)
         run.start(collector, learner)  # a resumed run continues from its checkpoint
@@ -49,14 +58,14 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
         batches = iter(collector)
         while not run.budget_spent():  # budget.frames or budget.hours
             started = time.perf_counter()
-            batch = next(batches)                                    # collect
-            learned = learner.learn(batch)                           # learn
+            batch = next(batches)  # collect
+            learned = learner.learn(batch)  # learn
             if run.obs_stats is not None:  # after learning: one normalisation per batch
                 run.obs_stats.update(batch[OBS])
-            run.log(batch, learned, started)                         # log
-            if state.frames >= state.next_eval:                      # evaluate
+            run.log(batch, learned, started)  # log
+            if state.frames >= state.next_eval:  # evaluate
                 run.evaluate(actor)
-            if run.checkpoint_due():                                 # checkpoint
+            if run.checkpoint_due():  # checkpoint
                 run.checkpoint(learner)
                 raise_if_stopped(f"at frame {state.frames}")  # a stop signal ends the run here
                 collector.reset()  # checkpoints end the running episode (harness.py)

@@ -11,6 +11,7 @@ backpropagates.
 The equations and the pieces that need no TorchRL module (the E-step weights, the temperature
 and trust-region terms, the KL, the keys) are in :mod:`epoet.rl.vmpo_parts`.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,21 +19,22 @@ import math
 import torch
 from tensordict import TensorDict, TensorDictBase, TensorDictParams, unravel_key
 from tensordict.nn import (
-    dispatch,
     ProbabilisticTensorDictModule,
     ProbabilisticTensorDictSequential,
     TensorDictModule,
+    dispatch,
 )
 from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.objectives import LossModule
 from torchrl.objectives.utils import (
+    ValueEstimators,
     dispatch_value_estimator,
     distance_loss,
-    ValueEstimators,
 )
 
 from epoet.rl.vmpo_parts import (
+    VMPOKeys,
     check_settings,
     policy_entropy,
     policy_kl,
@@ -40,7 +42,6 @@ from epoet.rl.vmpo_parts import (
     temperature_loss,
     top_half_weights,
     trust_region_loss,
-    VMPOKeys,
 )
 
 __all__ = ["VMPOLoss"]
@@ -268,9 +269,7 @@ class VMPOLoss(LossModule):
         Defaults to GAE with TorchRL's default ``gamma=0.99, lmbda=0.95``; see
         :meth:`~torchrl.objectives.LossModule.make_value_estimator`.
         """
-        value_type, hyperparams = self._prepare_value_estimator_kwargs(
-            value_type, **hyperparams
-        )
+        value_type, hyperparams = self._prepare_value_estimator_kwargs(value_type, **hyperparams)
         if value_type is None:
             return self
         dispatch_value_estimator(
@@ -289,9 +288,7 @@ class VMPOLoss(LossModule):
         )
         return self
 
-    def _valid_mask(
-        self, tensordict: TensorDictBase, like: torch.Tensor
-    ) -> torch.Tensor | None:
+    def _valid_mask(self, tensordict: TensorDictBase, like: torch.Tensor) -> torch.Tensor | None:
         # The masks LossModule._reduce_loss honours, combined once: the E-step's top-k
         # selection needs the mask itself, not only masked means.
         valid = None
@@ -302,9 +299,7 @@ class VMPOLoss(LossModule):
                 valid = mask if valid is None else valid & mask
         return valid
 
-    def _masked_mean(
-        self, value: torch.Tensor, valid: torch.Tensor | None
-    ) -> torch.Tensor:
+    def _masked_mean(self, value: torch.Tensor, valid: torch.Tensor | None) -> torch.Tensor:
         return self._reduce_loss(value, mask=valid, reduction="mean")
 
     @dispatch
@@ -341,9 +336,7 @@ class VMPOLoss(LossModule):
 
         # pi_old, rebuilt before the current actor overwrites the stored parameters
         old_dist = self.actor_network.build_dist_from_params(tensordict.detach())
-        with self.actor_network_params.to_module(
-            self.actor_network, preserve_module_state=False
-        ):
+        with self.actor_network_params.to_module(self.actor_network, preserve_module_state=False):
             dist = self.actor_network.get_dist(tensordict)
         log_prob = sum_event_dims(
             dist.log_prob(tensordict.get(self.tensor_keys.action)), advantage.ndim
@@ -367,9 +360,7 @@ class VMPOLoss(LossModule):
         alpha = self.log_alpha.exp()
         loss_alpha = trust_region_loss(kl, alpha, self.eps_alpha)
 
-        with self.critic_network_params.to_module(
-            self.critic_network, preserve_module_state=False
-        ):
+        with self.critic_network_params.to_module(self.critic_network, preserve_module_state=False):
             state_value = self.critic_network(tensordict).get(self.tensor_keys.value)
         value_target = tensordict.get(self.tensor_keys.value_target)
         loss_critic = self.critic_coeff * self._masked_mean(

@@ -26,6 +26,7 @@ on a batch :math:`\mathcal{D}` of transitions, with
 * the value loss (Sec. 3.1) :math:`\mathcal{L}_V = \frac{1}{2|\mathcal{D}|}
   \sum (V_\phi(s) - G)^2`, :math:`G` the value target.
 """
+
 from __future__ import annotations
 
 import math
@@ -42,9 +43,7 @@ from torchrl.modules.distributions.utils import sample_and_log_prob
 CRITIC_LOSS_TYPES = ("l1", "l2", "smooth_l1")
 
 
-def check_settings(
-    top_fraction: float, loss_critic_type: str, **positive: float
-) -> None:
+def check_settings(top_fraction: float, loss_critic_type: str, **positive: float) -> None:
     """Refuse settings V-MPO cannot run with (ValueError): a kept fraction outside (0, 1],
     an unknown critic loss, or one of `positive` (temperatures, bounds, the value loss's
     factor) not a finite number > 0."""
@@ -55,8 +54,7 @@ def check_settings(
             raise ValueError(f"{name} must be a finite number > 0, got {value}.")
     if loss_critic_type not in CRITIC_LOSS_TYPES:
         raise ValueError(
-            f"loss_critic_type must be one of {CRITIC_LOSS_TYPES}, got "
-            f"{loss_critic_type!r}."
+            f"loss_critic_type must be one of {CRITIC_LOSS_TYPES}, got {loss_critic_type!r}."
         )
 
 
@@ -142,14 +140,11 @@ def temperature_loss(
     :math:`\eta` grows while :math:`\psi` is more peaked than allowed and shrinks otherwise.
     """
     return eta * eps_eta + eta * (
-        torch.logsumexp(kept_advantage / eta, dim=0)
-        - math.log(kept_advantage.numel())
+        torch.logsumexp(kept_advantage / eta, dim=0) - math.log(kept_advantage.numel())
     )
 
 
-def trust_region_loss(
-    kl: torch.Tensor, alpha: torch.Tensor, eps_alpha: float
-) -> torch.Tensor:
+def trust_region_loss(kl: torch.Tensor, alpha: torch.Tensor, eps_alpha: float) -> torch.Tensor:
     r""":math:`\mathcal{L}_\alpha = \alpha\,(\epsilon_\alpha - \mathrm{sg}[D_{KL}])
     + \mathrm{sg}[\alpha]\, D_{KL}`, the M-step trust region: the policy is penalised by
     :math:`\alpha D_{KL}` and :math:`\alpha` grows while :math:`D_{KL} > \epsilon_\alpha`.
@@ -229,7 +224,5 @@ class VMPOKeys:
     def __post_init__(self) -> None:
         if self.sample_log_prob is None:
             self.sample_log_prob = (
-                "sample_log_prob"
-                if composite_lp_aggregate(nowarn=True)
-                else "action_log_prob"
+                "sample_log_prob" if composite_lp_aggregate(nowarn=True) else "action_log_prob"
             )

@@ -2,6 +2,7 @@
 `theta` and `layer_sizes`) and exported torch policies (`policy.pt`, written by
 epoet.rl.policy_file). Evaluation (epoet.eval.agents) and the torch policy's loader both check
 files here, so a bad file gets the same one-line error everywhere."""
+
 from __future__ import annotations
 
 import zipfile
@@ -11,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from epoet.rl.config import RL_ACTIVATIONS
 from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.rl.config import RL_ACTIVATIONS
 from epoet.rollout.policy import num_params
 
 TORCH_POLICY = "policy.pt"
@@ -26,24 +27,32 @@ class AgentError(ValueError):
     """A run spec that names no usable agent; one sentence."""
 
 
-VALID = {"es": "an .npz of ES parameters (theta: the flat finite parameter vector, layer_sizes: "
-                "{obs}, ..., {act})",
-         "torch": f"a {TORCH_POLICY} that a PPO, SAC or VMPO run exported"}
+VALID = {
+    "es": "an .npz of ES parameters (theta: the flat finite parameter vector, layer_sizes: "
+    "{obs}, ..., {act})",
+    "torch": f"a {TORCH_POLICY} that a PPO, SAC or VMPO run exported",
+}
 
 
 def bad_agent(path: Path, kind: str, problem: str) -> AgentError:
     """One sentence: the file, what is wrong with it and what a valid one is."""
-    return AgentError(f"{path} {problem}: a valid agent file is "
-                      f"{VALID[kind].format(obs=OBS_DIM, act=ACT_DIM)}.")
+    return AgentError(
+        f"{path} {problem}: a valid agent file is {VALID[kind].format(obs=OBS_DIM, act=ACT_DIM)}."
+    )
 
 
-def check_network(path: Path, kind: str, sizes: Sequence[int],
-                  params: Iterable[tuple[str, np.ndarray]]) -> None:
+def check_network(
+    path: Path, kind: str, sizes: Sequence[int], params: Iterable[tuple[str, np.ndarray]]
+) -> None:
     """The check every policy format shares: it maps the task's observations to its actions
     and all its parameters are finite (NaN weights would act NaN and crash the episode)."""
     if sizes[0] != OBS_DIM or sizes[-1] != ACT_DIM:
-        raise bad_agent(path, kind, f"maps {sizes[0]} observations to {sizes[-1]} actions, but "
-                                    f"the task has {OBS_DIM} observations and {ACT_DIM} actions")
+        raise bad_agent(
+            path,
+            kind,
+            f"maps {sizes[0]} observations to {sizes[-1]} actions, but "
+            f"the task has {OBS_DIM} observations and {ACT_DIM} actions",
+        )
     for name, values in params:
         if not np.isfinite(values).all():
             raise bad_agent(path, kind, f"has non-finite parameters (NaN or inf) in {name}")
@@ -63,14 +72,21 @@ def read_es_policy(path: Path) -> tuple[np.ndarray, tuple[int, ...]]:
         raise bad_agent(path, "es", f"has no {' and no '.join(missing)}")
     theta, sizes = arrays["theta"], arrays["layer_sizes"]
     if sizes.ndim != 1 or len(sizes) < 2 or sizes.dtype.kind not in "iu" or sizes.min() < 1:
-        raise bad_agent(path, "es", f"has layer_sizes {sizes.tolist()}, not a list of at least "
-                                    f"two positive integers")
+        raise bad_agent(
+            path,
+            "es",
+            f"has layer_sizes {sizes.tolist()}, not a list of at least two positive integers",
+        )
     sizes_tuple = tuple(int(n) for n in sizes)
     check_network(path, "es", sizes_tuple, [])
     if theta.ndim != 1 or theta.dtype.kind not in "fiu" or len(theta) != num_params(sizes_tuple):
-        raise bad_agent(path, "es", f"has theta of shape {theta.shape} ({theta.dtype}), but "
-                                    f"layer_sizes {list(sizes_tuple)} take "
-                                    f"{num_params(sizes_tuple)} numbers")
+        raise bad_agent(
+            path,
+            "es",
+            f"has theta of shape {theta.shape} ({theta.dtype}), but "
+            f"layer_sizes {list(sizes_tuple)} take "
+            f"{num_params(sizes_tuple)} numbers",
+        )
     theta = theta.astype(np.float64)
     check_network(path, "es", sizes_tuple, [("theta", theta)])
     return theta, sizes_tuple
@@ -108,10 +124,21 @@ def read_torch_policy(path: Path) -> dict[str, Any]:
     shapes = {k: tuple(v.shape) for k, v in weights.items()}
     if shapes != expected or set(weights) != set(spec["state_dict"]):
         raise bad_agent(path, "torch", f"has weights that do not fit its layer sizes {sizes}")
-    if len(norm) not in (0, 2) or (norm and not isinstance(clip, (int, float))) or any(
-            not isinstance(v, torch.Tensor) or tuple(v.shape) != (sizes[0],) for _, v in norm):
-        raise bad_agent(path, "torch", f"has an observation normaliser that is not obs_loc and "
-                                       f"obs_scale of shape ({sizes[0]},) with an obs_clip")
-    check_network(path, "torch", sizes,
-                  [(k, v.detach().double().numpy()) for k, v in [*weights.items(), *norm]])
+    if (
+        len(norm) not in (0, 2)
+        or (norm and not isinstance(clip, (int, float)))
+        or any(not isinstance(v, torch.Tensor) or tuple(v.shape) != (sizes[0],) for _, v in norm)
+    ):
+        raise bad_agent(
+            path,
+            "torch",
+            f"has an observation normaliser that is not obs_loc and "
+            f"obs_scale of shape ({sizes[0]},) with an obs_clip",
+        )
+    check_network(
+        path,
+        "torch",
+        sizes,
+        [(k, v.detach().double().numpy()) for k, v in [*weights.items(), *norm]],
+    )
     return spec

@@ -23,6 +23,7 @@ never on the batch size, the slot it ran in, the other terrains of the call or t
 it: each spawn settles on a fresh MjData and hands the slot its whole integration state
 (warmstart included), and each policy row is computed independently.
 """
+
 from __future__ import annotations
 
 import copy
@@ -35,11 +36,11 @@ import numpy as np
 from numba import njit
 
 from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
 from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
 from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
 from epoet.rollout.policy import forward_rows, num_params, sizes_array
+from epoet.terrain.config import TerrainConfig
 from epoet.terrain.terrain import TerrainLike
 
 TRANSITION_KEYS = ("episode", "obs", "action", "reward", "next_obs", "terminated")
@@ -63,9 +64,9 @@ class Episodes:
     episode action sequences are `action[episode == e]`.
     """
 
-    returns: np.ndarray      # float64
-    lengths: np.ndarray      # int64, control steps
-    finished: np.ndarray     # bool, crossed the finish line
+    returns: np.ndarray  # float64
+    lengths: np.ndarray  # int64, control steps
+    finished: np.ndarray  # bool, crossed the finish line
     transitions: dict[str, np.ndarray] | None = None
 
 
@@ -73,16 +74,21 @@ def merge_episodes(parts: Sequence[tuple[np.ndarray, Episodes]], n: int) -> Epis
     """One `Episodes` of size n from (episode indices, results) parts covering 0..n-1 once each."""
     index = np.concatenate([idx for idx, _ in parts])
     if index.shape != (n,) or not np.array_equal(np.sort(index), np.arange(n)):
-        raise RuntimeError(f"rollout parts hold {index.size} episodes that do not cover each "
-                           f"of 0..{n - 1} exactly once.")
+        raise RuntimeError(
+            f"rollout parts hold {index.size} episodes that do not cover each "
+            f"of 0..{n - 1} exactly once."
+        )
     order = np.argsort(index)
-    returns, lengths, finished = (np.concatenate([getattr(ep, name) for _, ep in parts])[order]
-                                  for name in ("returns", "lengths", "finished"))
+    returns, lengths, finished = (
+        np.concatenate([getattr(ep, name) for _, ep in parts])[order]
+        for name in ("returns", "lengths", "finished")
+    )
     merged = Episodes(returns, lengths, finished)
     recorded = [ep.transitions for _, ep in parts if ep.transitions is not None]
     if recorded:
         merged.transitions = _group_by_episode(
-            {key: np.concatenate([t[key] for t in recorded]) for key in TRANSITION_KEYS})
+            {key: np.concatenate([t[key] for t in recorded]) for key in TRANSITION_KEYS}
+        )
     return merged
 
 
@@ -109,18 +115,31 @@ class _Recorder:
     Observations, actions and rewards are kept in float32, what SAC's replay stores: half the
     memory and the bytes sent back from the workers."""
 
-    DTYPES = {"episode": np.int64, "obs": np.float32, "action": np.float32,
-              "reward": np.float32, "next_obs": np.float32, "terminated": bool}
+    DTYPES = {
+        "episode": np.int64,
+        "obs": np.float32,
+        "action": np.float32,
+        "reward": np.float32,
+        "next_obs": np.float32,
+        "terminated": bool,
+    }
 
     def __init__(self) -> None:
         self.chunks: dict[str, list[np.ndarray]] = {key: [] for key in TRANSITION_KEYS}
 
-    def add(self, rows: np.ndarray, episode: np.ndarray, obs: np.ndarray, action: np.ndarray,
-            reward: np.ndarray, next_obs: np.ndarray, terminated: np.ndarray) -> None:
+    def add(
+        self,
+        rows: np.ndarray,
+        episode: np.ndarray,
+        obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+    ) -> None:
         """The step's transitions of slots `rows`; `obs` holds those rows only (the engine
         takes them before it overwrites its observations), the other fields every slot."""
-        values = (episode[rows], obs, action[rows], reward[rows], next_obs[rows],
-                  terminated[rows])
+        values = (episode[rows], obs, action[rows], reward[rows], next_obs[rows], terminated[rows])
         for key, value in zip(TRANSITION_KEYS, values):
             # fancy indexing copied the rows (the engine reuses its buffers); float64 fields
             # are then cast to float32 (a second, row-sized copy)
@@ -138,9 +157,9 @@ class _Run:
 
     state: EpisodeState
     returns: np.ndarray
-    episode: np.ndarray      # job index per slot; -1 while idle
+    episode: np.ndarray  # job index per slot; -1 while idle
     running: np.ndarray
-    recording: np.ndarray    # the slot's episode is recorded
+    recording: np.ndarray  # the slot's episode is recorded
     jobs: Iterator[Job]
     recorder: _Recorder | None = None  # made when the first recorded episode starts
 
@@ -154,8 +173,14 @@ class _Field:
 
 
 @njit(cache=True)
-def _tally(reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
-           running: np.ndarray, returns: np.ndarray, done: np.ndarray) -> bool:
+def _tally(
+    reward: np.ndarray,
+    terminated: np.ndarray,
+    truncated: np.ndarray,
+    running: np.ndarray,
+    returns: np.ndarray,
+    done: np.ndarray,
+) -> bool:
     """Add the running slots' rewards to their returns and mark those whose episode ended in
     `done`; whether any did. (One compiled call for what took four numpy calls a step.)"""
     any_done = False
@@ -170,8 +195,9 @@ def _tally(reward: np.ndarray, terminated: np.ndarray, truncated: np.ndarray,
 class RolloutEngine:
     """Runs episodes of many parameter vectors on given terrains at close to raw MuJoCo speed."""
 
-    def __init__(self, agent: AgentConfig, terrain: TerrainConfig, batch: int,
-                 layer_sizes: Sequence[int]) -> None:
+    def __init__(
+        self, agent: AgentConfig, terrain: TerrainConfig, batch: int, layer_sizes: Sequence[int]
+    ) -> None:
         """`batch` robots step together (`workers.batch`); `layer_sizes` is the policy's."""
         if batch < 1:
             raise ValueError(f"batch must be >= 1, got {batch}.")
@@ -179,8 +205,10 @@ class RolloutEngine:
         self.batch = int(batch)
         self.layer_sizes = tuple(layer_sizes)
         if self.layer_sizes[0] != OBS_DIM or self.layer_sizes[-1] != ACT_DIM:
-            raise ValueError(f"layer_sizes must map {OBS_DIM} observations to {ACT_DIM} "
-                             f"actions, got {self.layer_sizes}.")
+            raise ValueError(
+                f"layer_sizes must map {OBS_DIM} observations to {ACT_DIM} "
+                f"actions, got {self.layer_sizes}."
+            )
         self.num_params = num_params(self.layer_sizes)
         self._sizes = sizes_array(self.layer_sizes)
         self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
@@ -204,27 +232,40 @@ class RolloutEngine:
                 model = copy.copy(self.model)
                 self._fields.append(_Field(model, Ground(model)))
             field = self._fields[k]
-            field.ground.set(field.model, np.asarray(terrain.heightmap),
-                             float(terrain.max_height), float(terrain.size))
+            field.ground.set(
+                field.model,
+                np.asarray(terrain.heightmap),
+                float(terrain.max_height),
+                float(terrain.size),
+            )
 
-    def run(self, terrain: TerrainLike, params: np.ndarray, episode_seeds: np.ndarray, *,
-            record: bool = False) -> Episodes:
+    def run(
+        self,
+        terrain: TerrainLike,
+        params: np.ndarray,
+        episode_seeds: np.ndarray,
+        *,
+        record: bool = False,
+    ) -> Episodes:
         """Episode e runs policy `params[e]` from the start drawn by `default_rng(seeds[e])`."""
         params = np.asarray(params, dtype=np.float64)
         seeds = check_seeds(episode_seeds, "episode_seeds")
         if params.ndim != 2 or params.shape[1] != self.num_params:
             raise ValueError(f"params must have shape (N, {self.num_params}), got {params.shape}.")
         if seeds.shape != (params.shape[0],):
-            raise ValueError(f"episode_seeds must have shape ({params.shape[0]},) to match "
-                             f"params, got {seeds.shape}.")
+            raise ValueError(
+                f"episode_seeds must have shape ({params.shape[0]},) to match "
+                f"params, got {seeds.shape}."
+            )
         if not len(seeds):
             raise ValueError("run needs at least one episode.")
         jobs = ((e, params[e], int(seeds[e]), 0, record) for e in range(len(seeds)))
         self.set_terrains([terrain])
         return merge_episodes([self.run_jobs(jobs, slots=len(seeds))], len(seeds))
 
-    def run_jobs(self, jobs: Iterable[Job], *, slots: int | None = None
-                 ) -> tuple[np.ndarray, Episodes]:
+    def run_jobs(
+        self, jobs: Iterable[Job], *, slots: int | None = None
+    ) -> tuple[np.ndarray, Episodes]:
         """Run jobs on their terrains (`set_terrains`) until the stream ends; jobs are pulled as
         slots free up.
 
@@ -234,9 +275,14 @@ class RolloutEngine:
         worker sharing a job queue should not hoard more jobs than its share.
         """
         width = self.batch if slots is None else max(1, min(int(slots), self.batch))
-        run = _Run(EpisodeState.zeros(width), np.zeros(width),
-                   np.full(width, -1, dtype=np.int64), np.zeros(width, dtype=bool),
-                   np.zeros(width, dtype=bool), iter(jobs))
+        run = _Run(
+            EpisodeState.zeros(width),
+            np.zeros(width),
+            np.full(width, -1, dtype=np.int64),
+            np.zeros(width, dtype=bool),
+            np.zeros(width, dtype=bool),
+            iter(jobs),
+        )
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
         obs, ctrl, actions = self._obs[:width], self._ctrl[:width], self._actions[:width]
         params = self._params[:width]
@@ -261,8 +307,15 @@ class RolloutEngine:
                 run.recorder.add(recorded, run.episode, before, actions, reward, obs, terminated)
             if _tally(reward, terminated, truncated, run.running, run.returns, done):
                 ended = np.flatnonzero(done)
-                results += [(int(run.episode[i]), float(run.returns[i]),
-                             int(run.state.steps[i]), bool(run.state.finished[i])) for i in ended]
+                results += [
+                    (
+                        int(run.episode[i]),
+                        float(run.returns[i]),
+                        int(run.state.steps[i]),
+                        bool(run.state.finished[i]),
+                    )
+                    for i in ended
+                ]
                 run.running[ended] = False
                 run.episode[ended] = -1
                 self._start(run, ended)
@@ -287,8 +340,9 @@ class RolloutEngine:
             index, params, seed, terrain, record = job
             field = self._fields[terrain]
             self._slot_model[i] = field.model
-            spawn(field.model, self._spawn_data, field.ground, self.agent,
-                  np.random.default_rng(seed))
+            spawn(
+                field.model, self._spawn_data, field.ground, self.agent, np.random.default_rng(seed)
+            )
             mujoco.mj_getState(field.model, self._spawn_data, self._sims.state[i], _INTEGRATION)
             self._params[i] = params
             run.episode[i], run.running[i], run.returns[i] = index, True, 0.0
@@ -307,16 +361,20 @@ class RolloutEngine:
         width = len(run.running)
         self.task.begin(self._qpos[:width], run.state, ids)
         # Recomputing the observation of every row is cheaper than selecting the new ones.
-        self.task.observe(self._qpos[:width], self._qvel[:width], self._sensor[:width],
-                          self._obs[:width])
+        self.task.observe(
+            self._qpos[:width], self._qvel[:width], self._sensor[:width], self._obs[:width]
+        )
 
     @staticmethod
-    def _collect(results: list[tuple[int, float, int, bool]], recorder: _Recorder | None
-                 ) -> tuple[np.ndarray, Episodes]:
+    def _collect(
+        results: list[tuple[int, float, int, bool]], recorder: _Recorder | None
+    ) -> tuple[np.ndarray, Episodes]:
         results.sort()
         index = np.array([r[0] for r in results], dtype=np.int64)
-        episodes = Episodes(np.array([r[1] for r in results], dtype=np.float64),
-                            np.array([r[2] for r in results], dtype=np.int64),
-                            np.array([r[3] for r in results], dtype=bool),
-                            recorder.result() if recorder is not None else None)
+        episodes = Episodes(
+            np.array([r[1] for r in results], dtype=np.float64),
+            np.array([r[2] for r in results], dtype=np.int64),
+            np.array([r[3] for r in results], dtype=bool),
+            recorder.result() if recorder is not None else None,
+        )
         return index, episodes

@@ -1,19 +1,25 @@
 """The evaluator a run asks for: in-process, a local process pool, or a Ray cluster."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
 
 from epoet.config import WorkersConfig
-from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
 from epoet.core.compute import default_workers
+from epoet.envs.config import AgentConfig
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.backends.pool import PoolEvaluator
 from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.terrain.config import TerrainConfig
 
 
-def make_evaluator(agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | str,
-                   batch: int, layer_sizes: Sequence[int]) -> Evaluator:
+def make_evaluator(
+    agent: AgentConfig,
+    terrain_cfg: TerrainConfig,
+    workers: int | str,
+    batch: int,
+    layer_sizes: Sequence[int],
+) -> Evaluator:
     """workers: 'local' (a pool with one process per core) or a count; 1 runs in-process."""
     if workers == "local":
         workers = default_workers()
@@ -24,12 +30,18 @@ def make_evaluator(agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int 
     return PoolEvaluator(agent, terrain_cfg, workers, batch, layer_sizes)
 
 
-def evaluator_for(workers: WorkersConfig, agent: AgentConfig, terrain_cfg: TerrainConfig,
-                  layer_sizes: Sequence[int]) -> Evaluator:
+def evaluator_for(
+    workers: WorkersConfig,
+    agent: AgentConfig,
+    terrain_cfg: TerrainConfig,
+    layer_sizes: Sequence[int],
+) -> Evaluator:
     """The evaluator a run's `workers` config asks for."""
     if workers.backend == "ray":
         # the optional extra, imported on demand
         from epoet.rollout.backends.ray_cluster import RayEvaluator
-        return RayEvaluator(agent, terrain_cfg, workers.num, workers.batch, layer_sizes,
-                            workers.address)
+
+        return RayEvaluator(
+            agent, terrain_cfg, workers.num, workers.batch, layer_sizes, workers.address
+        )
     return make_evaluator(agent, terrain_cfg, workers.num or "local", workers.batch, layer_sizes)

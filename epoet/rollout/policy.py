@@ -10,6 +10,7 @@ A layer computes h_l = tanh(h_{l-1} @ W_l + b_l); tanh is applied on every layer
 output, so actions lie in [-1, 1] as the hexapod's actuators expect (docs/reference.md).
 One compiled function (`forward_rows`) computes it for the engine's batches and for `forward`.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -53,8 +54,9 @@ def num_params(layer_sizes: Sequence[int]) -> int:
     return sum(n_in * n_out + n_out for n_in, n_out in zip(sizes[:-1], sizes[1:]))
 
 
-def init_params(seed: int | np.random.Generator, layer_sizes: Sequence[int],
-                std: float = INIT_STD) -> np.ndarray:
+def init_params(
+    seed: int | np.random.Generator, layer_sizes: Sequence[int], std: float = INIT_STD
+) -> np.ndarray:
     """A fresh parameter vector, every entry (weights and biases) drawn from N(0, std^2)."""
     if std < 0:
         raise ValueError(f"std must be >= 0, got {std}.")
@@ -71,12 +73,15 @@ def _check_flat(params: np.ndarray, layer_sizes: Sequence[int], ndim: int) -> np
     return params
 
 
-def unflatten(params: np.ndarray, layer_sizes: Sequence[int]
-              ) -> list[tuple[np.ndarray, np.ndarray]]:
+def unflatten(
+    params: np.ndarray, layer_sizes: Sequence[int]
+) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per-layer (W, b) views into `params` (P,); writing to them writes to `params`."""
     params = _check_flat(params, layer_sizes, ndim=1)
-    return [(params[w0:b0].reshape(n_in, n_out), params[b0:b0 + n_out])
-            for n_in, n_out, w0, b0 in _layer_slices(layer_sizes)]
+    return [
+        (params[w0:b0].reshape(n_in, n_out), params[b0 : b0 + n_out])
+        for n_in, n_out, w0, b0 in _layer_slices(layer_sizes)
+    ]
 
 
 def sizes_array(layer_sizes: Sequence[int]) -> np.ndarray:
@@ -84,16 +89,16 @@ def sizes_array(layer_sizes: Sequence[int]) -> np.ndarray:
     return np.array(_check_sizes(layer_sizes), dtype=np.int64)
 
 
-def forward(params: np.ndarray, obs: np.ndarray, layer_sizes: Sequence[int]
-            ) -> np.ndarray:
+def forward(params: np.ndarray, obs: np.ndarray, layer_sizes: Sequence[int]) -> np.ndarray:
     """Actions of one parameter vector for one observation (n_0,) or a batch (N, n_0); the
     same computation as the rollout engine's, so an episode replayed step by step (the gym env,
     evaluation, rendering) takes the engine's actions bit for bit."""
     params = _check_flat(params, layer_sizes, ndim=1)
     obs = np.asarray(obs, dtype=np.float64)
     if obs.ndim not in (1, 2) or obs.shape[-1] != layer_sizes[0]:
-        raise ValueError(f"obs must have shape ({layer_sizes[0]},) or (N, {layer_sizes[0]}), "
-                         f"got {obs.shape}.")
+        raise ValueError(
+            f"obs must have shape ({layer_sizes[0]},) or (N, {layer_sizes[0]}), got {obs.shape}."
+        )
     rows = np.atleast_2d(obs)
     out = np.empty((len(rows), layer_sizes[-1]))
     forward_rows(np.ascontiguousarray(params)[None], sizes_array(layer_sizes), rows, out)
@@ -108,8 +113,9 @@ def _tanh(v: float) -> float:
 
 
 @njit(cache=True)
-def forward_rows(params: np.ndarray, layer_sizes: np.ndarray, obs: np.ndarray,
-                 out: np.ndarray) -> None:
+def forward_rows(
+    params: np.ndarray, layer_sizes: np.ndarray, obs: np.ndarray, out: np.ndarray
+) -> None:
     """out[b] = the actions of parameters params[b] (B, P) for obs[b] (B, n_0); params of
     shape (1, P) act on every row.
 
@@ -143,14 +149,15 @@ def forward_rows(params: np.ndarray, layer_sizes: np.ndarray, obs: np.ndarray,
 
 
 # --- a policy on standardised observations, folded into its first layer (epoet.es.obs_norm) ---
-def fold(theta: np.ndarray, mean: np.ndarray, std: np.ndarray, layer_sizes: Sequence[int]
-         ) -> np.ndarray:
+def fold(
+    theta: np.ndarray, mean: np.ndarray, std: np.ndarray, layer_sizes: Sequence[int]
+) -> np.ndarray:
     """The raw-observation parameters of `theta` (P,) or (K, P), a policy on standardised
     observations: fold(theta)(obs) = theta((obs - mean) / std)."""
     thetas = np.array(theta, dtype=np.float64, ndmin=2)
     for row in thetas:
         (w, b), *_ = unflatten(row, layer_sizes)
-        b -= (mean / std) @ w   # before w changes: uses the standardised-space weights
+        b -= (mean / std) @ w  # before w changes: uses the standardised-space weights
         w /= std[:, None]
     return thetas.reshape(np.shape(theta))
 

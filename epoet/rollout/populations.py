@@ -7,6 +7,7 @@ The perturbation eps of an ES episode is regenerated from an integer seed,
 eps = default_rng(seed).standard_normal(P): the workers rebuild theta +- sigma * eps to run it,
 and the optimiser (epoet.es.optimizer) the same eps for the gradient.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -31,7 +32,9 @@ def noise(seed: int, num_params: int) -> np.ndarray:
     return np.random.default_rng(int(seed)).standard_normal(num_params)
 
 
-def mirrored_population(theta: np.ndarray, seeds: Sequence[int] | np.ndarray, sigma: float) -> np.ndarray:
+def mirrored_population(
+    theta: np.ndarray, seeds: Sequence[int] | np.ndarray, sigma: float
+) -> np.ndarray:
     """(2n, P) points to evaluate: row i is theta + sigma*eps_i, row n + i theta - sigma*eps_i."""
     theta = check_theta(theta)
     n = len(seeds)
@@ -74,8 +77,14 @@ class Mirrored:
     standardizer: Standardizer | None = None  # theta acts on standardised observations
 
     @classmethod
-    def of(cls, theta: np.ndarray, noise_seeds: np.ndarray, sigma: float,
-           spawn_seeds: np.ndarray, standardizer: Standardizer | None = None) -> "Mirrored":
+    def of(
+        cls,
+        theta: np.ndarray,
+        noise_seeds: np.ndarray,
+        sigma: float,
+        spawn_seeds: np.ndarray,
+        standardizer: Standardizer | None = None,
+    ) -> "Mirrored":
         """The checked population of one ES step around `theta`."""
         theta = np.asarray(theta, dtype=np.float64)
         noise = check_seeds(noise_seeds, "noise_seeds")
@@ -85,8 +94,9 @@ class Mirrored:
         if noise.ndim != 1 or not len(noise):
             raise ValueError(f"noise_seeds must be a non-empty 1-D array, got {noise.shape}.")
         if spawn.shape != noise.shape:
-            raise ValueError(f"spawn_seeds must have one seed per noise seed {noise.shape}, got "
-                             f"{spawn.shape}.")
+            raise ValueError(
+                f"spawn_seeds must have one seed per noise seed {noise.shape}, got {spawn.shape}."
+            )
         if not sigma > 0:
             raise ValueError(f"sigma must be > 0, got {sigma}.")
         return cls(theta, float(sigma), noise, spawn, standardizer)
@@ -105,7 +115,7 @@ class Mirrored:
     def job(self, e: int) -> tuple[np.ndarray, int]:
         n = len(self.noise_seeds)
         # The pair through `mirrored_population` itself: bit-identical to its rows e and n + e.
-        pair = mirrored_population(self.theta, self.noise_seeds[e % n:e % n + 1], self.sigma)
+        pair = mirrored_population(self.theta, self.noise_seeds[e % n : e % n + 1], self.sigma)
         params = pair[e // n]
         if self.standardizer is not None:
             params = self.standardizer.fold(params)
@@ -116,7 +126,7 @@ class Mirrored:
 class Agents:
     """K agents times n episodes each; episode e = k * n + j is agent k with spawn_seeds[k, j]."""
 
-    thetas: np.ndarray       # (K, P)
+    thetas: np.ndarray  # (K, P)
     spawn_seeds: np.ndarray  # (K, n)
 
     @classmethod
@@ -125,14 +135,15 @@ class Agents:
         thetas = np.asarray(thetas, dtype=np.float64)
         seeds = check_seeds(spawn_seeds, "spawn_seeds")
         if thetas.ndim != 2 or not thetas.size:
-            raise ValueError(f"thetas must have shape (K, P) with K, P >= 1, got "
-                             f"{thetas.shape}.")
+            raise ValueError(f"thetas must have shape (K, P) with K, P >= 1, got {thetas.shape}.")
         k = len(thetas)
         if seeds.ndim == 1:
             seeds = np.broadcast_to(seeds, (k, len(seeds)))
         if seeds.ndim != 2 or seeds.shape[0] != k or not seeds.shape[1]:
-            raise ValueError(f"spawn_seeds must have shape (n,) or ({k}, n) with n >= 1, got "
-                             f"{np.shape(spawn_seeds)}.")
+            raise ValueError(
+                f"spawn_seeds must have shape (n,) or ({k}, n) with n >= 1, got "
+                f"{np.shape(spawn_seeds)}."
+            )
         return cls(thetas, np.ascontiguousarray(seeds))
 
     @property

@@ -3,6 +3,7 @@
 Regenerated from a new seed every iteration, it keeps the agent on changing ground even while
 the CPPN part of its environment stays the same (paper, Appendix "Generated Environments").
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,8 +12,14 @@ from scipy import ndimage
 from epoet.terrain.terrain import normalize
 
 
-def random_bowl(rng: np.random.Generator, grid: int, max_height: float, bump_grid: int = 20,
-                bump_low: float = 0.15, bump_high: float = 1.0) -> np.ndarray:
+def random_bowl(
+    rng: np.random.Generator,
+    grid: int,
+    max_height: float,
+    bump_grid: int = 20,
+    bump_low: float = 0.15,
+    bump_high: float = 1.0,
+) -> np.ndarray:
     """A (grid, grid) bowl with smooth random bumps, normalised to [0, 1].
 
     bowl = level - cos(2 pi radius) / 2 on r, c in [-1, 1] with radius clipped to [0.04, 1] and
@@ -21,14 +28,16 @@ def random_bowl(rng: np.random.Generator, grid: int, max_height: float, bump_gri
     a bump_grid x bump_grid field of U(bump_low, bump_high), upsampled by cubic splines.
     """
     if grid < 2 or bump_grid < 1:
-        raise ValueError(f"random_bowl needs grid >= 2 and bump_grid >= 1, got {grid} and "
-                         f"{bump_grid}.")
+        raise ValueError(
+            f"random_bowl needs grid >= 2 and bump_grid >= 1, got {grid} and {bump_grid}."
+        )
     if not 0.0 < bump_low <= bump_high:
-        raise ValueError(f"random_bowl needs 0 < bump_low <= bump_high, got {bump_low} and "
-                         f"{bump_high}.")
+        raise ValueError(
+            f"random_bowl needs 0 < bump_low <= bump_high, got {bump_low} and {bump_high}."
+        )
     axis = np.linspace(-1.0, 1.0, grid)
     r, c = np.meshgrid(axis, axis, indexing="ij")
-    radius = np.clip(np.sqrt(r ** 2 + c ** 2), 0.04, 1.0)
+    radius = np.clip(np.sqrt(r**2 + c**2), 0.04, 1.0)
     level = rng.uniform(0.5, max_height + 0.5)
     bowl = level - np.cos(2.0 * np.pi * radius) / 2.0
     bumps = rng.uniform(bump_low, bump_high, size=(bump_grid, bump_grid))

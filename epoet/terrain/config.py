@@ -1,4 +1,5 @@
 """Terrain settings (conf/terrain/): the heightfield, its bowl and CPPN parts, and CPPN mutation."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -61,17 +62,38 @@ class CppnConfig:
     weight_replace_rate: float
 
     def __post_init__(self) -> None:
-        check(self.num_inputs == 2 and self.num_outputs == 1,
-              "terrain.cppn must map 2 inputs (x, y) to 1 output (height).")
+        check(
+            self.num_inputs == 2 and self.num_outputs == 1,
+            "terrain.cppn must map 2 inputs (x, y) to 1 output (height).",
+        )
         non_negative(self, "num_hidden")
-        known = {"identity", "sin", "sigmoid", "square", "tanh", "gauss", "relu", "abs", "exp",
-                 "log", "inv", "clamped", "cube", "hat", "softplus", "elu", "lelu", "selu"}
+        known = {
+            "identity",
+            "sin",
+            "sigmoid",
+            "square",
+            "tanh",
+            "gauss",
+            "relu",
+            "abs",
+            "exp",
+            "log",
+            "inv",
+            "clamped",
+            "cube",
+            "hat",
+            "softplus",
+            "elu",
+            "lelu",
+            "selu",
+        }
         unknown = sorted(set(self.activation_options) - known)
         check(not unknown, f"terrain.cppn.activation_options has unknown activations {unknown}.")
         # The vectorised CPPN evaluator (epoet/terrain/cppn.py) implements these neat built-ins.
         unknown = sorted(set(self.aggregation_options) - {"sum", "product", "max", "min", "mean"})
-        check(not unknown,
-              f"terrain.cppn.aggregation_options has unsupported aggregations {unknown}.")
+        check(
+            not unknown, f"terrain.cppn.aggregation_options has unsupported aggregations {unknown}."
+        )
 
 
 @dataclass
@@ -81,23 +103,25 @@ class MutationConfig:
     KEY: ClassVar[str] = "terrain.mutation"
 
     min_genome_distance: float
-    check_grid: int                  # samples per side of the check grid, in CPPN units
-    min_range: float                 # max of (output - output at the first point) must exceed this
+    check_grid: int  # samples per side of the check grid, in CPPN units
+    min_range: float  # max of (output - output at the first point) must exceed this
     min_variance: float
-    response_rescale_low: float      # a peak below low resets the output response to
+    response_rescale_low: float  # a peak below low resets the output response to
     small_peak_response: list[float]  # U(lo, hi) / peak,
-    response_rescale_high: float     # a peak above high resets it to
+    response_rescale_high: float  # a peak above high resets it to
     large_peak_response: list[float]  # U(lo, hi) / peak (the reference's two rules)
-    output_response: float           # the reference sets the output node's response before mutating
-    max_tries: int                   # with no connection mutations, deep genomes need many tries
+    output_response: float  # the reference sets the output node's response before mutating
+    max_tries: int  # with no connection mutations, deep genomes need many tries
 
     def __post_init__(self) -> None:
         positive(self, "check_grid", "max_tries", "response_rescale_low", "response_rescale_high")
         for name in ("small_peak_response", "large_peak_response"):
             lo_hi = getattr(self, name)
-            check(len(lo_hi) == 2 and 0.0 < lo_hi[0] <= lo_hi[1],
-                  f"terrain.mutation.{name} must be [low, high] with 0 < low <= high, got "
-                  f"{list(lo_hi)}.")
+            check(
+                len(lo_hi) == 2 and 0.0 < lo_hi[0] <= lo_hi[1],
+                f"terrain.mutation.{name} must be [low, high] with 0 < low <= high, got "
+                f"{list(lo_hi)}.",
+            )
         non_negative(self, "min_genome_distance", "min_range", "min_variance")
 
 
@@ -107,16 +131,16 @@ class TerrainConfig:
 
     KEY: ClassVar[str] = "terrain"
 
-    kind: str                        # bowl | cppn
-    grid: int                        # samples per side
-    size: float                      # metres per side (square terrain centred at the origin)
-    base: float                      # hfield base thickness below height 0 (metres)
-    max_height: float                # initial maximum height S (metres)
-    max_height_step: float           # +S per iteration (paper)
-    max_height_limit: float          # cap on S (reference)
-    bowl_weight: float               # heightmap = w bowl + (1 - w) CPPN; 1.0 = bowl only
-    cppn_scale: float                # CPPN input units per metre (the reference's feature size)
-    cppn_origin: list[float]         # (x, y) metres where the CPPN's input is (0, 0)
+    kind: str  # bowl | cppn
+    grid: int  # samples per side
+    size: float  # metres per side (square terrain centred at the origin)
+    base: float  # hfield base thickness below height 0 (metres)
+    max_height: float  # initial maximum height S (metres)
+    max_height_step: float  # +S per iteration (paper)
+    max_height_limit: float  # cap on S (reference)
+    bowl_weight: float  # heightmap = w bowl + (1 - w) CPPN; 1.0 = bowl only
+    cppn_scale: float  # CPPN input units per metre (the reference's feature size)
+    cppn_origin: list[float]  # (x, y) metres where the CPPN's input is (0, 0)
     bump_grid: int
     bump_low: float
     bump_high: float
@@ -124,25 +148,34 @@ class TerrainConfig:
     mutation: MutationConfig
 
     def __post_init__(self) -> None:
-        check(self.kind in ("bowl", "cppn"),
-              f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.")
+        check(
+            self.kind in ("bowl", "cppn"),
+            f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.",
+        )
         positive(self, "grid", "size", "base", "bump_grid", "max_height_limit", "cppn_scale")
         non_negative(self, "max_height", "max_height_step")
         check(self.grid >= 8, f"terrain.grid must be >= 8 samples, got {self.grid}.")
-        check(0.0 <= self.bowl_weight <= 1.0,
-              f"terrain.bowl_weight must be in [0, 1], got {self.bowl_weight}.")
-        check(0.0 < self.bump_low <= self.bump_high,
-              f"terrain.bump_low/bump_high must satisfy 0 < low <= high, got "
-              f"{self.bump_low}/{self.bump_high}.")
-        check(len(self.cppn_origin) == 2,
-              f"terrain.cppn_origin must be [x, y] metres, got {list(self.cppn_origin)}.")
-        check(self.max_height <= self.max_height_limit,
-              f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
-              f"({self.max_height_limit}).")
+        check(
+            0.0 <= self.bowl_weight <= 1.0,
+            f"terrain.bowl_weight must be in [0, 1], got {self.bowl_weight}.",
+        )
+        check(
+            0.0 < self.bump_low <= self.bump_high,
+            f"terrain.bump_low/bump_high must satisfy 0 < low <= high, got "
+            f"{self.bump_low}/{self.bump_high}.",
+        )
+        check(
+            len(self.cppn_origin) == 2,
+            f"terrain.cppn_origin must be [x, y] metres, got {list(self.cppn_origin)}.",
+        )
+        check(
+            self.max_height <= self.max_height_limit,
+            f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
+            f"({self.max_height_limit}).",
+        )
 
     def unused_keys(self) -> tuple[str, ...]:
         """The settings this terrain never reads: the bowl has no CPPN."""
         if self.kind == "bowl":
-            return ("terrain.cppn", "terrain.mutation", "terrain.cppn_scale",
-                    "terrain.cppn_origin")
+            return ("terrain.cppn", "terrain.mutation", "terrain.cppn_scale", "terrain.cppn_origin")
         return ()

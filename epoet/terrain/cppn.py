@@ -16,6 +16,7 @@ Conventions (fixed here, used everywhere in the package):
   parent-child distance needs; unrelated genomes may reuse keys, which would only matter for
   crossover, and CPPNs are never crossed over: paper appendix "Generated Environments".)
 """
+
 from __future__ import annotations
 
 import copy
@@ -30,7 +31,7 @@ from neat.graphs import feed_forward_layers
 
 from epoet.terrain.config import CppnConfig, MutationConfig
 
-INPUT_KEYS = (-1, -2)   # x, y
+INPUT_KEYS = (-1, -2)  # x, y
 OUTPUT_KEY = 0
 
 
@@ -84,8 +85,9 @@ def new_genome(cfg: CppnConfig, seed: int) -> neat.DefaultGenome:
     return genome
 
 
-def field_inputs(grid: int, size: float, origin: Sequence[float], scale: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def field_inputs(
+    grid: int, size: float, origin: Sequence[float], scale: float
+) -> tuple[np.ndarray, np.ndarray]:
     """(x, y) CPPN inputs at a terrain's (grid, grid) samples: rows follow y, columns x.
 
     The samples span `size` metres centred at the origin (MuJoCo's hfield layout); each input is
@@ -117,9 +119,12 @@ _ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "elu": lambda z: np.where(z > 0.0, z, np.exp(np.minimum(z, 0.0)) - 1),
     "lelu": lambda z: np.where(z > 0.0, z, 0.005 * z),
     "selu": lambda z: np.where(
-        z > 0.0, 1.0507009873554804934193349852946 * z,
-        1.0507009873554804934193349852946 * 1.6732632423543772848170429916717
-        * (np.exp(np.minimum(z, 0.0)) - 1)),
+        z > 0.0,
+        1.0507009873554804934193349852946 * z,
+        1.0507009873554804934193349852946
+        * 1.6732632423543772848170429916717
+        * (np.exp(np.minimum(z, 0.0)) - 1),
+    ),
     "softplus": lambda z: 0.2 * np.log(1 + np.exp(_clip60(5.0 * z))),
     "identity": lambda z: z,
     "clamped": lambda z: np.clip(z, -1.0, 1.0),
@@ -128,8 +133,8 @@ _ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "exp": lambda z: np.exp(_clip60(z)),
     "abs": np.abs,
     "hat": lambda z: np.maximum(0.0, 1 - np.abs(z)),
-    "square": lambda z: z ** 2,
-    "cube": lambda z: z ** 3,
+    "square": lambda z: z**2,
+    "cube": lambda z: z**3,
 }
 
 
@@ -175,13 +180,18 @@ def evaluate(genome: neat.DefaultGenome, x: np.ndarray, y: np.ndarray) -> np.nda
     with np.errstate(all="ignore"):
         for layer in layers:
             for node in layer:
-                terms = [values[i] * genome.connections[(i, o)].weight
-                         for i, o in connections if o == node and i in readable]
+                terms = [
+                    values[i] * genome.connections[(i, o)].weight
+                    for i, o in connections
+                    if o == node and i in readable
+                ]
                 gene = genome.nodes[node]
                 act = _ACTIVATIONS.get(gene.activation)
                 if act is None:
-                    raise ValueError(f"CPPN node {node} uses activation {gene.activation!r}, "
-                                     "which the vectorised evaluator does not support.")
+                    raise ValueError(
+                        f"CPPN node {node} uses activation {gene.activation!r}, "
+                        "which the vectorised evaluator does not support."
+                    )
                 s = _aggregate(gene.aggregation, terms, x.shape)
                 values[node] = act(gene.bias + gene.response * s)
     return values[OUTPUT_KEY]
@@ -215,8 +225,13 @@ def _rescaled_response(peak: float, rules: MutationConfig) -> float | None:
     return None
 
 
-def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationConfig,
-                  seed: int, field: tuple[np.ndarray, np.ndarray]) -> neat.DefaultGenome:
+def mutate_genome(
+    parent: neat.DefaultGenome,
+    cppn: CppnConfig,
+    rules: MutationConfig,
+    seed: int,
+    field: tuple[np.ndarray, np.ndarray],
+) -> neat.DefaultGenome:
     """A mutated child that passes the reference's validity rules (docs/reference.md).
 
     Each attempt copies the parent, sets the output response to `rules.output_response` (the
@@ -245,8 +260,11 @@ def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationC
             out = evaluate(child, check_x, check_y)
             shifted = out - out.flat[0]
             peak = float(np.max(shifted))
-            if not (np.all(np.isfinite(out)) and peak > rules.min_range
-                    and float(np.var(shifted)) > rules.min_variance):
+            if not (
+                np.all(np.isfinite(out))
+                and peak > rules.min_range
+                and float(np.var(shifted)) > rules.min_variance
+            ):
                 continue
             if not np.all(np.isfinite(evaluate(child, *field))):
                 continue
@@ -256,13 +274,17 @@ def mutate_genome(parent: neat.DefaultGenome, cppn: CppnConfig, rules: MutationC
             return child
     raise CppnMutationError(
         f"no valid CPPN child in {rules.max_tries} tries (seed {seed}); relax "
-        "terrain.mutation (min_genome_distance, min_range, min_variance) or raise max_tries.")
+        "terrain.mutation (min_genome_distance, min_range, min_variance) or raise max_tries."
+    )
 
 
 def fingerprint(genome: neat.DefaultGenome) -> str:
     """A canonical text of the genome's genes, for content-derived terrain ids."""
-    nodes = [f"n{k}:{g.activation}:{g.aggregation}:{g.bias!r}:{g.response!r}"
-             for k, g in sorted(genome.nodes.items())]
-    conns = [f"c{k[0]},{k[1]}:{g.weight!r}:{g.enabled}"
-             for k, g in sorted(genome.connections.items())]
+    nodes = [
+        f"n{k}:{g.activation}:{g.aggregation}:{g.bias!r}:{g.response!r}"
+        for k, g in sorted(genome.nodes.items())
+    ]
+    conns = [
+        f"c{k[0]},{k[1]}:{g.weight!r}:{g.enabled}" for k, g in sorted(genome.connections.items())
+    ]
     return ";".join(nodes + conns)

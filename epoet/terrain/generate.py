@@ -4,13 +4,14 @@ The ePOET loop keeps each environment's CPPN genome and calls `make_terrain` wit
 every iteration: the bowl part is regenerated and S follows the schedule (paper Appendix A.2);
 `mutate_terrain` makes a child environment when reproduction runs.
 """
+
 from __future__ import annotations
 
 import neat
 import numpy as np
 
-from epoet.terrain.config import TerrainConfig
 from epoet.terrain.bowl import random_bowl
+from epoet.terrain.config import TerrainConfig
 from epoet.terrain.cppn import evaluate, field_inputs, mutate_genome, new_genome
 from epoet.terrain.terrain import KINDS, Terrain, normalize
 
@@ -42,9 +43,15 @@ def _check_seed(seed: int) -> None:
         raise ValueError(f"terrain seed must be an integer >= 0, got {seed!r}.")
 
 
-def make_terrain(cfg: TerrainConfig, seed: int, iteration: int = 0,
-                 genome: neat.DefaultGenome | None = None, *, generation: int = 0,
-                 parent_id: str | None = None) -> Terrain:
+def make_terrain(
+    cfg: TerrainConfig,
+    seed: int,
+    iteration: int = 0,
+    genome: neat.DefaultGenome | None = None,
+    *,
+    generation: int = 0,
+    parent_id: str | None = None,
+) -> Terrain:
     """The terrain for `iteration` (S from the schedule), its bowl part drawn from `seed`.
 
     kind 'bowl': the bowl alone (no genome). kind 'cppn': the bowl mixed with the CPPN `genome`;
@@ -57,30 +64,42 @@ def make_terrain(cfg: TerrainConfig, seed: int, iteration: int = 0,
     if cfg.kind == "bowl" and genome is not None:
         raise ValueError("a 'bowl' terrain takes no CPPN genome; use terrain.kind='cppn'.")
     height = max_height_at(cfg, iteration)
-    bowl = random_bowl(np.random.default_rng(seed), cfg.grid, height, cfg.bump_grid,
-                       cfg.bump_low, cfg.bump_high)
+    bowl = random_bowl(
+        np.random.default_rng(seed), cfg.grid, height, cfg.bump_grid, cfg.bump_low, cfg.bump_high
+    )
     if cfg.kind == "bowl":
         return Terrain(bowl, height, cfg.size, "bowl", seed, generation, parent_id)
     if genome is None:
         genome = new_genome(cfg.cppn, seed)
     cppn = evaluate(genome, *cppn_inputs(cfg))
     if not np.all(np.isfinite(cppn)):
-        raise ValueError(f"the CPPN genome gives non-finite heights on the {cfg.grid} x "
-                         f"{cfg.grid} grid.")
-    return Terrain(mix(bowl, cppn, cfg.bowl_weight), height, cfg.size, "cppn", seed,
-                   generation, parent_id, genome)
+        raise ValueError(
+            f"the CPPN genome gives non-finite heights on the {cfg.grid} x {cfg.grid} grid."
+        )
+    return Terrain(
+        mix(bowl, cppn, cfg.bowl_weight),
+        height,
+        cfg.size,
+        "cppn",
+        seed,
+        generation,
+        parent_id,
+        genome,
+    )
 
 
-def mutate_terrain(parent: Terrain, cfg: TerrainConfig, seed: int,
-                   iteration: int = 0) -> Terrain:
+def mutate_terrain(parent: Terrain, cfg: TerrainConfig, seed: int, iteration: int = 0) -> Terrain:
     """A child environment: a valid mutation of the parent's CPPN, with a fresh bowl from `seed`.
 
     Raises CppnMutationError when no valid child turns up within `mutation.max_tries`.
     """
     _check_seed(seed)
     if parent.kind != "cppn" or cfg.kind != "cppn":
-        raise ValueError(f"only CPPN terrains mutate; got a {parent.kind!r} parent and "
-                         f"terrain.kind={cfg.kind!r}.")
+        raise ValueError(
+            f"only CPPN terrains mutate; got a {parent.kind!r} parent and "
+            f"terrain.kind={cfg.kind!r}."
+        )
     child = mutate_genome(parent.genome, cfg.cppn, cfg.mutation, seed, cppn_inputs(cfg))
-    return make_terrain(cfg, seed, iteration, child, generation=parent.generation + 1,
-                        parent_id=parent.id)
+    return make_terrain(
+        cfg, seed, iteration, child, generation=parent.generation + 1, parent_id=parent.id
+    )

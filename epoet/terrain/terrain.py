@@ -9,6 +9,7 @@ Heights are in [0, 1] and `max_height` (S) is the physical relief in metres: the
 hfield elevation so that 1.0 maps to S. S is never applied twice (reference defect 2: the
 reference scaled data already in [0, S] by S again, giving S^2).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -66,12 +67,12 @@ class TerrainLike(Protocol):
 class Terrain:
     """One generated terrain. `id` is derived from the provenance, so equal inputs, equal ids."""
 
-    heightmap: np.ndarray           # (grid, grid) float64 in [0, 1], read-only
-    max_height: float               # S: metres of relief that height 1.0 stands for
-    size: float                     # metres per side the terrain was made for
-    kind: str                       # "bowl" | "cppn"
-    seed: int                       # seed of this terrain's random parts (bowl; CPPN mutation)
-    generation: int = 0             # CPPN mutations since the root
+    heightmap: np.ndarray  # (grid, grid) float64 in [0, 1], read-only
+    max_height: float  # S: metres of relief that height 1.0 stands for
+    size: float  # metres per side the terrain was made for
+    kind: str  # "bowl" | "cppn"
+    seed: int  # seed of this terrain's random parts (bowl; CPPN mutation)
+    generation: int = 0  # CPPN mutations since the root
     parent_id: str | None = None
     genome: neat.DefaultGenome | None = None
     id: str = field(init=False)
@@ -79,8 +80,10 @@ class Terrain:
     def __post_init__(self) -> None:
         hm = np.array(self.heightmap, dtype=np.float64)
         if hm.ndim != 2 or hm.shape[0] != hm.shape[1] or hm.shape[0] < 2:
-            raise ValueError(f"Terrain.heightmap must be a square (n, n) array with n >= 2, "
-                             f"got shape {hm.shape}.")
+            raise ValueError(
+                f"Terrain.heightmap must be a square (n, n) array with n >= 2, "
+                f"got shape {hm.shape}."
+            )
         if not np.all(np.isfinite(hm)) or hm.min() < 0.0 or hm.max() > 1.0:
             raise ValueError("Terrain.heightmap values must be finite and within [0, 1].")
         hm.setflags(write=False)
@@ -110,15 +113,30 @@ class Terrain:
 
     def _make_id(self) -> str:
         genes = fingerprint(self.genome) if self.genome is not None else ""
-        prov = [self.kind, self.seed, self.generation, self.parent_id, repr(self.max_height),
-                repr(self.size), self.grid, genes]
+        prov = [
+            self.kind,
+            self.seed,
+            self.generation,
+            self.parent_id,
+            repr(self.max_height),
+            repr(self.size),
+            self.grid,
+            genes,
+        ]
         digest = hashlib.sha1(json.dumps(prov).encode()).hexdigest()[:8]
         return f"{self.kind}-g{self.generation}-s{self.seed}-{digest}"
 
     def _meta(self) -> dict[str, Any]:
-        return {"format": _FORMAT, "id": self.id, "kind": self.kind, "seed": self.seed,
-                "generation": self.generation, "parent_id": self.parent_id,
-                "max_height": self.max_height, "size": self.size}
+        return {
+            "format": _FORMAT,
+            "id": self.id,
+            "kind": self.kind,
+            "seed": self.seed,
+            "generation": self.generation,
+            "parent_id": self.parent_id,
+            "max_height": self.max_height,
+            "size": self.size,
+        }
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write an npz atomically (`atomic_write`): a crash never leaves half a file.
@@ -127,11 +145,15 @@ class Terrain:
         needs no neat config (see cppn.evaluate), so it is stored alone.
         """
         path = Path(path)
-        genome = (np.frombuffer(pickle.dumps(self.genome), dtype=np.uint8)
-                  if self.genome is not None else np.zeros(0, dtype=np.uint8))
+        genome = (
+            np.frombuffer(pickle.dumps(self.genome), dtype=np.uint8)
+            if self.genome is not None
+            else np.zeros(0, dtype=np.uint8)
+        )
         with atomic_write(path) as f:
-            np.savez(f, heightmap=self.heightmap, meta=np.array(json.dumps(self._meta())),
-                     genome=genome)
+            np.savez(
+                f, heightmap=self.heightmap, meta=np.array(json.dumps(self._meta())), genome=genome
+            )
         return path
 
     @classmethod
@@ -151,28 +173,41 @@ class Terrain:
             if meta.get("format") != _FORMAT:
                 raise ValueError(f"format {meta.get('format')!r} is not {_FORMAT}")
             stored_id = meta["id"]
-            terrain = cls(heightmap=heightmap, max_height=meta["max_height"], size=meta["size"],
-                          kind=meta["kind"], seed=meta["seed"], generation=meta["generation"],
-                          parent_id=meta["parent_id"], genome=pickle.loads(raw) if raw else None)
+            terrain = cls(
+                heightmap=heightmap,
+                max_height=meta["max_height"],
+                size=meta["size"],
+                kind=meta["kind"],
+                seed=meta["seed"],
+                generation=meta["generation"],
+                parent_id=meta["parent_id"],
+                genome=pickle.loads(raw) if raw else None,
+            )
         except Exception as err:  # a damaged file can fail in zip, json, pickle or our checks
-            raise TerrainFileError(f"terrain file {path} is corrupt or not a terrain file "
-                                   f"({first_line(err).rstrip('.')}).") from err
+            raise TerrainFileError(
+                f"terrain file {path} is corrupt or not a terrain file "
+                f"({first_line(err).rstrip('.')})."
+            ) from err
         if terrain.id != stored_id:
-            raise TerrainFileError(f"terrain file {path} is corrupt: its contents do not match "
-                                   f"its stored id {stored_id}.")
+            raise TerrainFileError(
+                f"terrain file {path} is corrupt: its contents do not match "
+                f"its stored id {stored_id}."
+            )
         return terrain
 
     def to_png(self, path: str | os.PathLike) -> Path:
         """Render a shaded 3D view of the terrain to a PNG (matplotlib, no display needed)."""
         from matplotlib.figure import Figure  # on demand: a second of imports runs seldom need
+
         fig = Figure(figsize=(6, 5), dpi=110)
         plot_terrain(fig.add_subplot(projection="3d"), self)
         fig.savefig(path)
         return Path(path)
 
 
-def plot_terrain(ax: Any, terrain: Terrain, zmax: float | None = None,
-                 max_facets: int = 100) -> None:
+def plot_terrain(
+    ax: Any, terrain: Terrain, zmax: float | None = None, max_facets: int = 100
+) -> None:
     """Draw the terrain as a hill-shaded 3D surface on a matplotlib 3D axis.
 
     The z axis is in metres, from 0 to `zmax` (default: the terrain's own S), so panels sharing
@@ -181,17 +216,28 @@ def plot_terrain(ax: Any, terrain: Terrain, zmax: float | None = None,
     """
     n = terrain.grid
     axis = np.linspace(-terrain.size / 2, terrain.size / 2, n)
-    x, y = np.meshgrid(axis, axis, indexing="xy")   # rows follow y, columns x: as the heightmap
+    x, y = np.meshgrid(axis, axis, indexing="xy")  # rows follow y, columns x: as the heightmap
     z = terrain.heightmap * terrain.max_height
     from matplotlib import colormaps
     from matplotlib.colors import LightSource
+
     light = LightSource(azdeg=315, altdeg=40)
     # Shade on the normalised map so even low terrains show their shape; exaggerate for relief.
-    rgb = light.shade(terrain.heightmap, cmap=colormaps["gist_earth"], vert_exag=n / 8,
-                      blend_mode="soft")
+    rgb = light.shade(
+        terrain.heightmap, cmap=colormaps["gist_earth"], vert_exag=n / 8, blend_mode="soft"
+    )
     count = min(n, max_facets)
-    ax.plot_surface(x, y, z, facecolors=rgb, rcount=count, ccount=count, linewidth=0,
-                    antialiased=False, shade=False)
+    ax.plot_surface(
+        x,
+        y,
+        z,
+        facecolors=rgb,
+        rcount=count,
+        ccount=count,
+        linewidth=0,
+        antialiased=False,
+        shade=False,
+    )
     top = max(zmax if zmax is not None else terrain.max_height, 1e-3)
     ax.set_zlim(0.0, top)
     ax.set_zticks([0.0, top], ["0", f"{top:.2f} m"])
@@ -200,5 +246,6 @@ def plot_terrain(ax: Any, terrain: Terrain, zmax: float | None = None,
     ax.set_xlabel("x (m)", labelpad=-8, fontsize=7)
     ax.set_ylabel("y (m)", labelpad=-8, fontsize=7)
     ax.tick_params(labelsize=6, pad=-2)
-    ax.set_title(f"{terrain.id}\ngeneration {terrain.generation}, "
-                 f"S = {terrain.max_height:.2f} m", fontsize=8)
+    ax.set_title(
+        f"{terrain.id}\ngeneration {terrain.generation}, S = {terrain.max_height:.2f} m", fontsize=8
+    )

@@ -11,6 +11,7 @@ Importers use `from epoet.tracking import X`. Each name is imported from its mod
 asked for (PEP 562), so `TrackingError` costs nothing while `MlflowTracker` brings mlflow (a slow
 import): a command that fails on bad input before it tracks anything never waits for mlflow.
 """
+
 from __future__ import annotations
 
 from importlib import import_module
@@ -35,16 +36,24 @@ if TYPE_CHECKING:  # `X as X`: re-exported names (for the type checker; __getatt
     from epoet.tracking.writer import MlflowTracker as MlflowTracker
     from epoet.tracking.writer import Tracker as Tracker
 
-_HOME = {"TrackingError": "epoet.tracking.errors", "metric_key": "epoet.tracking.inputs",
-         "PARENT_RUN_ENV": "epoet.tracking.provenance", "flatten": "epoet.tracking.provenance",
-         "git_commit": "epoet.tracking.provenance",
-         "parent_run_id": "epoet.tracking.provenance",
-         "DEFAULT_TRACKING_URI": "epoet.tracking.store", "PROJECT_ROOT": "epoet.tracking.store",
-         "open_store": "epoet.tracking.store", "resolve_tracking_uri": "epoet.tracking.store",
-         "sqlite_path": "epoet.tracking.store", "ui_hint": "epoet.tracking.store",
-         "StoredRun": "epoet.tracking.stored_run", "MlflowTracker": "epoet.tracking.writer",
-         "Tracker": "epoet.tracking.writer",
-         "Run": "mlflow.entities"}  # for type hints in modules that do not import mlflow
+_HOME = {
+    "TrackingError": "epoet.tracking.errors",
+    "metric_key": "epoet.tracking.inputs",
+    "PARENT_RUN_ENV": "epoet.tracking.provenance",
+    "flatten": "epoet.tracking.provenance",
+    "git_commit": "epoet.tracking.provenance",
+    "parent_run_id": "epoet.tracking.provenance",
+    "DEFAULT_TRACKING_URI": "epoet.tracking.store",
+    "PROJECT_ROOT": "epoet.tracking.store",
+    "open_store": "epoet.tracking.store",
+    "resolve_tracking_uri": "epoet.tracking.store",
+    "sqlite_path": "epoet.tracking.store",
+    "ui_hint": "epoet.tracking.store",
+    "StoredRun": "epoet.tracking.stored_run",
+    "MlflowTracker": "epoet.tracking.writer",
+    "Tracker": "epoet.tracking.writer",
+    "Run": "mlflow.entities",
+}  # for type hints in modules that do not import mlflow
 
 __all__ = sorted(_HOME)
 

@@ -1,4 +1,5 @@
 """The one error tracking raises, and how an MLflow failure becomes one line of it."""
+
 from __future__ import annotations
 
 import re

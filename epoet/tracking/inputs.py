@@ -1,6 +1,7 @@
 """What callers hand a tracker, checked and made MLflow-valid before anything is sent: metric
 keys, steps and values, artifact paths. A bad input is a TrackingError at the call that made it,
 not an MLflow error at some later flush."""
+
 from __future__ import annotations
 
 import numbers
@@ -31,8 +32,7 @@ def metric_key(name: str) -> str:
     return key
 
 
-def metric_points(step: int,
-                  metrics: Mapping[str, Any]) -> tuple[int, list[tuple[str, float]]]:
+def metric_points(step: int, metrics: Mapping[str, Any]) -> tuple[int, list[tuple[str, float]]]:
     """Validate one `log_metrics` call.
 
     numpy integers count as steps: iteration counters often are.

@@ -4,6 +4,7 @@ and the sweep it belongs to.
 A sweep's parent run id reaches each job through env EPOET_PARENT_RUN_ID (set by
 `epoet.sweep.MlflowSweepCallback`).
 """
+
 from __future__ import annotations
 
 import os
@@ -37,8 +38,14 @@ def flatten(cfg: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 def git_commit() -> str:
     """The project's HEAD commit for the run's tags; "unknown" outside a repository."""
     try:
-        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT,
-                                capture_output=True, text=True, timeout=10, check=False)
+        result = subprocess.run(
+            ["git", "rev-parse", "HEAD"],
+            cwd=PROJECT_ROOT,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=False,
+        )
     except (OSError, subprocess.TimeoutExpired):
         return "unknown"
     commit = result.stdout.strip()

@@ -4,6 +4,7 @@ The store is the explicit `tracking_uri`, else env MLFLOW_TRACKING_URI, else
 `sqlite:///<project root>/mlflow.db` as an absolute path, so Hydra's per-job working directories
 never scatter stores.
 """
+
 from __future__ import annotations
 
 import functools
@@ -35,7 +36,7 @@ def sqlite_path(uri: str) -> Path | None:
     """The database file of a `sqlite:///` URI (relative paths are relative to the cwd)."""
     if not uri.startswith("sqlite:///"):
         return None
-    path = uri[len("sqlite:///"):].split("?", 1)[0]
+    path = uri[len("sqlite:///") :].split("?", 1)[0]
     return None if path in ("", ":memory:") else Path(path).absolute()
 
 
@@ -128,5 +129,7 @@ def open_store(tracking_uri: str | None = None) -> MlflowClient:
 def ui_hint(tracking_uri: str, experiment_id: str) -> str:
     """The command that serves the store and the URL of the experiment's runs table (MLflow
     3's UI opens on a GenAI overview without `workflowType`)."""
-    return (f"mlflow ui --backend-store-uri {tracking_uri}  then open http://127.0.0.1:5000/"
-            f"#/experiments/{experiment_id}/runs?workflowType=machine_learning")
+    return (
+        f"mlflow ui --backend-store-uri {tracking_uri}  then open http://127.0.0.1:5000/"
+        f"#/experiments/{experiment_id}/runs?workflowType=machine_learning"
+    )

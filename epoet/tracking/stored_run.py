@@ -1,5 +1,6 @@
 """A run already in the store, read and added to after training by evaluation, videos and
 analysis."""
+
 from __future__ import annotations
 
 import os
@@ -39,9 +40,11 @@ class StoredRun:
         uri = resolve_tracking_uri(tracking_uri)
         db = sqlite_path(uri)
         if db is not None and not db.is_file():
-            raise TrackingError(f"run {run_id} is not in the MLflow store {uri}: there is no "
-                                f"store at {db} (MLFLOW_TRACKING_URI or the command's "
-                                f"tracking.uri names the store the run was logged to).")
+            raise TrackingError(
+                f"run {run_id} is not in the MLflow store {uri}: there is no "
+                f"store at {db} (MLFLOW_TRACKING_URI or the command's "
+                f"tracking.uri names the store the run was logged to)."
+            )
         client = open_store(uri)
         try:
             return cls(client, client.get_run(run_id), uri)
@@ -62,15 +65,21 @@ class StoredRun:
         try:
             return Path(self.client.download_artifacts(self.run_id, artifact_path, str(dst)))
         except (MlflowException, OSError) as exc:
-            raise TrackingError(f"cannot download {artifact_path} of run {self.run_id}: "
-                                f"{reason(exc)}") from exc
+            raise TrackingError(
+                f"cannot download {artifact_path} of run {self.run_id}: {reason(exc)}"
+            ) from exc
 
     def ui_hint(self) -> str:
         """Where to look at this run (`ui_hint`)."""
         return ui_hint(self.tracking_uri, self.experiment_id)
 
-    def log_results(self, metrics: Mapping[str, float], tags: Mapping[str, str] = {},
-                    artifacts: Mapping[str | Path, str] = {}, step: int = 0) -> None:
+    def log_results(
+        self,
+        metrics: Mapping[str, float],
+        tags: Mapping[str, str] = {},
+        artifacts: Mapping[str | Path, str] = {},
+        step: int = 0,
+    ) -> None:
         """Metrics at `step` (one batch), tags and artifacts {local path: artifact folder}.
 
         Each result is logged once: a metric point the run already holds (same key, step and
@@ -80,14 +89,18 @@ class StoredRun:
         try:
             now = int(time.time() * 1000)
             keyed = {metric_key(k): float(v) for k, v in metrics.items()}
-            held = {(key, m.value) for key in keyed
-                    for m in self.client.get_metric_history(self.run_id, key) if m.step == step}
+            held = {
+                (key, m.value)
+                for key in keyed
+                for m in self.client.get_metric_history(self.run_id, key)
+                if m.step == step
+            }
             self.client.log_batch(
                 self.run_id,
                 metrics=[Metric(k, v, now, step) for k, v in keyed.items() if (k, v) not in held],
-                tags=[RunTag(k, str(v)) for k, v in tags.items()])
+                tags=[RunTag(k, str(v)) for k, v in tags.items()],
+            )
             for path, folder in artifacts.items():
                 self.client.log_artifact(self.run_id, str(existing_path(path)), str(folder))
         except (MlflowException, OSError) as exc:
-            raise TrackingError(f"cannot log results to run {self.run_id}: "
-                                f"{reason(exc)}") from exc
+            raise TrackingError(f"cannot log results to run {self.run_id}: {reason(exc)}") from exc

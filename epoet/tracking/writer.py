@@ -3,6 +3,7 @@
 Metrics are buffered and sent with `log_batch` because per-point `log_metric` on sqlite (one
 transaction per point) would dominate a run.
 """
+
 from __future__ import annotations
 
 import logging
@@ -62,8 +63,13 @@ class MlflowTracker:
             tracker.start("ppo-seed1", params=flatten(cfg_dict), parent_run_id=parent_run_id())
     """
 
-    def __init__(self, tracking_uri: str | None, experiment: str,
-                 flush_every: int = MAX_METRICS_PER_BATCH, flush_seconds: float = 10.0) -> None:
+    def __init__(
+        self,
+        tracking_uri: str | None,
+        experiment: str,
+        flush_every: int = MAX_METRICS_PER_BATCH,
+        flush_seconds: float = 10.0,
+    ) -> None:
         self.tracking_uri = resolve_tracking_uri(tracking_uri)
         self.experiment = experiment
         self.flush_every = flush_every
@@ -83,8 +89,12 @@ class MlflowTracker:
     def __enter__(self) -> MlflowTracker:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         if self.run_id is None or self._closed:
             return
         if exc_type is None:
@@ -111,13 +121,20 @@ class MlflowTracker:
                 if exp is None:
                     raise
         if exp.lifecycle_stage != "active":
-            raise TrackingError(f"MLflow experiment {self.experiment!r} is deleted; restore it "
-                                "or choose another experiment name.")
+            raise TrackingError(
+                f"MLflow experiment {self.experiment!r} is deleted; restore it "
+                "or choose another experiment name."
+            )
         return exp.experiment_id
 
-    def start(self, run_name: str | None = None, params: Mapping[str, str] | None = None,
-              tags: Mapping[str, str] | None = None, parent_run_id: str | None = None,
-              resume_run_id: str | None = None) -> str:
+    def start(
+        self,
+        run_name: str | None = None,
+        params: Mapping[str, str] | None = None,
+        tags: Mapping[str, str] | None = None,
+        parent_run_id: str | None = None,
+        resume_run_id: str | None = None,
+    ) -> str:
         """Create a run (or continue `resume_run_id`) and log its params and tags; returns its id.
 
         The git commit is tagged unless `tags` sets it. On resume, params already in the run
@@ -135,41 +152,49 @@ class MlflowTracker:
             if resume_run_id:
                 params = self._resume(resume_run_id, run_name, params)
             else:
-                run = self.client.create_run(self._experiment_id(), run_name=run_name,
-                                             tags=all_tags)
+                run = self.client.create_run(
+                    self._experiment_id(), run_name=run_name, tags=all_tags
+                )
                 self.run_id, self.experiment_id = run.info.run_id, run.info.experiment_id
                 all_tags = {}  # already written by create_run
             self._log_params_and_tags(params, all_tags)
         except MlflowException as exc:
-            raise TrackingError(f"cannot start MLflow run in {self.tracking_uri}: "
-                                f"{reason(exc)}") from exc
+            raise TrackingError(
+                f"cannot start MLflow run in {self.tracking_uri}: {reason(exc)}"
+            ) from exc
         assert self.run_id is not None  # set by create_run or _resume
         return self.run_id
 
-    def _resume(self, run_id: str, run_name: str | None,
-                params: dict[str, str]) -> dict[str, str]:
+    def _resume(self, run_id: str, run_name: str | None, params: dict[str, str]) -> dict[str, str]:
         """Reopen `run_id`; return the params it does not have yet."""
         try:
             run = self.client.get_run(run_id)
         except MlflowException as exc:
-            raise TrackingError(f"cannot resume MLflow run {run_id}: it is not in "
-                                f"{self.tracking_uri}.") from exc
+            raise TrackingError(
+                f"cannot resume MLflow run {run_id}: it is not in {self.tracking_uri}."
+            ) from exc
         self.run_id, self.experiment_id = run_id, run.info.experiment_id
         self.client.update_run(run_id, status="RUNNING", name=run_name)
-        self._logged = {key: max(m.step for m in self.client.get_metric_history(run_id, key))
-                        for key in run.data.metrics}
+        self._logged = {
+            key: max(m.step for m in self.client.get_metric_history(run_id, key))
+            for key in run.data.metrics
+        }
         old = run.data.params
         changed = sorted(k for k, v in params.items() if k in old and old[k] != v)
         if changed:
-            log.warning("resumed run %s keeps its original values of changed params %s",
-                        run_id, changed)
+            log.warning(
+                "resumed run %s keeps its original values of changed params %s", run_id, changed
+            )
         return {k: v for k, v in params.items() if k not in old}
 
     def _log_params_and_tags(self, params: dict[str, str], tags: dict[str, str]) -> None:
         """One `log_batch`, which MLflow splits into calls of its limit (100 params or tags)."""
         assert self.run_id is not None  # start() set it
-        self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in params.items()],
-                              tags=[RunTag(k, v) for k, v in tags.items()])
+        self.client.log_batch(
+            self.run_id,
+            params=[Param(k, v) for k, v in params.items()],
+            tags=[RunTag(k, v) for k, v in tags.items()],
+        )
 
     def children(self) -> list[Run]:
         """This run's children (a sweep's jobs), oldest first."""
@@ -180,8 +205,12 @@ class MlflowTracker:
         token = None
         while True:
             page = self.client.search_runs(
-                [self.experiment_id], f"tags.`{MLFLOW_PARENT_RUN_ID}` = '{self.run_id}'",
-                max_results=1000, page_token=token, order_by=["attributes.start_time ASC"])
+                [self.experiment_id],
+                f"tags.`{MLFLOW_PARENT_RUN_ID}` = '{self.run_id}'",
+                max_results=1000,
+                page_token=token,
+                order_by=["attributes.start_time ASC"],
+            )
             children.extend(page)
             token = page.token
             if not token:
@@ -193,8 +222,9 @@ class MlflowTracker:
 
     def _require_open(self) -> str:
         if self.run_id is None or self._closed:
-            raise TrackingError("the MLflow run is not open: call start() first and not after "
-                                "close().")
+            raise TrackingError(
+                "the MLflow run is not open: call start() first and not after close()."
+            )
         return self.run_id
 
     def log_metrics(self, step: int, metrics: Mapping[str, float]) -> None:
@@ -206,10 +236,15 @@ class MlflowTracker:
         self._require_open()
         now_ms = int(time.time() * 1000)
         step, points = metric_points(step, metrics)
-        self._buffer.extend(Metric(key, value, now_ms, step) for key, value in points
-                            if step > self._logged.get(key, -1))
-        if (len(self._buffer) >= self.flush_every
-                or time.monotonic() - self._last_flush >= self.flush_seconds):
+        self._buffer.extend(
+            Metric(key, value, now_ms, step)
+            for key, value in points
+            if step > self._logged.get(key, -1)
+        )
+        if (
+            len(self._buffer) >= self.flush_every
+            or time.monotonic() - self._last_flush >= self.flush_seconds
+        ):
             self.flush()
 
     def flush(self) -> None:
@@ -234,13 +269,20 @@ class MlflowTracker:
             # buffered step: a run's speed (and what a wall-clock budget buys) depends on what
             # else shared its cores.
             self._last_load = self._last_flush
-            self._buffer.append(Metric(LOAD_METRIC, os.getloadavg()[0], self._buffer[-1].timestamp,
-                                       max(m.step for m in self._buffer)))
+            self._buffer.append(
+                Metric(
+                    LOAD_METRIC,
+                    os.getloadavg()[0],
+                    self._buffer[-1].timestamp,
+                    max(m.step for m in self._buffer),
+                )
+            )
         try:
             self.client.log_batch(run_id, metrics=self._buffer)
         except MlflowException as exc:
-            raise TrackingError(f"cannot send metrics to {self.tracking_uri}: "
-                                f"{reason(exc)}") from exc
+            raise TrackingError(
+                f"cannot send metrics to {self.tracking_uri}: {reason(exc)}"
+            ) from exc
         self._buffer.clear()
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
@@ -277,30 +319,37 @@ class MlflowTracker:
         from mlflow.entities import LoggedModelOutput, LoggedModelStatus
         from mlflow.models import ModelSignature
         from mlflow.types import ColSpec, Schema, TensorSpec
+
         run_id = self._require_open()
         assert self.experiment_id is not None  # set with run_id
         # One unnamed double column per observation entry: MLflow widens float32 columns to
         # double, where a float64 tensor spec refuses float32 arrays (and a float32 one float64).
-        signature = ModelSignature(inputs=Schema([ColSpec("double") for _ in range(obs_dim)]),
-                                   outputs=Schema([TensorSpec(np.dtype(np.float64),
-                                                              (-1, act_dim))]))
+        signature = ModelSignature(
+            inputs=Schema([ColSpec("double") for _ in range(obs_dim)]),
+            outputs=Schema([TensorSpec(np.dtype(np.float64), (-1, act_dim))]),
+        )
         try:
-            model = self.client.create_logged_model(self.experiment_id, name="agent",
-                                                    source_run_id=run_id)
+            model = self.client.create_logged_model(
+                self.experiment_id, name="agent", source_run_id=run_id
+            )
             with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
                 # the signature says what an input example would; MLflow asks for one anyway
                 warnings.filterwarnings("ignore", message=".*An input example was not provided")
                 mlflow.pyfunc.save_model(
-                    f"{tmp}/agent", loader_module=loader_module,
-                    data_path=str(existing_path(policy)), signature=signature,
+                    f"{tmp}/agent",
+                    loader_module=loader_module,
+                    data_path=str(existing_path(policy)),
+                    signature=signature,
                     # stated, not inferred: inference loads the model in a subprocess
-                    pip_requirements=[f"mlflow=={mlflow.__version__}", f"numpy=={np.__version__}"])
+                    pip_requirements=[f"mlflow=={mlflow.__version__}", f"numpy=={np.__version__}"],
+                )
                 self.client.log_model_artifacts(model.model_id, f"{tmp}/agent")
             self.client.finalize_logged_model(model.model_id, LoggedModelStatus.READY)
             self.client.log_outputs(run_id, [LoggedModelOutput(model.model_id, step=0)])
         except (MlflowException, OSError) as exc:
-            raise TrackingError(f"cannot log the agent {policy} as an MLflow model: "
-                                f"{reason(exc)}") from exc
+            raise TrackingError(
+                f"cannot log the agent {policy} as an MLflow model: {reason(exc)}"
+            ) from exc
 
     def set_tags(self, tags: Mapping[str, str]) -> None:
         """Set run tags now (e.g. why the run stopped)."""
@@ -321,5 +370,6 @@ class MlflowTracker:
             try:
                 self.client.set_terminated(self.run_id, status)
             except MlflowException as exc:
-                raise TrackingError(f"cannot close MLflow run {self.run_id}: "
-                                    f"{reason(exc)}") from exc
+                raise TrackingError(
+                    f"cannot close MLflow run {self.run_id}: {reason(exc)}"
+                ) from exc

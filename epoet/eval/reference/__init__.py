@@ -8,6 +8,7 @@ MLflow run of its own in the experiment `reference` (made on first use, with the
 MLflow model), so `make tables EXPERIMENT=reference` tables the authors' agents like any runs.
 `python -m epoet.eval.reference` (convert.py) regenerates the folder from a checkout.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -41,38 +42,53 @@ def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
     there is no such agent."""
     from epoet.config import load
     from epoet.eval.agents import AgentError, AgentSource, TrainedRun
+
     name = spec.removeprefix(PREFIX)
     entry = manifest()["agents"].get(name)
     if entry is None:
-        raise AgentError(f"run={spec} names no shipped reference agent; there are "
-                         f"{', '.join(PREFIX + n for n in names())}.")
+        raise AgentError(
+            f"run={spec} names no shipped reference agent; there are "
+            f"{', '.join(PREFIX + n for n in names())}."
+        )
     source = AgentSource(entry["kind"], FOLDER / entry["file"])
     source.check()
     paper = load(["budget=paper"])  # how the authors trained: RK4, 2000-step episodes
-    config = {"agent": dataclasses.asdict(paper.agent),
-              "budget": {"score_scale": paper.budget.score_scale}}
+    config = {
+        "agent": dataclasses.asdict(paper.agent),
+        "budget": {"score_scale": paper.budget.score_scale},
+    }
     stored = _stored_run(name, entry, source.path, tracking_uri)
     return TrainedRun(source, spec, stored, entry["algo"], name.split("/", 1)[1], config, None)
 
 
-def _stored_run(name: str, entry: dict[str, Any], path: Path,
-                tracking_uri: str | None) -> StoredRun:
+def _stored_run(
+    name: str, entry: dict[str, Any], path: Path, tracking_uri: str | None
+) -> StoredRun:
     """The agent's run in the experiment `reference`, made (with its MLflow model) on first
     use."""
     from epoet.envs.spaces import ACT_DIM, OBS_DIM
     from epoet.tracking import MlflowTracker, StoredRun, open_store, resolve_tracking_uri
+
     uri = resolve_tracking_uri(tracking_uri)
     client = open_store(uri)
     experiment = client.get_experiment_by_name(EXPERIMENT)
     if experiment is not None:
-        found = client.search_runs([experiment.experiment_id], f"tags.reference = '{name}'",
-                                   max_results=1)
+        found = client.search_runs(
+            [experiment.experiment_id], f"tags.reference = '{name}'", max_results=1
+        )
         if found:
             return StoredRun(client, found[0], uri)
     provenance = {**manifest()["source"], **{k: v for k, v in entry.items() if k != "layout"}}
     with MlflowTracker(uri, EXPERIMENT) as tracker:
-        run_id = tracker.start(f"{PREFIX}{name}", params=provenance,
-                               tags={"algo": entry["algo"], "seed": name.split("/", 1)[1],
-                                     "reference": name, "budget": "paper"})
+        run_id = tracker.start(
+            f"{PREFIX}{name}",
+            params=provenance,
+            tags={
+                "algo": entry["algo"],
+                "seed": name.split("/", 1)[1],
+                "reference": name,
+                "budget": "paper",
+            },
+        )
         tracker.log_agent(path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)
     return StoredRun.open(run_id, uri)

@@ -11,6 +11,7 @@ zero weight (with a normaliser, their constant normalised value moves into the f
 the converted file is an ordinary agent file that every consumer (evaluate, render, t-SNE, the
 MLflow model) runs as it is; the file records the layout it was trained with as provenance.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,14 +19,17 @@ import numpy as np
 from epoet.envs.model import LEGS, SEGMENTS
 from epoet.envs.spaces import ACT_DIM, OBS_DIM
 
-OBS_LEGS = ("fl", "ml", "fr", "mr", "rr", "rl")      # the reference's body-tree order
-ACT_LEGS = ("fl", "fr", "rr", "rl", "mr", "ml")      # the reference's actuator order
-LAYOUT = {"observation_legs": list(OBS_LEGS), "action_legs": list(ACT_LEGS),
-          "contact_flags": "always 0 in training (zero weight here)",
-          "converted_to": list(LEGS)}
+OBS_LEGS = ("fl", "ml", "fr", "mr", "rr", "rl")  # the reference's body-tree order
+ACT_LEGS = ("fl", "fr", "rr", "rl", "mr", "ml")  # the reference's actuator order
+LAYOUT = {
+    "observation_legs": list(OBS_LEGS),
+    "action_legs": list(ACT_LEGS),
+    "contact_flags": "always 0 in training (zero weight here)",
+    "converted_to": list(LEGS),
+}
 
 _JOINTS = len(LEGS) * len(SEGMENTS)
-CONTACTS = np.arange(OBS_DIM - len(LEGS), OBS_DIM)   # epoet's contact inputs (the last six)
+CONTACTS = np.arange(OBS_DIM - len(LEGS), OBS_DIM)  # epoet's contact inputs (the last six)
 
 
 def _joint_order(ref_legs: tuple[str, ...]) -> np.ndarray:
@@ -40,7 +44,7 @@ def observation_source() -> np.ndarray:
     joints = _joint_order(OBS_LEGS)
     src = np.arange(OBS_DIM)
     src[:_JOINTS] = joints
-    src[_JOINTS:2 * _JOINTS] = _JOINTS + joints
+    src[_JOINTS : 2 * _JOINTS] = _JOINTS + joints
     contacts = np.array([OBS_LEGS.index(leg) for leg in LEGS])
     src[CONTACTS] = CONTACTS[0] + contacts
     return src
@@ -51,8 +55,12 @@ def action_source() -> np.ndarray:
     return _joint_order(ACT_LEGS)
 
 
-def fold_input(weight: np.ndarray, bias: np.ndarray, contact_value: np.ndarray | None = None,
-               extra_inputs: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def fold_input(
+    weight: np.ndarray,
+    bias: np.ndarray,
+    contact_value: np.ndarray | None = None,
+    extra_inputs: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
     """A first layer (weight: (outputs, reference inputs), torch's layout) re-ordered to take
     epoet's observation (followed by `extra_inputs` unchanged inputs, e.g. a critic's action,
     which the caller permutes). The contact inputs get zero weight; `contact_value` is what
@@ -62,7 +70,7 @@ def fold_input(weight: np.ndarray, bias: np.ndarray, contact_value: np.ndarray |
     if contact_value is not None:
         folded_bias = folded_bias + obs[:, CONTACTS] @ contact_value
     obs[:, CONTACTS] = 0.0
-    return np.concatenate([obs, weight[:, OBS_DIM:OBS_DIM + extra_inputs]], axis=1), folded_bias
+    return np.concatenate([obs, weight[:, OBS_DIM : OBS_DIM + extra_inputs]], axis=1), folded_bias
 
 
 def fold_critic_input(weight: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -85,6 +93,7 @@ def es_theta(theta: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
     """An ES parameter vector (epoet's flat layout, weights (in, out) then bias per layer, which
     is also the reference's) re-ordered to take epoet's observation and give epoet's action."""
     from epoet.rollout.policy import unflatten
+
     out = np.array(theta, dtype=np.float64)
     layers = unflatten(out, sizes)
     w_first, b_first = layers[0]

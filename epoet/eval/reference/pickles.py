@@ -6,6 +6,7 @@ package and of neat 0.92) and their observation normalisers pickled objects of t
 `Record` of its attributes (numpy arrays are the only real classes allowed), so unpickling runs
 none of their code and imports nothing of theirs.
 """
+
 from __future__ import annotations
 
 import io
@@ -21,7 +22,10 @@ try:  # numpy's array reconstruction; numpy 2 moved the module its pickles name
 except ImportError:  # numpy 1
     from numpy.core import multiarray as _multiarray  # type: ignore[no-redef]  # the same module
 
-_NUMPY: dict[tuple[str, str], Any] = {("numpy", "ndarray"): np.ndarray, ("numpy", "dtype"): np.dtype}
+_NUMPY: dict[tuple[str, str], Any] = {
+    ("numpy", "ndarray"): np.ndarray,
+    ("numpy", "dtype"): np.dtype,
+}
 for _module in ("numpy.core.multiarray", "numpy._core.multiarray"):
     _NUMPY[(_module, "_reconstruct")] = _multiarray._reconstruct
     _NUMPY[(_module, "scalar")] = _multiarray.scalar
@@ -40,7 +44,7 @@ class Record:
         self.args = args
 
     def __setstate__(self, state: Any) -> None:
-        if isinstance(state, tuple) and len(state) == 2:   # (dict, slots)
+        if isinstance(state, tuple) and len(state) == 2:  # (dict, slots)
             state = {**(state[0] or {}), **(state[1] or {})}
         if not isinstance(state, dict):
             raise pickle.UnpicklingError(f"{self.cls} has a state that is not a dict")
@@ -59,8 +63,15 @@ def read_pickle(path: Path) -> Any:
     is not a readable pickle."""
     try:
         return _Unpickler(io.BytesIO(Path(path).read_bytes())).load()
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError,
-            TypeError, IndexError) as err:
+    except (
+        OSError,
+        pickle.UnpicklingError,
+        EOFError,
+        AttributeError,
+        ValueError,
+        TypeError,
+        IndexError,
+    ) as err:
         raise ReferenceFileError(f"{path} is not a readable pickle ({err}).") from None
 
 
@@ -77,25 +88,40 @@ def read_genome(path: Path) -> dict[str, Any]:
     genome's own order (which fixes the order neat sums a node's inputs in)."""
     genome = read_pickle(path)
     nodes, connections = getattr(genome, "nodes", None), getattr(genome, "connections", None)
-    if not (isinstance(genome, Record) and isinstance(nodes, dict)
-            and isinstance(connections, dict)):
-        raise ReferenceFileError(f"{path} is not a pickled neat genome (no nodes and "
-                                 f"connections).")
+    if not (
+        isinstance(genome, Record) and isinstance(nodes, dict) and isinstance(connections, dict)
+    ):
+        raise ReferenceFileError(f"{path} is not a pickled neat genome (no nodes and connections).")
     node_rows = []
     for key, gene in nodes.items():
-        activation, aggregation = getattr(gene, "activation", None), getattr(gene, "aggregation",
-                                                                             None)
-        if not (isinstance(key, int) and isinstance(activation, str)
-                and isinstance(aggregation, str)):
+        activation, aggregation = (
+            getattr(gene, "activation", None),
+            getattr(gene, "aggregation", None),
+        )
+        if not (
+            isinstance(key, int) and isinstance(activation, str) and isinstance(aggregation, str)
+        ):
             raise ReferenceFileError(f"{path} is not a neat genome: node {key!r} is malformed.")
-        node_rows.append([key, _float(gene, "bias", path), _float(gene, "response", path),
-                          activation, aggregation])
+        node_rows.append(
+            [
+                key,
+                _float(gene, "bias", path),
+                _float(gene, "response", path),
+                activation,
+                aggregation,
+            ]
+        )
     connection_rows = []
     for key, gene in connections.items():
-        if not (isinstance(key, tuple) and len(key) == 2 and all(isinstance(k, int) for k in key)
-                and isinstance(getattr(gene, "enabled", None), bool)):
-            raise ReferenceFileError(f"{path} is not a neat genome: connection {key!r} is "
-                                     f"malformed.")
+        if not (
+            isinstance(key, tuple)
+            and len(key) == 2
+            and all(isinstance(k, int) for k in key)
+            and isinstance(getattr(gene, "enabled", None), bool)
+        ):
+            raise ReferenceFileError(
+                f"{path} is not a neat genome: connection {key!r} is malformed."
+            )
         connection_rows.append([key[0], key[1], _float(gene, "weight", path), gene.enabled])
     if 0 not in nodes:
         raise ReferenceFileError(f"{path} is not a CPPN genome: it has no output node 0.")
@@ -122,9 +148,15 @@ def read_normaliser(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     clip((obs - mean) / (sqrt(var) + 1e-4), -clip, clip)."""
     norm = read_pickle(path)
     mean, var, clip = (getattr(norm, k, None) for k in ("_mean", "_var", "clip"))
-    if not (isinstance(mean, np.ndarray) and isinstance(var, np.ndarray)
-            and mean.shape == var.shape and mean.ndim == 1
-            and isinstance(clip, (int, float))):
-        raise ReferenceFileError(f"{path} is not an observation normaliser of the reference's "
-                                 f"torchrl (no _mean, _var arrays and clip).")
+    if not (
+        isinstance(mean, np.ndarray)
+        and isinstance(var, np.ndarray)
+        and mean.shape == var.shape
+        and mean.ndim == 1
+        and isinstance(clip, (int, float))
+    ):
+        raise ReferenceFileError(
+            f"{path} is not an observation normaliser of the reference's "
+            f"torchrl (no _mean, _var arrays and clip)."
+        )
     return mean.astype(np.float64), var.astype(np.float64), float(clip)

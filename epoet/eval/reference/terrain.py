@@ -17,6 +17,7 @@ S: the reference's hfield elevation starts at 1 m and grows 0.001 per reset; its
 [0, S], were then scaled by S again (defect 2), so their relief was S^2. At the S = 1 m used
 here the two agree: heights in [0, 1], 1 standing for 1 m (README "Fidelity").
 """
+
 from __future__ import annotations
 
 import math
@@ -28,17 +29,17 @@ from scipy import ndimage
 from epoet.terrain.cppn import evaluate
 from epoet.terrain.terrain import normalize
 
-GRID = 200                 # samples per side
-SIZE = 40.0                # metres per side
-PER_METRE = 5              # samples per metre (the reference's get_local_cor)
-OFFSET = (17.0, 20.0)      # reference metres from the hfield's first column / row to x = y = 0
-WINDOW = 120               # columns read from the CPPN (TERRAIN_STARTPAD)
-CENTRE = 12.0              # CPPN input 0 lies 12 m ahead and 12 m to the side
-NORM_AT = 110              # the sample whose CPPN value is subtracted from then on
-CPPN_FLOOR = 0.2           # the CPPN part is normalised to [0.2, S]
+GRID = 200  # samples per side
+SIZE = 40.0  # metres per side
+PER_METRE = 5  # samples per metre (the reference's get_local_cor)
+OFFSET = (17.0, 20.0)  # reference metres from the hfield's first column / row to x = y = 0
+WINDOW = 120  # columns read from the CPPN (TERRAIN_STARTPAD)
+CENTRE = 12.0  # CPPN input 0 lies 12 m ahead and 12 m to the side
+NORM_AT = 110  # the sample whose CPPN value is subtracted from then on
+CPPN_FLOOR = 0.2  # the CPPN part is normalised to [0.2, S]
 BOWL_WEIGHT = 0.3
 BUMPS, BUMP_LOW = 20, 0.15
-EVAL_HEIGHT = 1.0          # S at evaluation, metres (module docstring)
+EVAL_HEIGHT = 1.0  # S at evaluation, metres (module docstring)
 
 
 def cppn_window(genome: object) -> np.ndarray:
@@ -78,8 +79,8 @@ def cppn_part(genome: object, height: float) -> np.ndarray:
 def bowl_part(rng: np.random.Generator, height: float) -> np.ndarray:
     """The random bowl times smooth bumps, in [0, S]."""
     level = rng.uniform(0.5, height + 0.5)
-    rows, cols = np.ogrid[-1:1:GRID * 1j, -1:1:GRID * 1j]
-    radius = np.clip(np.sqrt(cols ** 2 + rows ** 2), 0.04, 1.0)
+    rows, cols = np.ogrid[-1 : 1 : GRID * 1j, -1 : 1 : GRID * 1j]
+    radius = np.clip(np.sqrt(cols**2 + rows**2), 0.04, 1.0)
     bowl = level - np.cos(2.0 * np.pi * radius) / 2.0
     bumps = ndimage.zoom(rng.uniform(BUMP_LOW, 1.0, (BUMPS, BUMPS)), GRID / float(BUMPS))
     return normalize(bowl * bumps) * height
@@ -87,6 +88,7 @@ def bowl_part(rng: np.random.Generator, height: float) -> np.ndarray:
 
 def render(genome: object, seed: int, height: float = EVAL_HEIGHT) -> np.ndarray:
     """The evaluation terrain's heights in [0, 1] (1 standing for `height` metres at S = 1)."""
-    mixed = BOWL_WEIGHT * bowl_part(np.random.default_rng(seed), height) \
-        + (1.0 - BOWL_WEIGHT) * cppn_part(genome, height)
+    mixed = BOWL_WEIGHT * bowl_part(np.random.default_rng(seed), height) + (
+        1.0 - BOWL_WEIGHT
+    ) * cppn_part(genome, height)
     return normalize(mixed)

@@ -10,6 +10,7 @@ parameters, spawn seed and terrain only, hence identical for any worker count, b
 scheduling. A worker that dies (killed, out of memory) is a lost worker: the backend restarts its
 workers and runs the call again, which gives the same results.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -44,15 +45,17 @@ class Relief(NamedTuple):
 
 def reliefs_of(requests: Sequence[Request]) -> list[Relief]:
     """The requests' terrains as the plain arrays a worker needs."""
-    return [Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height),
-                    float(r.terrain.size)) for r in requests]
+    return [
+        Relief(np.asarray(r.terrain.heightmap), float(r.terrain.max_height), float(r.terrain.size))
+        for r in requests
+    ]
 
 
 class Evaluator(Protocol):
     """Runs populations of episodes, one terrain each, many per call (see `make_evaluator`)."""
 
     workers: int
-    restarts: int       # worker losses survived so far (each restarted the workers)
+    restarts: int  # worker losses survived so far (each restarted the workers)
 
     def run(self, requests: Sequence[Request]) -> list[Episodes]: ...
 
@@ -89,10 +92,15 @@ class Backend(ABC):
             except WorkerLost as lost:
                 if attempt > MAX_RESTARTS:
                     self.close()
-                    raise RuntimeError(f"rollout workers died {attempt} times in one call "
-                                       f"({lost}); giving up.") from lost
-                print(f"[workers] {lost}: restarting the workers and running the call again "
-                      f"(restart {attempt}/{MAX_RESTARTS})", file=sys.stderr, flush=True)
+                    raise RuntimeError(
+                        f"rollout workers died {attempt} times in one call ({lost}); giving up."
+                    ) from lost
+                print(
+                    f"[workers] {lost}: restarting the workers and running the call again "
+                    f"(restart {attempt}/{MAX_RESTARTS})",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 self.restarts += 1
                 self._restart()
         raise AssertionError("unreachable")
@@ -107,16 +115,23 @@ class Backend(ABC):
         requests = [Request(*r) for r in requests]
         for r in requests:
             if r.population.num_params != self.num_params:
-                raise ValueError(f"populations must have {self.num_params} parameters per "
-                                 f"agent, got {r.population.num_params}.")
+                raise ValueError(
+                    f"populations must have {self.num_params} parameters per "
+                    f"agent, got {r.population.num_params}."
+                )
             if not len(r.population):
                 raise ValueError("every request needs at least one episode.")
         if not requests:
             return []
-        return [Episodes(e.returns.reshape(r.population.shape),
-                         e.lengths.reshape(r.population.shape),
-                         e.finished.reshape(r.population.shape), e.transitions)
-                for r, e in zip(requests, self._run_surviving(requests))]
+        return [
+            Episodes(
+                e.returns.reshape(r.population.shape),
+                e.lengths.reshape(r.population.shape),
+                e.finished.reshape(r.population.shape),
+                e.transitions,
+            )
+            for r, e in zip(requests, self._run_surviving(requests))
+        ]
 
     def __enter__(self) -> "Backend":
         return self
@@ -128,8 +143,9 @@ class Backend(ABC):
         """Release resources (the serial backend holds none)."""
 
 
-def engine_jobs(items: Iterator[tuple[int, int]], populations: Sequence[Population],
-          records: Sequence[int]) -> Iterator[Job]:
+def engine_jobs(
+    items: Iterator[tuple[int, int]], populations: Sequence[Population], records: Sequence[int]
+) -> Iterator[Job]:
     """Engine jobs for (request, episode) items, on the request's terrain; the engine's episode
     index packs both (`_encode`), so results can be split back per request."""
     for k, e in items:
@@ -145,8 +161,9 @@ def _encode(request: int, episode: int) -> int:
     return (request << _SHIFT) | episode
 
 
-def split_results(parts: Sequence[tuple[np.ndarray, Episodes]], sizes: Sequence[int]
-           ) -> list[Episodes]:
+def split_results(
+    parts: Sequence[tuple[np.ndarray, Episodes]], sizes: Sequence[int]
+) -> list[Episodes]:
     """Per-request `Episodes` from engine results (from one or several workers) whose indices
     are `_encode`d."""
     mask = (1 << _SHIFT) - 1
@@ -155,13 +172,14 @@ def split_results(parts: Sequence[tuple[np.ndarray, Episodes]], sizes: Sequence[
         mine = []
         for index, episodes in parts:
             rows = (index >> _SHIFT) == k
-            part = Episodes(episodes.returns[rows], episodes.lengths[rows],
-                            episodes.finished[rows])
+            part = Episodes(episodes.returns[rows], episodes.lengths[rows], episodes.finished[rows])
             t = episodes.transitions
             keep = None if t is None else (t["episode"] >> _SHIFT) == k
             if t is not None and keep is not None and keep.any():
-                part.transitions = {**{key: v[keep] for key, v in t.items()},
-                                    "episode": t["episode"][keep] & mask}
+                part.transitions = {
+                    **{key: v[keep] for key, v in t.items()},
+                    "episode": t["episode"][keep] & mask,
+                }
             mine.append((index[rows] & mask, part))
         out.append(merge_episodes(mine, n))
     return out

@@ -10,6 +10,7 @@ builds its engine once in the pool initializer and ends with the main process
 A worker exception is re-raised in the parent (the pool stays usable: the queue items of a failed
 call are tagged with its call number and skipped later).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -24,22 +25,34 @@ from typing import TypeVar
 
 import numpy as np
 
-from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
 from epoet.core.lifecycle import end_with, ignore_stop_signals
-from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
-                                         split_results)
+from epoet.envs.config import AgentConfig
+from epoet.rollout.backends.base import (
+    Backend,
+    Relief,
+    WorkerLost,
+    engine_jobs,
+    reliefs_of,
+    split_results,
+)
 from epoet.rollout.engine import Episodes, RolloutEngine
 from epoet.rollout.populations import Population, Request
+from epoet.terrain.config import TerrainConfig
 
 T = TypeVar("T")
 
 _engine: RolloutEngine | None = None  # this worker process's engine, built by _init_worker
-_queue: Queue | None = None           # episode indices of the current call, shared by workers
+_queue: Queue | None = None  # episode indices of the current call, shared by workers
 
 
-def _init_worker(agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
-                 layer_sizes: tuple[int, ...], queue: Queue, main_pid: int) -> None:
+def _init_worker(
+    agent: AgentConfig,
+    terrain_cfg: TerrainConfig,
+    batch: int,
+    layer_sizes: tuple[int, ...],
+    queue: Queue,
+    main_pid: int,
+) -> None:
     global _engine, _queue
     ignore_stop_signals()
     end_with(main_pid)
@@ -59,8 +72,13 @@ def _items(call: int) -> Iterator[tuple[int, int]]:
         yield request, index
 
 
-def _work(call: int, reliefs: Sequence[Relief], populations: Sequence[Population],
-          records: Sequence[int], slots: int) -> tuple[np.ndarray, Episodes]:
+def _work(
+    call: int,
+    reliefs: Sequence[Relief],
+    populations: Sequence[Population],
+    records: Sequence[int],
+    slots: int,
+) -> tuple[np.ndarray, Episodes]:
     """Run this call's queue items until the end marker: (encoded indices, results)."""
     assert _engine is not None  # built by _init_worker
     _engine.set_terrains(reliefs)
@@ -75,8 +93,14 @@ def fair_slots(batch: int, episodes: int, workers: int) -> int:
 class PoolEvaluator(Backend):
     """A local process pool, one RolloutEngine per process; episodes are shared out one by one."""
 
-    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int,
-                 batch: int, layer_sizes: Sequence[int]) -> None:
+    def __init__(
+        self,
+        agent: AgentConfig,
+        terrain_cfg: TerrainConfig,
+        workers: int,
+        batch: int,
+        layer_sizes: Sequence[int],
+    ) -> None:
         super().__init__(layer_sizes)
         if workers < 2:
             raise ValueError(f"a process pool needs workers >= 2, got {workers}.")
@@ -95,8 +119,11 @@ class PoolEvaluator(Backend):
         # A fresh queue each time: a worker killed while reading may leave the old one's lock held.
         self._queue = self._ctx.Queue()
         self._pool = ProcessPoolExecutor(
-            self.workers, mp_context=self._ctx, initializer=_init_worker,
-            initargs=(*self._initargs, self._queue, os.getpid()))
+            self.workers,
+            mp_context=self._ctx,
+            initializer=_init_worker,
+            initargs=(*self._initargs, self._queue, os.getpid()),
+        )
         # Start every worker now (the pool spawns lazily), so start-up is paid here, once.
         self._submit_all(os.getpid)
 
@@ -131,9 +158,17 @@ class PoolEvaluator(Backend):
         for _ in range(self.workers):
             self._queue.put((call, None, None))
         slots = fair_slots(self.batch, sum(sizes), self.workers)
-        return split_results(self._submit_all(_work, call, reliefs_of(requests),
-                                       [r.population for r in requests],
-                                       [r.record for r in requests], slots), sizes)
+        return split_results(
+            self._submit_all(
+                _work,
+                call,
+                reliefs_of(requests),
+                [r.population for r in requests],
+                [r.record for r in requests],
+                slots,
+            ),
+            sizes,
+        )
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and self._pool is not None:

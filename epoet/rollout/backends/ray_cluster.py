@@ -16,6 +16,7 @@ process killed) raises `WorkerLost`; the backend replaces the dead actors and ru
 `address` joins a running cluster (`ray start --head` on the head node); without it a local Ray
 starts with this process and stops with it.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -33,12 +34,18 @@ import numpy as np
 
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
-from epoet.terrain.config import TerrainConfig
-from epoet.rollout.backends.base import (Backend, Relief, WorkerLost, engine_jobs, reliefs_of,
-                                         split_results)
+from epoet.rollout.backends.base import (
+    Backend,
+    Relief,
+    WorkerLost,
+    engine_jobs,
+    reliefs_of,
+    split_results,
+)
 from epoet.rollout.backends.pool import fair_slots
 from epoet.rollout.engine import Episodes, RolloutEngine
 from epoet.rollout.populations import Population, Request
+from epoet.terrain.config import TerrainConfig
 
 try:
     import ray
@@ -96,35 +103,51 @@ def check_address(address: str) -> None:
     if ray is None:
         raise ConfigError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
     host = host or "127.0.0.1"
-    fix = (f"start one with `ray start --head --port={port}`, or use workers.address=null for a "
-           f"local Ray.")
+    fix = (
+        f"start one with `ray start --head --port={port}`, or use workers.address=null for a "
+        f"local Ray."
+    )
     try:
         socket.create_connection((host, int(port)), timeout=5).close()
     except OSError as exc:
-        raise ConfigError(f"no Ray cluster answers at workers.address={address} "
-                          f"({exc.strerror or exc}); {fix}") from None
+        raise ConfigError(
+            f"no Ray cluster answers at workers.address={address} ({exc.strerror or exc}); {fix}"
+        ) from None
     tls = os.environ.get("RAY_USE_TLS", "0").lower() in ("1", "true")  # no plain HTTP/2 then
     if not tls and not _speaks_http2(host, int(port)):
-        raise ConfigError(f"no Ray cluster answers at workers.address={address} (something "
-                          f"listens there but does not speak Ray's gRPC); {fix}")
+        raise ConfigError(
+            f"no Ray cluster answers at workers.address={address} (something "
+            f"listens there but does not speak Ray's gRPC); {fix}"
+        )
     env = {**_PROBE_ENV, **os.environ}  # a user's own Ray timeouts win; the deadline holds anyway
     try:
-        probe = subprocess.run([sys.executable, "-c", _PROBE, f"{host}:{port}"], env=env,
-                               stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                               timeout=PROBE_SECONDS)
+        probe = subprocess.run(
+            [sys.executable, "-c", _PROBE, f"{host}:{port}"],
+            env=env,
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=PROBE_SECONDS,
+        )
     except subprocess.TimeoutExpired:
-        raise ConfigError(f"no Ray cluster answers at workers.address={address} (something "
-                          f"listens there but does not answer as Ray in {PROBE_SECONDS:.0f} s); "
-                          f"{fix}") from None
+        raise ConfigError(
+            f"no Ray cluster answers at workers.address={address} (something "
+            f"listens there but does not answer as Ray in {PROBE_SECONDS:.0f} s); "
+            f"{fix}"
+        ) from None
     if probe.returncode == 0:
         return
     if "authentication" in probe.stderr.lower() or "authentication" in probe.stdout.lower():
-        raise ConfigError(f"the Ray cluster at workers.address={address} wants token "
-                          f"authentication: export RAY_AUTH_MODE=token with the cluster's token in "
-                          f"~/.ray/auth_token (or RAY_AUTH_TOKEN).")
+        raise ConfigError(
+            f"the Ray cluster at workers.address={address} wants token "
+            f"authentication: export RAY_AUTH_MODE=token with the cluster's token in "
+            f"~/.ray/auth_token (or RAY_AUTH_TOKEN)."
+        )
     reason = (probe.stdout.strip().splitlines() or [f"exit code {probe.returncode}"])[-1]
-    raise ConfigError(f"no Ray cluster answers at workers.address={address} (something listens "
-                      f"there but does not answer as Ray: {reason.rstrip('.')}); {fix}")
+    raise ConfigError(
+        f"no Ray cluster answers at workers.address={address} (something listens "
+        f"there but does not answer as Ray: {reason.rstrip('.')}); {fix}"
+    )
 
 
 class _Feed:
@@ -144,7 +167,7 @@ class _Feed:
             return []  # a call that was abandoned (an actor died) and started again
         left = len(self._items) - self._next
         n = min(left, max(1, math.ceil(left / (4 * self._takers))))
-        chunk = self._items[self._next:self._next + n]
+        chunk = self._items[self._next : self._next + n]
         self._next += n
         return chunk
 
@@ -152,17 +175,28 @@ class _Feed:
 class _RolloutActor:
     """One rollout engine on a Ray worker process."""
 
-    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int,
-                 layer_sizes: tuple[int, ...]) -> None:
+    def __init__(
+        self,
+        agent: AgentConfig,
+        terrain_cfg: TerrainConfig,
+        batch: int,
+        layer_sizes: tuple[int, ...],
+    ) -> None:
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
     def ready(self) -> int:
         """This actor's process id, once its engine is built."""
         return os.getpid()
 
-    def work(self, feed: Any, call: int, reliefs: Sequence[Relief],
-             populations: Sequence[Population], records: Sequence[int], slots: int
-             ) -> tuple[np.ndarray, Episodes]:
+    def work(
+        self,
+        feed: Any,
+        call: int,
+        reliefs: Sequence[Relief],
+        populations: Sequence[Population],
+        records: Sequence[int],
+        slots: int,
+    ) -> tuple[np.ndarray, Episodes]:
         self.engine.set_terrains(reliefs)
         jobs = engine_jobs(_pull(feed, call), populations, records)
         return self.engine.run_jobs(jobs, slots=slots)
@@ -176,8 +210,15 @@ def _pull(feed: Any, call: int) -> Iterator[tuple[int, int]]:
 class RayEvaluator(Backend):
     """Rollout actors on a Ray cluster; `workers` actors (None: one per CPU of the cluster)."""
 
-    def __init__(self, agent: AgentConfig, terrain_cfg: TerrainConfig, workers: int | None,
-                 batch: int, layer_sizes: Sequence[int], address: str | None = None) -> None:
+    def __init__(
+        self,
+        agent: AgentConfig,
+        terrain_cfg: TerrainConfig,
+        workers: int | None,
+        batch: int,
+        layer_sizes: Sequence[int],
+        address: str | None = None,
+    ) -> None:
         if ray is None:
             raise RuntimeError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
         super().__init__(layer_sizes)
@@ -189,13 +230,18 @@ class RayEvaluator(Backend):
             sigterm = signal.getsignal(signal.SIGTERM)
             try:
                 # Local: as many CPUs as workers (or the machine's); a cluster brings its own.
-                ray.init(address=address, num_cpus=None if address else workers,
-                         include_dashboard=False, configure_logging=False, log_to_driver=True)
+                ray.init(
+                    address=address,
+                    num_cpus=None if address else workers,
+                    include_dashboard=False,
+                    configure_logging=False,
+                    log_to_driver=True,
+                )
             except (ConnectionError, RuntimeError, ValueError) as exc:
                 raise RuntimeError(
                     f"cannot join the Ray cluster at {address}: {exc} (a cluster started with "
-                    f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)") \
-                    from exc
+                    f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)"
+                ) from exc
             finally:
                 if threading.current_thread() is threading.main_thread():
                     signal.signal(signal.SIGTERM, sigterm)
@@ -230,8 +276,10 @@ class RayEvaluator(Backend):
         ray.get(self._feed.load.remote(call, items, self.workers))
         shared = [ray.put(reliefs_of(requests)), ray.put([r.population for r in requests])]
         slots = fair_slots(self.batch, len(items), self.workers)
-        futures = [a.work.remote(self._feed, call, *shared, [r.record for r in requests], slots)
-                   for a in self._actors]
+        futures = [
+            a.work.remote(self._feed, call, *shared, [r.record for r in requests], slots)
+            for a in self._actors
+        ]
         try:
             parts = ray.get(futures)
         except (RayActorError, WorkerCrashedError) as exc:
