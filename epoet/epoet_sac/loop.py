@@ -27,14 +27,14 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 import torch
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
-from epoet.config import Config
+from epoet.config import Config, PoetBudgetConfig
 from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import (
     Mapped,
@@ -133,7 +133,7 @@ class EpoetSac:
         if cfg.algo.sac_threads is not None:
             torch.set_num_threads(cfg.algo.sac_threads)
         sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
-        budget = cfg.budget
+        budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET-SAC's YAML picks the ePOET family's
         return cls(
             cfg.algo,
             cfg.terrain,
