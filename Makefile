@@ -18,7 +18,12 @@ $(STAMP): pyproject.toml constraints.txt
 # One test process per core; a file's tests share a process (module fixtures run once, and the Ray
 # tests, which stop every Ray process on the machine, never overlap one another); the longest
 # files first (tests/conftest.py LONGEST_FIRST).
+# Style first (ruff format and import order, then mypy on epoet/, analysis/, pipeline/: the
+# paths and options are pyproject.toml's), so CI checks it too.
 test: install
+	$(PY) -m ruff format --check epoet analysis pipeline tests
+	$(PY) -m ruff check epoet analysis pipeline tests
+	$(PY) -m mypy
 	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=10 tests
 
 # The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
