@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery tables figures paper reference records suite bench bench-learning clean-venv
+.PHONY: install test train gallery tables figures paper epoet-sac-starts reference records suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -53,6 +53,14 @@ SUITES ?=
 OVERRIDES ?=
 paper: install
 	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(if $(SUITES),--suites $(SUITES)) $(if $(RECORDS),--records $(RECORDS)) $(OVERRIDES)
+
+# ePOET-SAC's three starts (cold, a SAC run of ours, the authors' SAC) x SEEDS at the workstation
+# budget, evaluated on both suites, tabled, records in docs/results/epoet-sac-starts (README
+# "ePOET-SAC"); resumable. SAC_RUN=<run folder | MLflow run id>: the SAC run of ours (default:
+# trained first).
+SAC_RUN ?=
+epoet-sac-starts: install
+	$(PY) -m pipeline.epoet_sac_starts --seeds $(SEEDS) --jobs $(JOBS) $(if $(SAC_RUN),--sac-run $(SAC_RUN)) $(OVERRIDES)
 
 # The evaluated runs of EXPERIMENT as evaluation records in RECORDS (docs/results/README.md).
 records: install
