@@ -48,7 +48,7 @@ from tqdm import tqdm
 from epoet.config import EvaluateConfig, compose, validate
 from epoet.core.cli import fail
 from epoet.core.compute import default_workers
-from epoet.core.files import atomic_write
+from epoet.core.files import atomic_write, savez
 from epoet.core.lifecycle import end_with
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
@@ -287,7 +287,7 @@ def write_results(result: Evaluation, folder: Path, info: dict[str, Any]) -> dic
     with atomic_write(paths["episodes.csv"]) as f:
         f.write(result.episodes.to_csv(index=False).encode())
     with atomic_write(paths["actions.npz"]) as f:
-        np.savez_compressed(f, **result.actions)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
+        savez(f, result.actions)
     with atomic_write(paths["summary.json"]) as f:
         f.write((json.dumps({**info, **result.metrics}, indent=1) + "\n").encode())
     return paths

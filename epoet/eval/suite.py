@@ -51,7 +51,7 @@ from omegaconf import DictConfig
 
 from epoet.config import CONF_DIR, SuiteConfig, load, run_hydra_app, validate
 from epoet.core.cli import fail
-from epoet.core.files import atomic_write
+from epoet.core.files import atomic_write, savez
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import patch_variance
@@ -301,18 +301,12 @@ def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict], cour
         "terrains": entries,
     }
     with atomic_write(folder / "heights.npz") as f:
-        np.savez_compressed(
-            f,
-            **{
-                e["name"]: quantize(t.heightmap)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
-                for t, e in zip(terrains, entries)
-            },
-        )
+        savez(f, {e["name"]: quantize(t.heightmap) for t, e in zip(terrains, entries)})
     with atomic_write(folder / "genomes.npz") as f:
-        np.savez_compressed(
+        savez(
             f,
-            **{
-                e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)  # type: ignore[arg-type]  # numpy's stub: ** might fill allow_pickle
+            {
+                e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)
                 for t, e in zip(terrains, entries)
             },
         )
