@@ -19,7 +19,8 @@ SAC baseline trained here first, `algo=sac budget=workstation seed=1` into
    children admitted, ANNECS, the best score, wall minutes and iterations, and the success
    rate and mean return on each suite.
 
-Overrides after the options go to every ePOET-SAC job (e.g. `budget.hours=0.25`).
+Overrides after the options go to every ePOET-SAC job and to the SAC run trained for `ours`
+(e.g. `budget.hours=0.25 workers.num=1`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from pathlib import Path
 from analysis.store import connect, history, run_command, seed_of, select_runs
 from analysis.tables import make_tables
 from epoet.core.compute import default_workers
+from epoet.eval.agents import resolve_run
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME, suite_metric
 from pipeline.paper import evaluate_missing, parallel_overrides
 from pipeline.records import export
@@ -47,8 +49,9 @@ def starts(sac_run: str) -> dict[str, str]:
     return {"cold": "null", "ours": sac_run, "authors": REFERENCE}
 
 
-def sac_command() -> list[str]:
-    """The SAC baseline that the `ours` start loads (evaluated like any run of ours)."""
+def sac_command(overrides: Sequence[str]) -> list[str]:
+    """The SAC baseline that the `ours` start loads (evaluated like any run of ours), on the
+    ePOET-SAC jobs' overrides, so it trains on the same terms (e.g. the same `budget.hours`)."""
     return [
         sys.executable,
         "-m",
@@ -59,6 +62,7 @@ def sac_command() -> list[str]:
         f"tracking.experiment={NAME}-sac",
         "resume=auto",
         f"hydra.run.dir={SAC_RUN}",
+        *overrides,
     ]
 
 
@@ -94,7 +98,7 @@ def _listed(client, run_id: str, key: str) -> str:
     return ", ".join(f"{v:.0f} (it {s})" for s, v in points) or "-"
 
 
-def summary_table(suites: Sequence[str]) -> str:
+def summary_table(suites: Sequence[str], sac_run: str) -> str:
     """starts.md: one row per start and seed."""
     client, uri = connect()
     head = [
@@ -144,17 +148,20 @@ def summary_table(suites: Sequence[str]) -> str:
                 ret = suite_metric(metrics, suite, "return_mean")
                 cells.append("-" if rate is None else f"{rate:.2f}, {ret:.0f}")
             rows.append("| " + " | ".join(cells) + " |")
-    sac = (
-        select_runs(client, uri, f"{NAME}-sac", algos=("sac",))
-        if client.get_experiment_by_name(f"{NAME}-sac")
-        else []
+    return "\n".join(rows) + "\n" + sac_note(sac_run)
+
+
+def sac_note(sac_run: str) -> str:
+    """The SAC run the `ours` start loaded: its name, id, minutes and frames."""
+    stored = resolve_run(sac_run).stored
+    if stored is None:
+        return f"\nThe SAC run of ours (`ours`): {sac_run}.\n"
+    metrics = stored.metrics
+    return (
+        f"\nThe SAC run of ours (`ours`): {stored.name} ({stored.run_id}, {sac_run}), "
+        f"{metrics.get('elapsed', 0.0) / 60:.0f} minutes, "
+        f"{metrics.get('frames', 0.0) / 1e3:.0f}k frames.\n"
     )
-    note = "".join(
-        f"\nThe SAC run of ours (`ours`): {r.data.metrics.get('elapsed', 0.0) / 60:.0f} "
-        f"minutes ({r.info.run_name}, {r.info.run_id}).\n"
-        for r in sac[-1:]
-    )
-    return "\n".join(rows) + "\n" + note
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -181,8 +188,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     sac_run = args.sac_run
     if sac_run is None:
-        print(f"[{NAME}] the SAC run of ours: {' '.join(sac_command()[1:])}", flush=True)
-        if (code := subprocess.run(sac_command()).returncode) != 0:
+        sac = sac_command(args.overrides)
+        print(f"[{NAME}] the SAC run of ours: {' '.join(sac[1:])}", flush=True)
+        if (code := subprocess.run(sac).returncode) != 0:
             return code
         sac_run = str(SAC_RUN.resolve())
     suites = [s for s in args.suites.split(",") if s]
@@ -204,7 +212,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for suite in suites:
                 make_tables(experiment, out, suite)
             export(experiment, args.records / start)
-        table = summary_table(suites)
+        table = summary_table(suites, sac_run)
         for folder in (args.out, args.records):
             folder.mkdir(parents=True, exist_ok=True)
             (folder / "starts.md").write_text(table)

@@ -482,7 +482,8 @@ def test_the_starts_table_reports_what_each_runs_joins_did(
 ) -> None:
     """starts.md (pipeline.epoet_sac_starts) from two real runs: per start and seed the joined
     actor's and mapped agent's scores at each join, the replacements, transfers out of joined
-    pairs and admissions summed over the run; a start not run yet says so."""
+    pairs and admissions summed over the run; a start not run yet says so; the closing note
+    names the SAC run the `ours` start loaded (any run folder will do for the note)."""
     from pipeline.epoet_sac_starts import NAME, summary_table
 
     for start, init in (("cold", "null"), ("authors", "reference:sac/42")):
@@ -497,7 +498,7 @@ def test_the_starts_table_reports_what_each_runs_joins_did(
             ),
             tmp_path / start,
         )
-    table = summary_table(["shipped"]).splitlines()
+    table = summary_table(["shipped"], str(tmp_path / "cold")).splitlines()
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in table[2:] if line}
     assert set(rows) == {"cold", "ours", "authors"} and "not run yet" in rows["ours"]
     client = mlflow.MlflowClient(mlflow_uri)
@@ -509,3 +510,5 @@ def test_the_starts_table_reports_what_each_runs_joins_did(
         assert cells[4] == f"{score:.0f} (it 2)"
         assert cells[6] == f"{sum(_metric(client, r.info.run_id, 'replaced').values()):.0f}"
         assert cells[-1].strip(" |") == "-"  # not evaluated on the suite
+    (cold,) = client.search_runs([client.get_experiment_by_name(f"{NAME}-cold").experiment_id])
+    assert table[-1].startswith("The SAC run of ours") and cold.info.run_id in table[-1]
