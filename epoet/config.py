@@ -185,7 +185,7 @@ class SuiteConfig:
     """`python -m epoet.eval.suite`: the fixed evaluation suite (docs/reference.md "Evaluation").
 
     Rounds of mutated CPPN children with a rising S; round r aims its children at level r
-    (epoet/eval/suite.py)."""
+    (epoet/eval/suite_generation.py)."""
 
     KEY: ClassVar[str] = ""
 

@@ -21,14 +21,12 @@ from epoet.eval.suite import (
     SHIPPED,
     Course,
     SuiteError,
-    differences,
     example_terrain,
-    generate,
     level_of,
     load_suite,
     quantize,
-    write_suite,
 )
+from epoet.eval.suite_generation import differences, generate, write_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -29,6 +29,9 @@ Suite folder format (any folder in this format can be evaluated, `suite=<folder>
 
 A suite's NAME keys its evaluations in a run (`epoet.eval.keys`): "shipped" (epoet/suite/),
 "paper" (epoet/reference/suite/), the two `SUITES`, or another folder's (`suite_name`).
+
+This module is the format and its loader; the procedure above and the writer live in
+epoet/eval/suite_generation.py, which `python -m epoet.eval.suite` runs.
 """
 
 from __future__ import annotations
@@ -37,8 +40,6 @@ import dataclasses
 import functools
 import hashlib
 import json
-import math
-import pickle
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -51,7 +52,6 @@ from omegaconf import DictConfig
 
 from epoet.config import CONF_DIR, SuiteConfig, load, run_hydra_app, validate
 from epoet.core.cli import fail
-from epoet.core.files import atomic_write, savez
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import patch_variance
@@ -59,8 +59,6 @@ from epoet.envs.spawn import FOOTPRINT
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.terrain.config import TerrainConfig
 from epoet.terrain.cppn import CppnMutationError
-from epoet.terrain.generate import make_terrain, mutate_terrain
-from epoet.terrain.terrain import Terrain
 
 # 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
 SUITE_FORMAT = "epoet-suite/2"
@@ -135,19 +133,6 @@ def level_of(roughness: float) -> str:
     return LEVELS[int(np.searchsorted(LEVEL_BOUNDS, roughness, side="right"))]
 
 
-def _miss(roughness: float, level: str) -> float:
-    """How far (in log10 units) a roughness lies outside a level's band; 0 inside it."""
-    k = LEVELS.index(level)
-    lo = LEVEL_BOUNDS[k - 1] if k > 0 else 0.0
-    hi = LEVEL_BOUNDS[k] if k < len(LEVEL_BOUNDS) else math.inf
-    r = max(roughness, 1e-12)
-    return max(
-        0.0,
-        math.log10(lo) - math.log10(r) if lo > 0 else 0.0,
-        math.log10(r) - math.log10(hi) if hi < math.inf else 0.0,
-    )
-
-
 @dataclass(frozen=True)
 class SuiteTerrain:
     """One suite terrain: what the env needs (heightmap, max_height, size) and its label."""
@@ -208,131 +193,8 @@ def quantize(heightmap: np.ndarray) -> np.ndarray:
     return np.rint(np.clip(heightmap, 0.0, 1.0) * _QUANT).astype(np.uint16)
 
 
-def _dequantize(q: np.ndarray) -> np.ndarray:
+def dequantize(q: np.ndarray) -> np.ndarray:
     return q.astype(np.float64) / _QUANT if q.dtype == np.uint16 else q.astype(np.float64)
-
-
-# --- generation -----------------------------------------------------------------------------
-
-
-def _at_height(cfg: TerrainConfig, max_height: float) -> TerrainConfig:
-    """The terrain config with S fixed at `max_height` (the bowl part's level depends on S)."""
-    return dataclasses.replace(cfg, max_height=max_height, max_height_step=0.0)
-
-
-def generate(cfg: SuiteConfig, progress: bool = False) -> tuple[list[Terrain], list[dict]]:
-    """The suite's terrains (heightmaps already quantised as stored) and their index entries."""
-    course = Course.of(cfg.agent, cfg.episode_ratio)
-    # Each (round, lineage) draws its mutation seeds from its own key, so a suite with fewer
-    # rounds or lineages is an exact prefix of a bigger one.
-    root_seed = int(np.random.SeedSequence(cfg.seed).generate_state(1)[0])
-    root = make_terrain(_at_height(cfg.terrain, cfg.max_heights[0]), root_seed)
-    parents = [root] * cfg.children
-    terrains, entries = [], []
-    for rnd, height in enumerate(cfg.max_heights):
-        target = LEVELS[min(rnd, len(LEVELS) - 1)]
-        tcfg = _at_height(cfg.terrain, height)
-        for lineage in range(cfg.children):
-            tries = (
-                np.random.SeedSequence(cfg.seed, spawn_key=(rnd, lineage))
-                .generate_state(cfg.max_tries)
-                .tolist()
-            )
-            child, rough = _search(parents[lineage], tcfg, course, target, tries)
-            parents[lineage] = child
-            name = f"r{rnd}l{lineage}"
-            terrains.append(child)
-            entries.append(
-                {
-                    "name": name,
-                    "level": level_of(rough),
-                    "roughness": rough,
-                    "max_height": height,
-                    "round": rnd,
-                    "lineage": lineage,
-                    "target": target,
-                    "seed": child.seed,
-                    "generation": child.generation,
-                }
-            )
-            if progress:
-                print(
-                    f"  {name}: S={height:.2f} m roughness={rough:.5f} -> {level_of(rough)} "
-                    f"(aimed at {target})",
-                    flush=True,
-                )
-    return terrains, entries
-
-
-def _search(
-    parent: Terrain, cfg: TerrainConfig, course: Course, target: str, seeds: list[int]
-) -> tuple[Terrain, float]:
-    """Mutate until a child lands in `target`; otherwise climb towards it from the closest."""
-    best: tuple[float, Terrain, float] | None = None
-    current = parent
-    for seed in seeds:
-        try:
-            child = mutate_terrain(current, cfg, seed)
-        except CppnMutationError:
-            continue
-        child = dataclasses.replace(child, heightmap=_dequantize(quantize(child.heightmap)))
-        rough = course.roughness(child.heightmap, child.max_height, child.size)
-        miss = _miss(rough, target)
-        if best is None or miss < best[0]:
-            best = (miss, child, rough)
-            current = child
-        if miss == 0.0:
-            break
-    if best is None:
-        raise CppnMutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} tries.")
-    return best[1], best[2]
-
-
-def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict], course: Course) -> None:
-    """Write the three files, each atomically (a failed write leaves the old file)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    size = terrains[0].size
-    index = {
-        "format": SUITE_FORMAT,
-        "size": size,
-        "grid": terrains[0].grid,
-        "course": dataclasses.asdict(course),
-        "levels": dict(zip(LEVELS[1:], LEVEL_BOUNDS)),
-        "terrains": entries,
-    }
-    with atomic_write(folder / "heights.npz") as f:
-        savez(f, {e["name"]: quantize(t.heightmap) for t, e in zip(terrains, entries)})
-    with atomic_write(folder / "genomes.npz") as f:
-        savez(
-            f,
-            {
-                e["name"]: np.frombuffer(pickle.dumps(t.genome), np.uint8)
-                for t, e in zip(terrains, entries)
-            },
-        )
-    with atomic_write(folder / "suite.json") as f:
-        f.write((json.dumps(index, indent=1) + "\n").encode())
-
-
-def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> list[str]:
-    """What differs between generated terrains and the first ones in `folder` (empty: bit for
-    bit; a suite made with fewer rounds is compared with the folder's first rounds)."""
-    load_suite(folder)  # a malformed folder fails here, with its own message
-    index = json.loads((folder / "suite.json").read_text())
-    stored = index["terrains"][: len(entries)]
-    if [e["name"] for e in stored] != [e["name"] for e in entries]:
-        return [f"terrain names differ: {[e['name'] for e in stored]}"]
-    found = []
-    if stored != json.loads(json.dumps(entries)):
-        found.append("suite.json entries differ")
-    with np.load(folder / "heights.npz") as heights, np.load(folder / "genomes.npz") as genomes:
-        for terrain, entry in zip(terrains, entries):
-            name = entry["name"]
-            if not np.array_equal(heights[name], quantize(terrain.heightmap)):
-                found.append(f"{name}: heights differ")
-            if genomes[name].tobytes() != pickle.dumps(terrain.genome):
-                found.append(f"{name}: genome differs")
-    return found
 
 
 # --- loading --------------------------------------------------------------------------------
@@ -380,7 +242,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
                 name, height = str(entry["name"]), float(entry["max_height"])
                 if name not in heights:
                     raise ValueError(f"heights.npz has no array {name!r}")
-                hm = _dequantize(heights[name])
+                hm = dequantize(heights[name])
                 if hm.shape != (grid, grid) or not (hm.min() >= 0.0 and hm.max() <= 1.0):
                     raise ValueError(
                         f"{name} must be a ({grid}, {grid}) array in [0, 1], got shape {hm.shape}"
@@ -412,6 +274,9 @@ def load_suite(folder: str | Path | None = None) -> Suite:
 
 @hydra.main(config_path=str(CONF_DIR), config_name="suite", version_base="1.3")
 def _app(raw: DictConfig) -> None:
+    # generation reads this module's format and loader, so it is imported here
+    from epoet.eval.suite_generation import differences, generate, write_suite
+
     try:
         cfg: SuiteConfig = validate(raw)
         folder = SHIPPED if cfg.out is None else Path(cfg.out)
