@@ -40,7 +40,7 @@ from mlflow import MlflowClient
 from mlflow.entities import Run
 
 from analysis.records import one_course_scale, record_episodes
-from analysis.stats import write_stats
+from analysis.stats_report import write_stats
 from analysis.store import (
     AnalysisError,
     connect,

@@ -16,8 +16,8 @@ from analysis.stats import (
     poi_table,
     rliable,
     score_matrices,
-    write_stats,
 )
+from analysis.stats_report import write_stats
 from analysis.tables import to_markdown
 
 
