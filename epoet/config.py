@@ -1,7 +1,7 @@
-"""The root configs (a training run's and those of the commands around a trained agent), their
-registration, and composition. Values live in the YAML files; each wing's schema lives beside its
-code (envs/, terrain/, es/, poet/, epoet_sac/, rl/ config.py) and holds types and range checks,
-nothing else.
+"""The root config of a training run, the registration of every schema (the run's and those of
+the commands around a trained agent, epoet/eval/config.py), and composition. Values live in the
+YAML files; each wing's schema lives beside its code (envs/, terrain/, es/, poet/, epoet_sac/,
+rl/, tracking/, eval/ config.py) and holds types and range checks, nothing else.
 
 Hydra's ConfigStore registers each dataclass as the schema of its YAML file, so a typo or a wrong
 type fails at composition. `validate` builds the dataclass tree with `OmegaConf.to_object`,
@@ -28,12 +28,20 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from epoet.core.cli import fail
-from epoet.core.schema import ConfigError, check, non_negative, positive
+from epoet.core.schema import ConfigError, check, positive
 from epoet.envs.config import AgentConfig
 from epoet.epoet_sac.config import EpoetSacConfig
+from epoet.eval.config import (
+    EvaluateConfig,
+    GalleryConfig,
+    ReferenceConfig,
+    RenderConfig,
+    SuiteConfig,
+)
 from epoet.poet.config import PoetConfig
 from epoet.rl.config import PpoConfig, SacConfig, VmpoConfig
 from epoet.terrain.config import TerrainConfig
+from epoet.tracking.config import TrackingConfig
 
 
 @dataclass
@@ -125,19 +133,6 @@ class WorkersConfig:
 
 
 @dataclass
-class TrackingConfig:
-    """MLflow: the store defaults to sqlite:///<project root>/mlflow.db; MLFLOW_TRACKING_URI wins."""
-
-    KEY: ClassVar[str] = "tracking"
-
-    experiment: str
-    uri: Optional[str]
-
-    def __post_init__(self) -> None:
-        check(bool(self.experiment), "tracking.experiment must not be empty.")
-
-
-@dataclass
 class Config:
     """The root config (conf/config.yaml)."""
 
@@ -175,124 +170,6 @@ class Config:
         """Dotted keys (and key prefixes) of settings this run never reads, so its MLflow params
         hold only what shaped it (a bowl terrain's CPPN settings, the baselines' ES workers)."""
         return (*self.terrain.unused_keys(), *self.algo.unused_keys())
-
-
-# --- the commands around a trained agent: the suite, evaluate, render, gallery ---------------
-
-
-@dataclass
-class SuiteConfig:
-    """`python -m epoet.eval.suite`: the fixed evaluation suite (docs/reference.md "Evaluation").
-
-    Rounds of mutated CPPN children with a rising S; round r aims its children at level r
-    (epoet/eval/suite_generation.py)."""
-
-    KEY: ClassVar[str] = ""
-
-    terrain: TerrainConfig
-    agent: AgentConfig  # the course (start_x .. finish_x) the roughness is read along
-    episode_ratio: float  # evaluation episodes last this x the agent's training ones
-    seed: int
-    children: int  # children per round (lineages)
-    max_heights: list[float]  # S of each round, metres: one round per entry
-    max_tries: int  # mutations tried per child before taking the closest
-    out: Optional[str]  # None: the shipped suite folder
-    check: bool  # regenerate and compare with `out`, write nothing
-
-    def __post_init__(self) -> None:
-        non_negative(self, "seed")
-        positive(self, "children", "max_tries", "episode_ratio")
-        check(
-            len(self.max_heights) > 0
-            and all(0 < s <= self.terrain.max_height_limit for s in self.max_heights),
-            f"max_heights must be a non-empty list in (0, terrain.max_height_limit = "
-            f"{self.terrain.max_height_limit}], got {self.max_heights}.",
-        )
-
-
-@dataclass
-class AgentCommandConfig:
-    """What the commands that run a trained agent share (evaluate, render)."""
-
-    KEY: ClassVar[str] = ""
-
-    run: Optional[str]  # MLflow run id, run folder or policy file
-    agent: AgentConfig  # episode rules for a bare policy file (a run brings its own)
-    tracking: TrackingConfig
-    suite: Optional[str]  # None: the shipped suite
-    seed: int  # keys the episodes' starts
-
-    def __post_init__(self) -> None:
-        check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
-        non_negative(self, "seed")
-
-
-@dataclass
-class EvaluateConfig(AgentCommandConfig):
-    """`python -m epoet.eval.evaluate`: a trained agent on the evaluation suite."""
-
-    episodes: int  # per terrain
-    solve_score: float  # "solved": finish line and this return (x the run's scale)
-    action_samples: int  # actions kept per episode, for t-SNE
-    processes: Optional[int]  # None: one per available core ("workers" is a config group)
-    out: Optional[str]  # results folder; None: <run folder>/evaluation or ./evaluation
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        positive(self, "episodes")
-        non_negative(self, "action_samples")
-        check(
-            self.processes is None or self.processes > 0,
-            f"processes must be > 0 or null, got {self.processes}.",
-        )
-
-
-@dataclass
-class RenderConfig(AgentCommandConfig):
-    """`python -m epoet.eval.render`: an mp4 of a trained agent on one terrain."""
-
-    terrain: Optional[str]  # a suite terrain's name or a terrain .npz file
-    steps: Optional[int]  # None: the run's episode length
-    width: int
-    height: int
-    out: Optional[str]  # None: videos/<run>_<terrain>.mp4
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check(bool(self.terrain), "terrain is required: a suite terrain's name or an .npz file.")
-        positive(self, "width", "height")
-        check(self.steps is None or self.steps > 0, f"steps must be > 0, got {self.steps}.")
-
-
-@dataclass
-class GalleryConfig:
-    """`python -m epoet.eval.gallery`: a root terrain and its mutated descendants as one PNG grid."""
-
-    KEY: ClassVar[str] = ""
-
-    terrain: TerrainConfig
-    seed: int
-    n: int
-    out: str
-
-    def __post_init__(self) -> None:
-        non_negative(self, "seed")
-        positive(self, "n")
-
-
-@dataclass
-class ReferenceConfig:
-    """`python -m epoet.eval.reference source=<checkout>`: convert the authors' published agents
-    and evaluation terrains into epoet's formats (epoet/eval/reference/convert.py)."""
-
-    KEY: ClassVar[str] = ""
-
-    source: Optional[str]  # a checkout of github.com/ml-tue/ePOET_3D
-    out: Optional[str]  # None: the shipped folder, epoet/reference
-    check: bool  # convert and compare with `out`, write nothing
-
-    def __post_init__(self) -> None:
-        check(bool(self.source), "source is required: source=<a checkout of ml-tue/ePOET_3D>.")
 
 
 # --- composition and validation -------------------------------------------------------------------

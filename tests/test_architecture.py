@@ -34,6 +34,8 @@ WINGS: list[tuple[str, tuple[str, ...]]] = [
             "epoet.poet.config",
             "epoet.epoet_sac.config",
             "epoet.rl.config",
+            "epoet.tracking.config",
+            "epoet.eval.config",
         ),
     ),
     ("config", ("epoet.config",)),

@@ -45,7 +45,7 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.config import EvaluateConfig, compose, validate
+from epoet.config import compose, validate
 from epoet.core.cli import fail
 from epoet.core.compute import default_workers
 from epoet.core.files import atomic_write, savez
@@ -54,6 +54,7 @@ from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.eval.agents import AgentError, AgentSource, TrainedRun, resolve_run
+from epoet.eval.config import EvaluateConfig
 from epoet.eval.keys import (
     EPISODES_TAG,
     RESULTS,

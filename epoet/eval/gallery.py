@@ -16,9 +16,10 @@ import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import DictConfig
 
-from epoet.config import CONF_DIR, GalleryConfig, run_hydra_app, validate
+from epoet.config import CONF_DIR, run_hydra_app, validate
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
+from epoet.eval.config import GalleryConfig
 from epoet.terrain.cppn import CppnMutationError
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain, plot_terrain

@@ -44,10 +44,11 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.config import RenderConfig, compose, validate
+from epoet.config import compose, validate
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.eval.agents import AgentError, TrainedRun, resolve_run
+from epoet.eval.config import RenderConfig
 from epoet.eval.film import Film, caption_text
 from epoet.terrain import Terrain, TerrainFileError
 from epoet.tracking import TrackingError

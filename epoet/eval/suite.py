@@ -50,12 +50,13 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig
 
-from epoet.config import CONF_DIR, SuiteConfig, load, run_hydra_app, validate
+from epoet.config import CONF_DIR, load, run_hydra_app, validate
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
+from epoet.eval.config import SuiteConfig
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.terrain.config import TerrainConfig
 from epoet.terrain.cppn import CppnMutationError

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from epoet.config import SuiteConfig
 from epoet.core.files import atomic_write, savez
+from epoet.eval.config import SuiteConfig
 from epoet.eval.suite import (
     LEVEL_BOUNDS,
     LEVELS,

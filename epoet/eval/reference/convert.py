@@ -31,10 +31,11 @@ from typing import Any
 
 import numpy as np
 
-from epoet.config import ReferenceConfig, compose, validate
+from epoet.config import compose, validate
 from epoet.core.cli import fail
 from epoet.core.files import atomic_write
 from epoet.core.schema import ConfigError
+from epoet.eval.config import ReferenceConfig
 from epoet.eval.reference import FOLDER, MANIFEST
 from epoet.eval.reference.layout import (
     CONTACTS,
