@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-# 400 lines in the hand-wrapped style; ruff's formatter puts a long call's arguments one per
-# line, which grew the four largest modules by 10-30 % without adding any code, so the cap
-# moved with it rather than cutting ePOET-SAC's one-file iteration (issue 29) in two.
-MAX_LINES = 520
+MAX_LINES = 400
+# ePOET-SAC's iteration stays in one file, read top to bottom like the paper's Algorithm 2
+# (issue 29); ruff's one-argument-per-line layout took it past the cap without adding code.
+LONGER = {"epoet.epoet_sac.loop": 520}
 
 # Lowest first; a module may import its own wing and the wings before it.
 WINGS: list[tuple[str, tuple[str, ...]]] = [
@@ -102,7 +102,8 @@ def _imports(path: Path, *, deferred: bool) -> set[str]:
 @pytest.mark.parametrize("module", sorted(MODULES))
 def test_no_module_is_over_the_line_cap(module: str) -> None:
     lines = len(MODULES[module].read_text().splitlines())
-    assert lines <= MAX_LINES, f"{module} has {lines} lines"
+    cap = LONGER.get(module, MAX_LINES)
+    assert lines <= cap, f"{module} has {lines} lines (cap {cap})"
 
 
 def test_no_import_cycle() -> None:
