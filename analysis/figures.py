@@ -41,8 +41,8 @@ from sklearn.manifold import TSNE  # noqa: E402
 from analysis.store import (  # noqa: E402
     ALGO_COLOURS,
     POET_ALGOS,
+    add_store_arguments,
     connect,
-    default_experiment,
     evaluation_of,
     evaluation_on,
     history,
@@ -365,18 +365,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m analysis.figures", description="The paper's figures from the MLflow store."
     )
-    parser.add_argument(
-        "--experiment",
-        default=default_experiment(),
-        help="MLflow experiment (default: the runs' default, tracking.experiment)",
-    )
-    parser.add_argument("--out", type=Path, default=Path("results/figures"))
-    parser.add_argument(
-        "--suite",
-        default=None,
-        help="suite name (shipped, paper) or suite folder (default: shipped)",
-    )
-    parser.add_argument("--run", nargs="+", default=[], metavar="RUN_ID")
+    add_store_arguments(parser, Path("results/figures"))
     args = parser.parse_args(argv)
     return run_command(lambda: write_figures(args.experiment, args.out, args.suite, args.run))
 

@@ -6,8 +6,10 @@ An analysis never writes training data: a missing store is an error, not a new e
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 
 from mlflow import MlflowClient
 from mlflow.entities import Run
@@ -36,6 +38,31 @@ ALGO_COLOURS = {
 def default_experiment() -> str:
     """The experiment a run logs to unless told otherwise (conf/tracking/mlflow.yaml)."""
     return str(OmegaConf.load(CONF_DIR / "tracking" / "mlflow.yaml").experiment)
+
+
+def add_store_arguments(parser: argparse.ArgumentParser, out: Path) -> None:
+    """The options of every command that reads runs from the store: which experiment (or which
+    runs), which suite's evaluations, and the output folder."""
+    parser.add_argument(
+        "--experiment",
+        default=default_experiment(),
+        help="MLflow experiment whose FINISHED runs are read (default: the runs' default, "
+        "tracking.experiment)",
+    )
+    parser.add_argument("--out", type=Path, default=out, help=f"output folder (default: {out})")
+    parser.add_argument(
+        "--suite",
+        default=None,
+        help="suite name (shipped, paper) or suite folder whose evaluations are read "
+        "(default: shipped)",
+    )
+    parser.add_argument(
+        "--run",
+        nargs="+",
+        default=[],
+        metavar="RUN_ID",
+        help="read these runs instead of the experiment's",
+    )
 
 
 def in_order(present: Iterable[str], order: Sequence[str] = ALGOS) -> list[str]:

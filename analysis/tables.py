@@ -43,8 +43,8 @@ from analysis.records import one_course_scale, record_episodes
 from analysis.stats_report import write_stats
 from analysis.store import (
     AnalysisError,
+    add_store_arguments,
     connect,
-    default_experiment,
     evaluation_of,
     in_order,
     require_runs,
@@ -244,31 +244,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         description="Success-rate and return tables (paper Tables 1-2), IQM and probability of "
         "improvement from the evaluations in the MLflow store or in records.",
     )
-    parser.add_argument(
-        "--experiment",
-        default=default_experiment(),
-        help="MLflow experiment whose FINISHED runs are tabled (default: the "
-        "runs' default, tracking.experiment)",
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("results"),
-        help="folder for the Markdown, LaTeX and CSV files (default: results)",
-    )
-    parser.add_argument(
-        "--suite",
-        default=None,
-        help="suite name (shipped, paper) or suite folder whose evaluations "
-        "are tabled (default: shipped)",
-    )
-    parser.add_argument(
-        "--run",
-        nargs="+",
-        default=[],
-        metavar="RUN_ID",
-        help="table these runs instead of the experiment's",
-    )
+    add_store_arguments(parser, Path("results"))
     parser.add_argument(
         "--records",
         type=Path,
