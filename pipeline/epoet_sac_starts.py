@@ -33,10 +33,10 @@ from pathlib import Path
 
 from analysis.store import connect, history, run_command, seed_of, select_runs
 from analysis.tables import make_tables
-from epoet.core.compute import default_workers
 from epoet.eval.agents import resolve_run
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME, suite_metric
-from pipeline.paper import evaluate_missing, parallel_overrides
+from pipeline.paper import evaluate_missing
+from pipeline.paper import train_command as paper_train_command
 from pipeline.records import export
 
 NAME = "epoet-sac-starts"
@@ -69,24 +69,17 @@ def sac_command(overrides: Sequence[str]) -> list[str]:
 def train_command(
     start: str, sac_init: str, seeds: str, jobs: int, overrides: Sequence[str]
 ) -> list[str]:
-    """One start's multirun over the seeds; `overrides` last, so they win."""
-    return [
-        sys.executable,
-        "-m",
-        "epoet",
-        "-m",
-        "algo=epoet_sac",
-        "budget=workstation",
-        f"seed={seeds}",
-        f"algo.sac_init={sac_init}",
-        *parallel_overrides(jobs, default_workers()),
-        f"tracking.experiment={NAME}-{start}",
-        "resume=auto",
-        "evaluate=false",
-        f"hydra.sweep.dir={Path('multirun') / NAME / start}",
-        "hydra.sweep.subdir=${algo.name}_s${seed}",
-        *overrides,
-    ]
+    """One start's multirun over the seeds (`make paper`'s training command for ePOET-SAC at the
+    workstation budget with the start's `algo.sac_init`); `overrides` last, so they win."""
+    return paper_train_command(
+        "workstation",
+        seeds,
+        ["epoet_sac"],
+        f"{NAME}-{start}",
+        Path("multirun") / NAME / start,
+        jobs,
+        [f"algo.sac_init={sac_init}", *overrides],
+    )
 
 
 def _total(client, run_id: str, key: str) -> float:
