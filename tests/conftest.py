@@ -46,6 +46,35 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 # The ES policy's layer sizes with the default config's hidden layers (algo.es.hidden).
 ES_SIZES = policy_sizes(load([]).algo.es.hidden)
 
+# A baseline's tiny run: 30-step episodes, 60-frame batches, 4 batches, evaluations every 2
+# batches, with each algorithm's own small sizes (tiny_baseline); tests/golden.json pins it.
+TINY_BASELINE = [
+    "budget=smoke",
+    "workers.num=1",
+    "terrain.grid=40",
+    "budget.episode_steps=30",
+    "budget.frames=240",
+    "budget.eval_every=120",
+    "budget.eval_episodes=1",
+    "algo.frames_per_batch=60",
+    "checkpoint_every=2",
+]
+TINY_SIZES = {
+    "ppo": ["algo.epochs=2", "algo.minibatch=30"],
+    "vmpo": ["algo.epochs=2", "algo.minibatch=30"],
+    "sac": [
+        "algo.hidden=[32,32]",
+        "algo.batch_size=32",
+        "algo.updates_per_batch=8",
+        "algo.init_random_frames=60",
+    ],
+}
+
+
+def tiny_baseline(algo: str) -> list[str]:
+    """The overrides of `algo`'s tiny run."""
+    return [f"algo={algo}", *TINY_BASELINE, *TINY_SIZES[algo]]
+
 
 @pytest.fixture
 def terrain_cfg() -> TerrainConfig:

@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
+from conftest import TINY_BASELINE, tiny_baseline
 from epoet.config import compose as compose_config
 from epoet.config import validate
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
@@ -28,29 +29,8 @@ from epoet.rl.policy_file import load_policy
 from epoet.run import run
 from epoet.tracking import MlflowTracker
 
-# 30-step episodes, 60-frame batches, 4 batches, evaluations every 2 batches
-TINY = [
-    "budget=smoke",
-    "workers.num=1",
-    "terrain.grid=40",
-    "budget.episode_steps=30",
-    "budget.frames=240",
-    "budget.eval_every=120",
-    "budget.eval_episodes=1",
-    "algo.frames_per_batch=60",
-    "checkpoint_every=2",
-    "evaluate=false",
-]
-SIZES = {
-    "ppo": ["algo.epochs=2", "algo.minibatch=30"],
-    "vmpo": ["algo.epochs=2", "algo.minibatch=30"],
-    "sac": [
-        "algo.hidden=[32,32]",
-        "algo.batch_size=32",
-        "algo.updates_per_batch=8",
-        "algo.init_random_frames=60",
-    ],
-}
+TINY = [*TINY_BASELINE, "evaluate=false"]
+
 # metrics each algorithm must report besides the loop's own
 ALGO_METRICS = {
     "ppo": ["train/loss_objective", "train/loss_critic", "train/entropy", "train/kl_approx"],
@@ -80,7 +60,7 @@ def deterministic_rollout(raw: DictConfig, actor, checkpoint: dict, steps: int =
 
 @pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
 def test_smoke_run_logs_to_mlflow_and_exports_a_rebuildable_policy(algo, store, tmp_path):
-    raw = compose_config([f"algo={algo}", *TINY, *SIZES[algo]])
+    raw = compose_config([*tiny_baseline(algo), "evaluate=false"])
     result = run(raw, tmp_path / "run")
 
     assert result.frames == 240 and result.batches == 4
@@ -122,7 +102,7 @@ class Killed(Exception):
 
 @pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
 def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_path, monkeypatch):
-    overrides = [f"algo={algo}", *TINY, *SIZES[algo]]
+    overrides = [*tiny_baseline(algo), "evaluate=false"]
     straight = run(compose_config(overrides), tmp_path / "straight")
 
     # kill the second run while it learns from batch 3 (its last checkpoint is after batch 2)
@@ -227,7 +207,10 @@ def test_unknown_option_fails_at_composition():
 
 
 def test_resume_from_another_algorithm_is_refused(store, tmp_path):
-    run(compose_config(["algo=vmpo", *TINY, *SIZES["vmpo"], "budget.frames=60"]), tmp_path / "a")
+    run(
+        compose_config([*tiny_baseline("vmpo"), "evaluate=false", "budget.frames=60"]),
+        tmp_path / "a",
+    )
     with pytest.raises(CheckpointError, match="cannot resume algo=ppo"):
         run(compose_config(["algo=ppo", *TINY, f"resume={tmp_path / 'a'}"]), tmp_path / "b")
     # Refused before the tracker reopened it: the vmpo run stays FINISHED.

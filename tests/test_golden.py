@@ -18,23 +18,13 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import tiny_baseline
 from epoet.config import compose
 from epoet.core.checkpoint import load_checkpoint
 from epoet.run import run
 
 GOLDEN = Path(__file__).with_name("golden.json")
 SAMPLES = 16
-BASELINE = [
-    "budget=smoke",
-    "workers.num=1",
-    "terrain.grid=40",
-    "budget.episode_steps=30",
-    "budget.frames=240",
-    "budget.eval_every=120",
-    "budget.eval_episodes=1",
-    "algo.frames_per_batch=60",
-    "checkpoint_every=2",
-]
 OVERRIDES = {
     "epoet": [
         "budget=smoke",
@@ -49,16 +39,7 @@ OVERRIDES = {
         "algo.mc_upper=100000",
         "budget.iterations=5",
     ],
-    "ppo": ["algo=ppo", *BASELINE, "algo.epochs=2", "algo.minibatch=30"],
-    "vmpo": ["algo=vmpo", *BASELINE, "algo.epochs=2", "algo.minibatch=30"],
-    "sac": [
-        "algo=sac",
-        *BASELINE,
-        "algo.hidden=[32,32]",
-        "algo.batch_size=32",
-        "algo.updates_per_batch=8",
-        "algo.init_random_frames=60",
-    ],
+    **{algo: tiny_baseline(algo) for algo in ("ppo", "vmpo", "sac")},
 }
 
 
