@@ -122,11 +122,23 @@ def mlflow_uri(tmp_path, monkeypatch) -> str:
     return uri
 
 
-def one_terrain_suite(folder: Path, episode_steps: int, episode_ratio: float) -> Path:
-    """A suite folder in the documented format (epoet/eval/suite.py) with one bumpy 20 m
-    terrain and a 12 m course made for `episode_steps`-step training episodes."""
+def one_terrain_suite(
+    folder: Path,
+    episode_steps: int,
+    episode_ratio: float,
+    *,
+    name: str = "bumps",
+    heights: np.ndarray | None = None,
+    finish_x: float = 6.0,
+    max_height: float = 0.2,
+) -> Path:
+    """A suite folder in the documented format (epoet/eval/suite.py) with one 20 m terrain
+    (default: bumps of 0.2 m) and a course from x = -6 m to `finish_x` (default: 12 m) made for
+    `episode_steps`-step training episodes."""
     folder.mkdir()
-    np.savez(folder / "heights.npz", bumps=np.random.default_rng(0).uniform(0.0, 1.0, (40, 40)))
+    if heights is None:
+        heights = np.random.default_rng(0).uniform(0.0, 1.0, (40, 40))
+    np.savez(folder / "heights.npz", **{name: heights})
     (folder / "suite.json").write_text(
         json.dumps(
             {
@@ -135,12 +147,12 @@ def one_terrain_suite(folder: Path, episode_steps: int, episode_ratio: float) ->
                 "grid": 40,
                 "course": {
                     "start_x": -6.0,
-                    "finish_x": 6.0,
+                    "finish_x": finish_x,
                     "half_width": 0.35,
                     "episode_steps": episode_steps,
                     "episode_ratio": episode_ratio,
                 },
-                "terrains": [{"name": "bumps", "max_height": 0.2}],
+                "terrains": [{"name": name, "max_height": max_height}],
             }
         )
     )

@@ -24,7 +24,7 @@ from mlflow.types import DataType
 
 from analysis.store import ALGOS
 from analysis.tables import table1, table2
-from conftest import ES_SIZES
+from conftest import ES_SIZES, one_terrain_suite
 from epoet.core.compute import default_workers
 from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.eval.agents import resolve_run
@@ -256,26 +256,9 @@ def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
 def flat_course(folder: Path) -> Path:
     """A suite of one flat terrain whose course is 2 m, walked in at most 500 steps by an agent
     of the paper's 2000-step episodes."""
-    folder.mkdir()
-    np.savez(folder / "heights.npz", flat=np.zeros((40, 40)))
-    (folder / "suite.json").write_text(
-        json.dumps(
-            {
-                "format": "epoet-suite/2",
-                "size": 20.0,
-                "grid": 40,
-                "course": {
-                    "start_x": -6.0,
-                    "finish_x": -4.0,
-                    "half_width": 0.35,
-                    "episode_steps": 2000,
-                    "episode_ratio": 0.25,
-                },
-                "terrains": [{"name": "flat", "max_height": 0.01}],
-            }
-        )
+    return one_terrain_suite(
+        folder, 2000, 0.25, name="flat", heights=np.zeros((40, 40)), finish_x=-4.0, max_height=0.01
     )
-    return folder
 
 
 def test_an_episode_is_solved_when_it_finishes_with_the_scaled_return(mlflow_uri, tmp_path):
