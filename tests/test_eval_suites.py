@@ -8,14 +8,14 @@ import json
 from pathlib import Path
 
 import mlflow
-import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import subset_suite
 from epoet.config import compose, validate
 from epoet.eval import suite as suite_module
 from epoet.eval.evaluate import COLUMNS, evaluate_run
-from epoet.eval.suite import SHIPPED, load_suite
+from epoet.eval.suite import load_suite
 
 # one ES iteration of a tiny ePOET: an MLflow run with an exported agent, in seconds
 SMOKE = [
@@ -27,19 +27,6 @@ SMOKE = [
     "evaluate=false",
 ]
 STATS = ("success_rate", "return_mean", "forward_distance_mean", "finish_rate")
-
-
-def subset_suite(folder: Path, picks: list[tuple[str, int]]) -> Path:
-    """A suite folder of the shipped suite's k-th terrain of each (level, k) in `picks`."""
-    shipped = load_suite()
-    names = [[t.name for t in shipped.terrains if t.level == level][k] for level, k in picks]
-    index = json.loads((SHIPPED / "suite.json").read_text())
-    index["terrains"] = [e for e in index["terrains"] if e["name"] in names]
-    folder.mkdir(parents=True)
-    (folder / "suite.json").write_text(json.dumps(index))
-    with np.load(SHIPPED / "heights.npz") as heights:
-        np.savez(folder / "heights.npz", **{name: heights[name] for name in names})
-    return folder
 
 
 @pytest.fixture(scope="module")

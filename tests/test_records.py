@@ -9,16 +9,16 @@ import shlex
 from pathlib import Path
 
 import mlflow
-import numpy as np
 import pandas as pd
 import pytest
 
 from analysis.records import record_episodes
 from analysis.store import AnalysisError
 from analysis.tables import make_tables, tables_from_records
+from conftest import subset_suite
 from epoet.config import compose, validate
 from epoet.eval.evaluate import COLUMNS, evaluate_run
-from epoet.eval.suite import SHIPPED, load_suite
+from epoet.eval.suite import load_suite
 from pipeline.records import export
 
 EXPERIMENT = "records"
@@ -29,21 +29,6 @@ RUNS = {
 }
 
 
-def two_terrain_suite(folder: Path) -> Path:
-    """The shipped suite's first easy and first medium terrain, in the same format."""
-    shipped = load_suite()
-    names = [
-        next(t.name for t in shipped.terrains if t.level == level) for level in ("easy", "medium")
-    ]
-    index = json.loads((SHIPPED / "suite.json").read_text())
-    index["terrains"] = [e for e in index["terrains"] if e["name"] in names]
-    folder.mkdir(parents=True)
-    (folder / "suite.json").write_text(json.dumps(index))
-    with np.load(SHIPPED / "heights.npz") as heights:
-        np.savez(folder / "heights.npz", **{name: heights[name] for name in names})
-    return folder
-
-
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
     """(uri, suite folder): three tiny runs (ePOET seeds 1-2, PPO seed 1) each evaluated on a
@@ -52,7 +37,7 @@ def store(tmp_path_factory):
 
     tmp = tmp_path_factory.mktemp("records")
     uri = f"sqlite:///{tmp}/mlflow.db"
-    suite = two_terrain_suite(tmp / "duo")
+    suite = subset_suite(tmp / "duo", [("easy", 0), ("medium", 0)])
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MLFLOW_TRACKING_URI", uri)
         for (algo, seed), extra in RUNS.items():
