@@ -141,7 +141,9 @@ def _pm(mean: float, std: float, scale: float, digits: int) -> str:
 
 
 def formatted(t1: pd.DataFrame, t2: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The tables as shown: success rates in percent, mean ± std."""
+    """The tables as shown: success rates in percent, mean ± std; a level the suite has no
+    terrain of (the paper suite's extreme) is left out rather than shown as NaN."""
+    columns = [c for c in (*LEVELS, "total") if t1[f"{c}_mean"].notna().any()]
     shown1 = pd.DataFrame(
         {
             "algorithm": t1.algo,
@@ -150,7 +152,7 @@ def formatted(t1: pd.DataFrame, t2: pd.DataFrame) -> tuple[pd.DataFrame, pd.Data
                 column: [
                     _pm(m, s, 100, 1) for m, s in zip(t1[f"{column}_mean"], t1[f"{column}_std"])
                 ]
-                for column in (*LEVELS, "total")
+                for column in columns
             },
         }
     )

@@ -23,7 +23,7 @@ import pytest
 from mlflow.types import DataType
 
 from analysis.store import ALGOS
-from analysis.tables import table1, table2
+from analysis.tables import formatted, table1, table2
 from conftest import ES_SIZES, one_terrain_suite
 from epoet.core.compute import default_workers
 from epoet.envs.task import ACT_DIM, OBS_DIM
@@ -180,6 +180,10 @@ def test_table_statistics_are_over_runs_and_pooled_episodes():
     assert t1.easy_mean == 0.5 and t1.easy_std == pytest.approx(np.std([1, 0], ddof=1))
     assert t1.total_mean == pytest.approx(0.75) and t1.runs == 2
     assert t2.return_mean == 20.0 and t2.return_max == 30.0 and t2.episodes == 2
+    # the suite has no medium or extreme terrain: those columns are left out, not shown as NaN
+    shown, _ = formatted(table1(episodes), table2(episodes))
+    assert list(shown.columns) == ["algorithm", "runs", "easy", "hard", "total"]
+    assert shown.iloc[0].hard == "100.0 ± 0.0"
 
 
 def test_figures_are_drawn_from_the_store(paper):
