@@ -499,7 +499,11 @@ def test_the_starts_table_reports_what_each_runs_joins_did(
             tmp_path / start,
         )
     table = summary_table(["shipped"], str(tmp_path / "cold")).splitlines()
-    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in table[2:] if line}
+    rows = {
+        line.split(" | ")[0].strip("| "): line.split(" | ")
+        for line in table[2:]
+        if line.startswith("|")
+    }
     assert set(rows) == {"cold", "ours", "authors"} and "not run yet" in rows["ours"]
     client = mlflow.MlflowClient(mlflow_uri)
     for start in ("cold", "authors"):
