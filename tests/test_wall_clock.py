@@ -12,6 +12,7 @@ import mlflow
 import numpy as np
 import pytest
 
+from conftest import tiny_baseline
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
@@ -26,20 +27,9 @@ EPOET = [
     "terrain.grid=40",
     "budget.iterations=4",
 ]
-PPO = [
-    "algo=ppo",
-    "budget=smoke",
-    "workers.num=1",
-    "terrain.grid=40",
-    "budget.episode_steps=30",
-    "budget.frames=240",
-    "budget.eval_every=120",
-    "budget.eval_episodes=1",
-    "algo.frames_per_batch=60",
-    "algo.epochs=2",
-    "algo.minibatch=30",
-    "checkpoint_every=10",
-]
+# the baselines' tiny run, checkpointing less often than its every 2 batches
+PPO = [a for a in tiny_baseline("ppo") if not a.startswith("checkpoint_every=")]
+PPO.append("checkpoint_every=10")
 
 
 def _stop_reason(uri: str, run_id: str) -> str:
