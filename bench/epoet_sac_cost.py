@@ -73,7 +73,8 @@ def iteration_split(cfg: Config, iterations: int) -> None:
         loop.collect = timed(totals, "SAC env steps", loop.collect)
         loop.learner.learn = timed(totals, "SAC updates", loop.learner.learn)
         poet.transfer_moves = timed(totals, "transfers", poet.transfer_moves)
-        loop.update_actor_from_pool = timed(totals, "transfers", loop.update_actor_from_pool)
+        exchange = loop.exchange
+        exchange.update_actor_from_pool = timed(totals, "transfers", exchange.update_actor_from_pool)
         loop.join = timed(totals, "joins", loop.join)
         start = time.perf_counter()
         for _ in range(iterations):

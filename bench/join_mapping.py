@@ -37,7 +37,7 @@ def main(run_dir: str, overrides: list[str]) -> None:
         for pair in poet.pool.active:
             terrain = poet.service.terrain(pair.env, t)
             for mapping in gaps:
-                runs = [poet.map_and_score(t + k, terrain, mapping, pair.env.index)
+                runs = [poet.exchange.map_and_score(t + k, terrain, mapping, pair.env.index)
                         for k in range(SEEDS)]
                 gaps[mapping] += [abs(m.score - m.sac_score) for m in runs]
                 print(f"env{pair.env.index}: SAC actor {runs[0].sac_score:8.1f}  {mapping:7s} "

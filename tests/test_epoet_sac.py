@@ -121,9 +121,9 @@ def test_crossover_with_itself_replaces_nothing() -> None:
     with evaluator:
         loop.poet.evaluate_pairs(0)
         theta = loop.pool.active[0].theta.copy()
-        outcome = loop.crossover_with(loop.pool.active, theta, 0)
+        outcome = loop.exchange.crossover_with(loop.pool.active, theta, 0)
     ((old, new),) = outcome.values()
-    assert old == new and not loop.replaced
+    assert old == new and not loop.exchange.replaced
     np.testing.assert_array_equal(loop.pool.active[0].theta, theta)
     loop.close()
 
@@ -152,8 +152,8 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
             assert replaced == float(new[step] > old[step])
             decisions += 1
     assert decisions >= 2
-    assert len(poet.replaced) == sum(_metric(client, run_id, "replaced").values())
-    archived = {(a.env, a.iteration) for a in poet.replaced}
+    assert len(poet.exchange.replaced) == sum(_metric(client, run_id, "replaced").values())
+    archived = {(a.env, a.iteration) for a in poet.exchange.replaced}
     for key in keys:
         env = int(key.split("/")[1].removesuffix("_replaced")[3:])
         for step, replaced in _metric(client, run_id, key).items():
@@ -259,7 +259,7 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
         distill_into_actor(
             loop.actor_net,
             teacher,
-            loop.replay_states(1),
+            loop.exchange.replay_states(1),
             loop.service.layer_sizes,
             epochs=30,
             batch=128,
@@ -269,7 +269,7 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
         terrain = loop.service.terrain(root.env, 0)
         for mapping in gaps:
             for t in range(3):
-                mapped = loop.map_and_score(t, terrain, mapping, 0)
+                mapped = loop.exchange.map_and_score(t, terrain, mapping, 0)
                 gaps[mapping].append(abs(mapped.score - mapped.sac_score))
     loop.close()
     assert np.mean(gaps["distill"]) < np.mean(gaps["random"]), gaps
@@ -413,15 +413,15 @@ def test_the_join_and_the_transfer_cross_in_the_pools_standardised_space() -> No
         _, episodes = loop.poet.es_step(0, record=4)
         loop.sync_obs_statistics()
         loop.add_to_replay(episodes)
-        theta, error = loop.map_actor(0, "distill")
-        states = loop.replay_states(7)
+        theta, error = loop.exchange.map_actor(0, "distill")
+        states = loop.exchange.replay_states(7)
         mapped = forward(service.policy(theta), states, service.layer_sizes)
         gap = np.mean((mapped - _actions(loop, states)) ** 2)
         assert gap == pytest.approx(error, rel=0.3, abs=1e-4)
         assert service.obs_norm.std.min() < 0.5  # the raw and standardised spaces differ
         assert np.mean((forward(theta, states, service.layer_sizes) - mapped) ** 2) > 10 * gap
         loop.pool.record(root, 1e9)  # the pool's best beats the actor: it learns from it
-        assert loop.update_actor_from_pool(0)["sac/updated_from_pool"] == 1.0
+        assert loop.exchange.update_actor_from_pool(0)["sac/updated_from_pool"] == 1.0
     after = _actions(loop, states)
     raw_agent = forward(service.policy(root.theta), states, service.layer_sizes)
     unfolded = forward(root.theta, states, service.layer_sizes)

@@ -42,6 +42,6 @@ def atomic_write(path: str | os.PathLike) -> Iterator[BinaryIO]:
 
 
 def savez(file: BinaryIO, arrays: Mapping[str, Any]) -> None:
-    """np.savez_compressed of named arrays; numpy's stub reads `**arrays` as possibly filling
-    its `allow_pickle` flag, so the names go through one typed call here."""
+    """np.savez_compressed of named arrays; numpy's type hints read `**arrays` as possibly
+    filling its `allow_pickle` flag, so the names go through one typed call here."""
     np.savez_compressed(file, **dict(arrays))

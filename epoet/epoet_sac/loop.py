@@ -14,6 +14,7 @@ ePOET steps are the ePOET loop's, epoet/poet/loop.py, over the same pool and ser
 5. `join` (t mod (k N_transfer) = k N_transfer - 2, k = `join_every_transfers`): the SAC
    actor, mapped to the ES shape, joins the pool as a new pair, and Algorithm 3's
    `crossover_with` runs against every other active agent.
+The steps that move agents between the actor and the pool are exchange.py's `ActorExchange`.
 
 Decisions the paper leaves open are README "ePOET-SAC"'s: sharing the cores by turns
 (`time/<step>` shows the split), SAC's episodes restarting every Train_SAC (cut by its
@@ -37,15 +38,11 @@ from torchrl.envs import EnvBase
 from epoet.config import Config, PoetBudgetConfig
 from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import (
-    Mapped,
     ReplacedAgent,
-    crossover,
-    distill_into_actor,
-    distill_into_es,
-    random_mapping,
 )
 from epoet.epoet_sac.collect import collect
 from epoet.epoet_sac.config import EpoetSacConfig
+from epoet.epoet_sac.exchange import ActorExchange
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for
 from epoet.poet.keys import Key
@@ -57,7 +54,7 @@ from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
-from epoet.rollout.policy import init_params, policy_sizes
+from epoet.rollout.policy import policy_sizes
 from epoet.terrain import Terrain, make_terrain
 from epoet.terrain.config import TerrainConfig
 
@@ -119,7 +116,14 @@ class EpoetSac:
         self.frames_per_iteration = algo.frames_per_iteration
         self.updates_per_iteration = round(algo.frames_per_iteration * algo.updates_per_frame)
         self.mix = ReplayMix(algo.sac.buffer_size)
-        self.replaced: list[ReplacedAgent] = []
+        self.exchange = ActorExchange(
+            self.service,
+            self.pool,
+            self.actor_net,
+            self.score_env,
+            self.learner.buffer,
+            algo.distill,
+        )
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
     @classmethod
@@ -183,7 +187,7 @@ class EpoetSac:
                 metrics["transfers/from_joined"] = float(
                     sum(source in self.join_of for source in moves.values())
                 )
-                metrics.update(self.update_actor_from_pool(t))
+                metrics.update(self.exchange.update_actor_from_pool(t))
         if self.join_due(t):
             with timer("join"):
                 metrics.update(self.join(t))
@@ -306,96 +310,13 @@ class EpoetSac:
             self.score_env, self.actor_net if explore else None, frames, spawn_seed, self.act_dim
         )
 
-    # --- SAC actor <-> pool ----------------------------------------------------------------------
-    def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
-        """Mean return of the SAC actor's deterministic policy, tanh(loc(s)), on `terrain`,
-        one episode per spawn seed."""
-        env, returns = self.score_env, []
-        env.set_terrain(terrain)  # kept by every reset below (SAC's env never resamples)
-        with torch.no_grad():
-            for seed in spawn_seeds:
-                obs, _ = env.reset(seed=int(seed))
-                total, done = 0.0, False
-                while not done:
-                    loc, _ = self.actor_net(torch.as_tensor(obs, dtype=torch.float32))
-                    obs, reward, terminated, truncated, info = env.step(torch.tanh(loc).numpy())
-                    total += reward
-                    done = terminated or truncated
-                self.service.env_steps += info["steps"]
-                returns.append(total)
-        return float(np.mean(returns))
-
-    def replay_states(self, torch_seed: int) -> np.ndarray:
-        """`distill.states` observations drawn uniformly from the replay buffer."""
-        torch.manual_seed(torch_seed)
-        return self.learner.buffer.sample(self.cfg.distill.states)[OBS].numpy()
-
-    def _distill_kwargs(self, seed: int) -> dict[str, Any]:
-        d = self.cfg.distill
-        return {"epochs": d.epochs, "batch": d.batch, "lr": d.lr, "seed": seed}
-
-    def update_actor_from_pool(self, t: int) -> dict[str, float]:
-        """Algorithm 1's "SAC_Actor = theta_top" when the best pool agent beats the actor on that
-        agent's environment (same starts as its evaluation). An ES agent cannot be copied into
-        the actor (other layer sizes): the actor's mean is distilled from it on replay states."""
-        service = self.service
-        top = max(self.pool.active, key=lambda p: p.score)
-        sac_score = self.actor_score(
-            service.terrain(top.env, t),
-            service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t),
-        )
-        metrics = {
-            "sac/score": sac_score,
-            "sac/top_score": top.score,
-            "sac/updated_from_pool": float(sac_score < top.score),
-        }
-        if sac_score < top.score:
-            metrics["sac/distill_error"] = distill_into_actor(  # raw-observation agent
-                self.actor_net,
-                service.policy(top.theta),
-                self.replay_states(service.seed(Key.SAC, t, 1)),
-                service.layer_sizes,
-                **self._distill_kwargs(service.seed(Key.SAC, t, 2)),
-            )
-        return metrics
-
-    def map_actor(self, t: int, mapping: str) -> tuple[np.ndarray, float]:
-        """The SAC actor as an ES vector by `mapping`, and the distillation's action error (NaN
-        for the random mapping)."""
-        service, sizes = self.service, self.service.layer_sizes
-        if mapping == "random":
-            rng = np.random.default_rng(service.seed(Key.JOIN, t))
-            return random_mapping(self.actor_net, sizes, rng), float("nan")
-        init = init_params(service.seed(Key.JOIN, t, 0), sizes)
-        return distill_into_es(
-            self.actor_net,
-            self.replay_states(service.seed(Key.JOIN, t, 1)),
-            sizes,
-            init,
-            standardizer=service.standardizer(),
-            **self._distill_kwargs(service.seed(Key.JOIN, t, 2)),
-        )
-
-    def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
-        """Map the SAC actor (random draws keyed by t), then score the mapped agent and the
-        actor on `terrain` from the same starts (keyed by `ids`)."""
-        service = self.service
-        theta, error = self.map_actor(t, mapping)
-        score = float(
-            service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL, *ids)])[0][0]
-        )
-        sac_score = self.actor_score(
-            terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL, *ids)
-        )
-        return Mapped(theta, error, score, sac_score)
-
     def join(self, t: int) -> dict[str, float]:
         """The SAC actor joins the pool as a new pair, then crosses over with every other active
         agent. Logs the mapped agent's score next to the SAC actor's on the same terrain and
         starts: the gap is what the mapping loses (the paper's stated limitation)."""
         home = self.sac_pair(t)
         terrain = self.service.terrain(home.env, t)
-        mapped = self.map_and_score(t, terrain, self.cfg.mapping, t)
+        mapped = self.exchange.map_and_score(t, terrain, self.cfg.mapping, t)
         joins = self.joins + 1
         env = Environment(
             index=self.pool.next_index,
@@ -408,7 +329,7 @@ class EpoetSac:
         self.join_of[env.index] = joins
         self.service.keep_terrain(env, t, terrain)
         self.pool.record(pair, mapped.score)
-        outcome = self.crossover_with(
+        outcome = self.exchange.crossover_with(
             [p for p in self.pool.active if p is not pair], mapped.theta, t
         )
         metrics = {
@@ -425,41 +346,6 @@ class EpoetSac:
             metrics[f"crossover/env{index}_replaced"] = float(new > old)
         return metrics
 
-    def crossover_with(
-        self, pairs: list[Pair], donor: np.ndarray, t: int
-    ) -> dict[int, tuple[float, float]]:
-        """Algorithm 3: each agent and its crossover with `donor` are rolled out from the same
-        starts on the agent's environment; the child replaces the agent only if its return is
-        higher, and the original is archived. Returns {env index: (old, new) return}."""
-        service = self.service
-        children = [
-            crossover(
-                p.theta, donor, np.random.default_rng(service.seed(Key.CROSSOVER, p.env.index, t))
-            )
-            for p in pairs
-        ]
-        scores = service.scores(
-            [
-                service.eval_request(
-                    service.terrain(p.env, t),
-                    np.stack([p.theta, child]),
-                    Key.CROSSOVER_EVAL,
-                    p.env.index,
-                    t,
-                )
-                for p, child in zip(pairs, children)
-            ]
-        )
-        outcome = {}
-        for pair, child, (old, new) in zip(pairs, children, scores):
-            outcome[pair.env.index] = (float(old), float(new))
-            if new > old:
-                self.replaced.append(
-                    ReplacedAgent(pair.env.index, t, pair.theta.copy(), float(old))
-                )
-                self.pool.replace_agent(pair, child, float(new))
-        return outcome
-
     # --- artifacts, checkpoints -----------------------------------------------------------------
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
@@ -474,10 +360,10 @@ class EpoetSac:
                 sac.activation,
             )
         )
-        if self.replaced:
+        if self.exchange.replaced:
             folder = run_dir / "replaced"
             folder.mkdir(exist_ok=True)
-            for agent in self.replaced:
+            for agent in self.exchange.replaced:
                 np.savez(
                     folder / f"env{agent.env}_it{agent.iteration}.npz",
                     theta=agent.theta,
@@ -494,7 +380,7 @@ class EpoetSac:
             **self.poet.state_dict(),
             "sac": self.learner.state_dict(),
             "mix": self.mix.state_dict(),
-            "replaced": [dataclasses.asdict(a) for a in self.replaced],
+            "replaced": [dataclasses.asdict(a) for a in self.exchange.replaced],
             "join_of": dict(self.join_of),
         }
 
@@ -502,7 +388,7 @@ class EpoetSac:
         self.poet.load_state_dict(state)
         self.learner.load_state_dict(state["sac"])
         self.mix.load_state_dict(state["mix"])
-        self.replaced = [ReplacedAgent(**a) for a in state["replaced"]]
+        self.exchange.replaced[:] = [ReplacedAgent(**a) for a in state["replaced"]]
         # checkpoints of format 2 kept the join number on each pair
         self.join_of = state.get("join_of") or {
             s["env"].index: s["sac_join"]

@@ -1,0 +1,162 @@
+"""What moves between the SAC actor and the ES pool (paper Algorithms 1 and 3): the actor's
+deterministic score on a pool environment, the mappings between the two policy shapes,
+Algorithm 1's update of the actor from the best pool agent, and Algorithm 3's crossover of a
+donor with pool agents. `EpoetSac` (loop.py) calls these from its transfer and join steps."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torchrl.data import ReplayBuffer
+
+from epoet.envs.hexapod_env import HexapodEnv
+from epoet.epoet_sac.bridge import (
+    Mapped,
+    ReplacedAgent,
+    crossover,
+    distill_into_actor,
+    distill_into_es,
+    random_mapping,
+)
+from epoet.epoet_sac.config import DistillConfig
+from epoet.poet.keys import Key
+from epoet.poet.pairs import Pair, Pool
+from epoet.poet.service import Service
+from epoet.rl.env import OBS
+from epoet.rollout.policy import init_params
+from epoet.terrain import Terrain
+
+
+@dataclass
+class ActorExchange:
+    """The SAC actor (`actor_net`, scored on `score_env`, SAC's own gym env), the pool and its
+    service, the replay the mappings are fitted on, and the agents crossover replaced."""
+
+    service: Service
+    pool: Pool
+    actor_net: nn.Module  # raw obs -> (loc, scale)
+    score_env: HexapodEnv
+    buffer: ReplayBuffer
+    distill: DistillConfig
+    replaced: list[ReplacedAgent] = field(default_factory=list)
+
+    def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
+        """Mean return of the SAC actor's deterministic policy, tanh(loc(s)), on `terrain`,
+        one episode per spawn seed."""
+        env, returns = self.score_env, []
+        env.set_terrain(terrain)  # kept by every reset below (SAC's env never resamples)
+        with torch.no_grad():
+            for seed in spawn_seeds:
+                obs, _ = env.reset(seed=int(seed))
+                total, done = 0.0, False
+                while not done:
+                    loc, _ = self.actor_net(torch.as_tensor(obs, dtype=torch.float32))
+                    obs, reward, terminated, truncated, info = env.step(torch.tanh(loc).numpy())
+                    total += reward
+                    done = terminated or truncated
+                self.service.env_steps += info["steps"]
+                returns.append(total)
+        return float(np.mean(returns))
+
+    def replay_states(self, torch_seed: int) -> np.ndarray:
+        """`distill.states` observations drawn uniformly from the replay buffer."""
+        torch.manual_seed(torch_seed)
+        return self.buffer.sample(self.distill.states)[OBS].numpy()
+
+    def _distill_kwargs(self, seed: int) -> dict[str, Any]:
+        d = self.distill
+        return {"epochs": d.epochs, "batch": d.batch, "lr": d.lr, "seed": seed}
+
+    def update_actor_from_pool(self, t: int) -> dict[str, float]:
+        """Algorithm 1's "SAC_Actor = theta_top" when the best pool agent beats the actor on that
+        agent's environment (same starts as its evaluation). An ES agent cannot be copied into
+        the actor (other layer sizes): the actor's mean is distilled from it on replay states."""
+        service = self.service
+        top = max(self.pool.active, key=lambda p: p.score)
+        sac_score = self.actor_score(
+            service.terrain(top.env, t),
+            service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t),
+        )
+        metrics = {
+            "sac/score": sac_score,
+            "sac/top_score": top.score,
+            "sac/updated_from_pool": float(sac_score < top.score),
+        }
+        if sac_score < top.score:
+            metrics["sac/distill_error"] = distill_into_actor(  # raw-observation agent
+                self.actor_net,
+                service.policy(top.theta),
+                self.replay_states(service.seed(Key.SAC, t, 1)),
+                service.layer_sizes,
+                **self._distill_kwargs(service.seed(Key.SAC, t, 2)),
+            )
+        return metrics
+
+    def map_actor(self, t: int, mapping: str) -> tuple[np.ndarray, float]:
+        """The SAC actor as an ES vector by `mapping`, and the distillation's action error (NaN
+        for the random mapping)."""
+        service, sizes = self.service, self.service.layer_sizes
+        if mapping == "random":
+            rng = np.random.default_rng(service.seed(Key.JOIN, t))
+            return random_mapping(self.actor_net, sizes, rng), float("nan")
+        init = init_params(service.seed(Key.JOIN, t, 0), sizes)
+        return distill_into_es(
+            self.actor_net,
+            self.replay_states(service.seed(Key.JOIN, t, 1)),
+            sizes,
+            init,
+            standardizer=service.standardizer(),
+            **self._distill_kwargs(service.seed(Key.JOIN, t, 2)),
+        )
+
+    def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
+        """Map the SAC actor (random draws keyed by t), then score the mapped agent and the
+        actor on `terrain` from the same starts (keyed by `ids`)."""
+        service = self.service
+        theta, error = self.map_actor(t, mapping)
+        score = float(
+            service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL, *ids)])[0][0]
+        )
+        sac_score = self.actor_score(
+            terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL, *ids)
+        )
+        return Mapped(theta, error, score, sac_score)
+
+    def crossover_with(
+        self, pairs: list[Pair], donor: np.ndarray, t: int
+    ) -> dict[int, tuple[float, float]]:
+        """Algorithm 3: each agent and its crossover with `donor` are rolled out from the same
+        starts on the agent's environment; the child replaces the agent only if its return is
+        higher, and the original is archived. Returns {env index: (old, new) return}."""
+        service = self.service
+        children = [
+            crossover(
+                p.theta, donor, np.random.default_rng(service.seed(Key.CROSSOVER, p.env.index, t))
+            )
+            for p in pairs
+        ]
+        scores = service.scores(
+            [
+                service.eval_request(
+                    service.terrain(p.env, t),
+                    np.stack([p.theta, child]),
+                    Key.CROSSOVER_EVAL,
+                    p.env.index,
+                    t,
+                )
+                for p, child in zip(pairs, children)
+            ]
+        )
+        outcome = {}
+        for pair, child, (old, new) in zip(pairs, children, scores):
+            outcome[pair.env.index] = (float(old), float(new))
+            if new > old:
+                self.replaced.append(
+                    ReplacedAgent(pair.env.index, t, pair.theta.copy(), float(old))
+                )
+                self.pool.replace_agent(pair, child, float(new))
+        return outcome
