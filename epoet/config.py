@@ -64,19 +64,27 @@ class BudgetConfig:
     eval_episodes: int
     score_scale: float
     integrator: str  # agent.integrator follows it
+    max_height: float  # S at the first iteration, metres (terrain.max_height follows it)
     max_height_step: float  # +S per iteration (terrain.max_height_step follows it)
     hours: Optional[float]  # wall-clock stop: hours of training over resumes; null: none
+    # CPU stop: CPU hours of the run's processes (workers, learner, evaluation inside training)
+    # over resumes; null: none. The unit runs are compared in (epoet/core/clock.py).
+    cpu_hours: Optional[float]
 
     def __post_init__(self) -> None:
         positive(self, "episode_steps", "eval_episodes", "score_scale")
-        check(
-            self.hours is None or self.hours > 0,
-            f"budget.hours must be > 0 or null, got {self.hours}.",
-        )
+        for key in ("hours", "cpu_hours"):
+            value = getattr(self, key)
+            check(value is None or value > 0, f"budget.{key} must be > 0 or null, got {value}.")
 
-    def time_is_up(self, seconds: float) -> bool:
-        """Whether `seconds` of training (summed over resumes) have used up `hours`."""
-        return self.hours is not None and seconds >= self.hours * 3600.0
+    def time_is_up(self, wall_seconds: float, cpu_seconds: float) -> str | None:
+        """Which clock's budget the training so far (summed over resumes) has used up:
+        'hours', 'cpu_hours' or None."""
+        if self.hours is not None and wall_seconds >= self.hours * 3600.0:
+            return "hours"
+        if self.cpu_hours is not None and cpu_seconds >= self.cpu_hours * 3600.0:
+            return "cpu_hours"
+        return None
 
 
 @dataclass
@@ -146,6 +154,7 @@ class Config:
     tracking: TrackingConfig
     seed: int
     checkpoint_every: int  # ES iterations, or collector batches (baselines), per checkpoint
+    snapshot_cpu_minutes: list[float]  # CPU minutes of training at which the agents are saved
     agent_choice: str  # best | final: which parameters of each pair a run exports
     evaluate: bool  # evaluate the exported agent on the suite at the end
     resume: Optional[str]  # a run folder or checkpoint file to continue; "auto": this
@@ -154,6 +163,11 @@ class Config:
     def __post_init__(self) -> None:
         check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
         positive(self, "checkpoint_every")
+        marks = self.snapshot_cpu_minutes
+        check(
+            all(m > 0 for m in marks) and list(marks) == sorted(set(marks)),
+            f"snapshot_cpu_minutes must be increasing positive minutes, got {list(marks)}.",
+        )
         check(
             self.agent_choice in ("best", "final"),
             f"agent_choice must be 'best' or 'final', got {self.agent_choice!r}.",

@@ -38,6 +38,8 @@ RESUMABLE = (
     "checkpoint_every",
     "budget.iterations",
     "budget.hours",
+    "budget.cpu_hours",
+    "snapshot_cpu_minutes",
     "algo._target_",
 )
 
@@ -53,6 +55,9 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     overrides of the algorithm's (null: the algorithm's) and ePOET-SAC's Train_SAC frames as
     `budget.sac_frames_per_iteration` (null: `algo.frames_per_iteration`)."""
     budget, algo = dict(saved["budget"]), dict(saved["algo"])
+    if "max_height" not in budget:  # before the budget owned S's start: the terrain's
+        budget["max_height"] = saved["terrain"]["max_height"]
+        saved = {**saved, "budget": budget}
     if "integrator" in budget:  # today's layout
         return saved
     budget["integrator"] = saved["agent"]["integrator"]

@@ -8,10 +8,13 @@ algorithms that call it; `epoet/run.py` makes the run these belong to.
 from __future__ import annotations
 
 import dataclasses
+import json
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, save_checkpoint
+from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
     from epoet.config import BudgetConfig, Config
@@ -38,19 +41,55 @@ def report_stop(
     tracker: Tracker,
     name: str,
     budget: BudgetConfig,
-    out_of_time: bool,
+    clock: str | None,
     count: int,
     unit: str,
     seconds: float,
+    cpu_seconds: float,
 ) -> None:
-    """Tag why the run ended (`stop_reason`: hours, or the budget's `unit`, iterations or
-    frames) and say so when the wall clock ended it: a resume with a larger `budget.hours`
-    continues."""
-    tracker.set_tags({"stop_reason": "hours" if out_of_time else unit})
-    if out_of_time:
+    """Tag why the run ended (`stop_reason`: the budget's `unit`, iterations or frames, or the
+    clock that ended it first, `hours` or `cpu_hours`) and say so when a clock ended it: a resume
+    with a larger budget on that clock continues."""
+    tracker.set_tags({"stop_reason": clock or unit})
+    if clock is not None:
+        kind, limit = (
+            ("wall-clock", budget.hours) if clock == "hours" else ("CPU-time", budget.cpu_hours)
+        )
         print(
-            f"[{name}] stopped at the wall-clock budget (budget.hours={budget.hours:g}) after "
-            f"{count} {unit} and {seconds / 3600:.3g} h of training; resume with a larger "
-            f"budget.hours to continue",
+            f"[{name}] stopped at the {kind} budget (budget.{clock}={limit:g}) after {count} {unit}, "
+            f"{seconds / 3600:.3g} h of training and {cpu_seconds / 3600:.3g} CPU hours; resume "
+            f"with a larger budget.{clock} to continue",
             flush=True,
         )
+
+
+SNAPSHOTS = "snapshots"  # <run folder>/snapshots/cpu<minutes>/: the agents at a CPU-time mark
+SNAPSHOT_INFO = "snapshot.json"
+
+
+def snapshot_folder(run_dir: Path, minutes: float) -> Path:
+    return Path(run_dir) / SNAPSHOTS / f"cpu{minutes:g}"
+
+
+def take_snapshots(
+    run_dir: Path,
+    marks: Sequence[float],
+    cpu_seconds: float,
+    save: Callable[[Path], object],
+    info: dict[str, float],
+) -> list[float]:
+    """Save the run's agents (`save(folder)`) once for every mark of `marks` (CPU minutes) that
+    the run's CPU time has passed and that has no snapshot yet, so success can be measured
+    against compute from one run; returns the marks saved. A snapshot is complete when its
+    `snapshot.json` exists (written last, atomically): a run killed while saving writes it
+    again on resume."""
+    saved = []
+    for minutes in marks:
+        folder = snapshot_folder(run_dir, minutes)
+        if cpu_seconds < minutes * 60 or (folder / SNAPSHOT_INFO).is_file():
+            continue
+        save(folder)
+        with atomic_write(folder / SNAPSHOT_INFO) as file:
+            file.write(json.dumps({"cpu_minutes": minutes, **info}, indent=1).encode())
+        saved.append(minutes)
+    return saved

@@ -25,8 +25,12 @@ from epoet.run import run
 
 GOLDEN = Path(__file__).with_name("golden.json")
 SAMPLES = 16
+# The smoke budget's S started at 0.1 m when the fixture was written (it now starts at the paper
+# suite's relief); the fixture's runs keep 0.1 m, so it still pins the code's behaviour.
+FIXTURE_RELIEF = "budget.max_height=0.1"
 OVERRIDES = {
     "epoet": [
+        FIXTURE_RELIEF,
         "budget=smoke",
         "workers.num=2",
         "algo.es.hidden=[8]",
@@ -39,7 +43,7 @@ OVERRIDES = {
         "algo.mc_upper=100000",
         "budget.iterations=5",
     ],
-    **{algo: tiny_baseline(algo) for algo in ("ppo", "vmpo", "sac")},
+    **{algo: [*tiny_baseline(algo), FIXTURE_RELIEF] for algo in ("ppo", "vmpo", "sac")},
 }
 
 

@@ -341,7 +341,7 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
 SCHEDULES = {
     "smoke": (0.025, 15, 75, 0.01, "implicitfast"),
     "laptop": (0.125, 10, 20, 0.005, "implicitfast"),
-    "workstation": (1.0, 15, 75, 0.0, "implicitfast"),
+    "workstation": (1.0, 15, 75, 0.01, "implicitfast"),
     "paper": (1.0, 15, 75, 0.01, "rk4"),
 }
 

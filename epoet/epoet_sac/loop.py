@@ -159,6 +159,14 @@ class EpoetSac:
     def elapsed(self) -> float:
         return self.poet.elapsed
 
+    @property
+    def cpu_time(self) -> float:
+        return self.poet.cpu_time
+
+    def save_agents(self, folder: Path, choice: str = "best", pictures: bool = False) -> Path:
+        """The pool's agents (EPOET.save_agents); the SAC actor is exported at the end."""
+        return self.poet.save_agents(folder, choice, pictures)
+
     # --- one iteration: Algorithm 1 ------------------------------------------------------------
     def run_iteration(self) -> dict[str, float]:
         """Run iteration `self.iteration` and return its metrics (`time/<step>`: where its wall

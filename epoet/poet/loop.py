@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, cast
 
 import numpy as np
 
+from epoet.core.clock import CpuMeter
+from epoet.core.files import atomic_write, savez
 from epoet.core.timing import PhaseTimer
 from epoet.poet.config import PoetConfig
 from epoet.poet.keys import Key
@@ -29,11 +31,12 @@ from epoet.poet.pairs import Environment, Pair, Pool, Thresholds
 from epoet.poet.reproduction import reproduce
 from epoet.poet.service import Service
 from epoet.poet.transfer import transfer
+from epoet.rollout.agent_files import ES_POLICIES
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import init_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
-from epoet.terrain import new_genome
+from epoet.terrain import max_height_at, new_genome
 from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
@@ -83,6 +86,8 @@ class EPOET:
         self.iteration = 0
         self.transfers = 0
         self.elapsed = 0.0  # seconds of iterations, summed over resumes
+        self.cpu_time = 0.0  # CPU seconds of the run's processes, summed over resumes
+        self.cpu_meter = CpuMeter()
         self.best_score = -np.inf  # the best `score` (best active pair's) of any iteration so far
         service = self.service
         root = Environment(
@@ -235,6 +240,7 @@ class EPOET:
         """Close iteration `self.iteration`: add the run-level metrics to its own and move on."""
         elapsed = time.perf_counter() - start[0]
         self.elapsed += elapsed
+        self.cpu_time += self.cpu_meter.lap()  # since the last iteration: its checkpoint too
         score = max(p.score for p in self.pool.active)
         self.best_score = max(self.best_score, score)
         metrics.update(timer.metrics())
@@ -251,44 +257,55 @@ class EPOET:
                 # The axes and the score every algorithm logs (the baselines: their evaluation
                 # return), so MLflow charts can put ePOET and the baselines side by side.
                 "elapsed": self.elapsed,
+                "cpu_time": self.cpu_time,
                 "score": score,
+                "max_height": max_height_at(self.service.terrain_cfg, self.iteration),
             }
         )
         self.iteration += 1
         return metrics
 
     # --- artifacts and checkpoints ----------------------------------------------------------
-    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
-        """Each environment's terrain (npz + PNG) and each agent's parameters: `theta` and
-        `score` are the `choice` (its best evaluated, or its final); both are kept."""
-        terrains, policies = run_dir / "terrains", run_dir / "policies"
-        for folder in (terrains, policies):
-            folder.mkdir(exist_ok=True)
+    def save_agents(self, folder: Path, choice: str = "best", pictures: bool = False) -> Path:
+        """Every pair's agent into `folder`/policies/env<N>.npz (`theta` and `score` are the
+        `choice`, its best evaluated or its final; both are kept) and its environment's last
+        terrain into `folder`/terrains/ (PNG pictures too when `pictures`), each file written
+        atomically: the run's agents at a checkpoint, a CPU-time snapshot or the end."""
+        terrains, policies = folder / "terrains", folder / ES_POLICIES
         for status, pairs in (("active", self.pool.active), ("archived", self.pool.archived)):
             for pair in pairs:
                 name = f"env{pair.env.index}"
-                terrain = self.service.terrain(pair.env, self.iteration - 1)  # the last trained on
+                terrain = self.service.terrain(pair.env, max(self.iteration - 1, 0))
                 terrain.save(terrains / f"{name}.npz")
-                terrain.to_png(terrains / f"{name}.png")
+                if pictures:
+                    terrain.to_png(terrains / f"{name}.png")
                 final = self.service.policy(pair.theta)
                 best = pair.best_theta if pair.best_theta is not None else final
                 chosen = (best, pair.best_score) if choice == "best" else (final, pair.score)
-                np.savez(
-                    policies / f"{name}.npz",
-                    theta=chosen[0],
-                    score=chosen[1],
-                    choice=choice,
-                    best_theta=best,
-                    best_score=pair.best_score,
-                    final_theta=final,
-                    final_score=pair.score,
-                    layer_sizes=np.array(self.layer_sizes),
-                    status=status,
-                    generation=pair.env.generation,
-                    parent=-1 if pair.env.parent is None else pair.env.parent,
-                )
-        tracker.log_artifact(terrains, "terrains")
-        tracker.log_artifact(policies, "policies")
+                with atomic_write(policies / f"{name}.npz") as file:
+                    savez(
+                        file,
+                        {
+                            "theta": chosen[0],
+                            "score": chosen[1],
+                            "choice": choice,
+                            "best_theta": best,
+                            "best_score": pair.best_score,
+                            "final_theta": final,
+                            "final_score": pair.score,
+                            "layer_sizes": np.array(self.layer_sizes),
+                            "status": status,
+                            "generation": pair.env.generation,
+                            "parent": -1 if pair.env.parent is None else pair.env.parent,
+                        },
+                    )
+        return folder
+
+    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
+        """The run's final agents and terrains (`save_agents`, with pictures), logged."""
+        self.save_agents(run_dir, choice, pictures=True)
+        tracker.log_artifact(run_dir / "terrains", "terrains")
+        tracker.log_artifact(run_dir / ES_POLICIES, ES_POLICIES)
 
     def state_dict(self) -> dict[str, Any]:
         def pair_state(p: Pair) -> dict[str, Any]:
@@ -307,6 +324,7 @@ class EPOET:
             "transfers": self.transfers,
             "env_steps": self.service.env_steps,
             "elapsed": self.elapsed,
+            "cpu_time": self.cpu_time,
             "best_score": self.best_score,
             "obs_norm": None if obs_norm is None else obs_norm.state_dict(),
             "active": [pair_state(p) for p in self.pool.active],
@@ -327,6 +345,7 @@ class EPOET:
 
         self.iteration, self.transfers = state["iteration"], state["transfers"]
         self.elapsed = state["elapsed"]
+        self.cpu_time = state.get("cpu_time", 0.0)  # checkpoints before the CPU clock: none
         self.service.env_steps = state["env_steps"]
         # checkpoints older than the run-level best: the pairs' bests are the closest record
         self.best_score = state.get(

@@ -13,7 +13,7 @@ from epoet.poet.loop import EPOET
 from epoet.poet.service import Service
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import policy_sizes
-from epoet.run_state import report_stop, save_run_state
+from epoet.run_state import report_stop, save_run_state, take_snapshots
 from epoet.tracking import Tracker
 
 
@@ -40,7 +40,11 @@ class Loop(Protocol):
     @property
     def elapsed(self) -> float: ...
 
+    @property
+    def cpu_time(self) -> float: ...
+
     def run_iteration(self) -> dict[str, float]: ...
+    def save_agents(self, folder: Path, choice: str = "best", pictures: bool = False) -> Path: ...
     def state_dict(self) -> dict[str, Any]: ...
     def load_state_dict(self, state: dict[str, Any]) -> None: ...
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str) -> None: ...
@@ -49,9 +53,11 @@ class Loop(Protocol):
 def train_loop(
     loop: Loop, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> None:
-    """Run `loop`'s iterations until `budget.iterations` (or `budget.hours`), logging each one's
-    metrics and checkpointing every `checkpoint_every` iterations, at the end and on a stop
-    signal; then tag why it stopped and log the pool's artifacts."""
+    """Run `loop`'s iterations until `budget.iterations` (or `budget.hours`, `budget.cpu_hours`),
+    logging each one's metrics, saving the pool's agents at each CPU-time mark of
+    `snapshot_cpu_minutes`, and checkpointing (with the pool's agents, so a run evaluates
+    mid-training) every `checkpoint_every` iterations, at the end and on a stop signal; then tag
+    why it stopped and log the pool's artifacts."""
     budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET's YAML picks the ePOET family's
     if resume is not None:
         loop.load_state_dict(resume["poet"])
@@ -61,7 +67,13 @@ def train_loop(
     restarts = evaluator.restarts
 
     def done() -> bool:
-        return loop.iteration >= budget.iterations or budget.time_is_up(loop.elapsed)
+        return loop.iteration >= budget.iterations or out_of_time() is not None
+
+    def out_of_time() -> str | None:
+        return budget.time_is_up(loop.elapsed, loop.cpu_time)
+
+    def save_agents(folder: Path) -> Path:
+        return loop.save_agents(folder, cfg.agent_choice)
 
     while not done():
         metrics = loop.run_iteration()
@@ -70,17 +82,28 @@ def train_loop(
             restarts = evaluator.restarts
         tracker.log_metrics(loop.iteration - 1, metrics)
         _progress(cfg, loop.iteration, metrics, time.perf_counter() - started)
+        info = {k: metrics[k] for k in ("cpu_time", "elapsed", "env_steps", "max_height")}
+        for minutes in take_snapshots(
+            run_dir,
+            cfg.snapshot_cpu_minutes,
+            loop.cpu_time,
+            save_agents,
+            {**info, "iteration": loop.iteration},
+        ):
+            print(f"[{cfg.algo.name}] snapshot of the pool at {minutes} CPU minutes", flush=True)
         if loop.iteration % cfg.checkpoint_every == 0 or done() or stop_requested():
+            save_agents(run_dir)
             save_run_state(run_dir, tracker, cfg, {"poet": loop.state_dict()})
             raise_if_stopped(f"after iteration {loop.iteration}")
     report_stop(
         tracker,
         cfg.algo.name,
         budget,
-        loop.iteration < budget.iterations,
+        out_of_time() if loop.iteration < budget.iterations else None,
         loop.iteration,
         "iterations",
         loop.elapsed,
+        loop.cpu_time,
     )
     loop.log_artifacts(run_dir, tracker, cfg.agent_choice)
 
@@ -102,7 +125,8 @@ def _progress(cfg: Config, iteration: int, metrics: dict[str, float], elapsed: f
         f"[{cfg.algo.name}] it {iteration}/{iterations} "
         f"pairs={int(metrics['active_envs'])} archived={int(metrics['archived_envs'])} "
         f"score={metrics['score']:.1f} best={metrics['best_score']:.1f} "
-        f"annecs={int(metrics['annecs'])} steps/s={metrics['steps_per_second']:,.0f} "
-        f"elapsed={elapsed:.0f}s{extra}",
+        f"annecs={int(metrics['annecs'])} S={metrics['max_height']:.2f} "
+        f"steps/s={metrics['steps_per_second']:,.0f} elapsed={elapsed:.0f}s "
+        f"cpu={metrics['cpu_time'] / 60:.1f}min{extra}",
         flush=True,
     )

@@ -5,12 +5,12 @@ checkpoint -- is written out in each algorithm's file (ppo.py, sac.py, vmpo.py):
 
     with Harness(cfg, tracker, run_dir, resume) as run:      # threads, seeds, envs, counters
         ... networks, learner, collector ...
-        run.start(collector, learner)                        # restores a resumed run
+        run.start(collector, learner, actor)                 # restores a resumed run
         while not run.budget_spent():
             batch = next(batches); learner.learn(batch); run.log(...)
             if due: run.evaluate(actor)
             if run.checkpoint_due(): run.checkpoint(learner); raise_if_stopped(); reset
-        return run.finish(actor, learner)
+        return run.finish(learner)
 
 Checkpoints: every `cfg.checkpoint_every` collector batches and at the end. To make a resumed run
 continue exactly like an uninterrupted one, a checkpoint ends the running episode: the collector
@@ -45,11 +45,13 @@ from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
 from epoet.config import BaselineBudgetConfig, Config
+from epoet.core.clock import CpuMeter
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import stop_requested
 from epoet.rl.env import RunningObsNorm, Seeds, episode_metrics, hexapod, make_env, obs_norm_of
 from epoet.rl.policy_file import POLICY_FILE, export_policy
-from epoet.run_state import report_stop, save_run_state
+from epoet.run_state import report_stop, save_run_state, take_snapshots
+from epoet.terrain import max_height_at
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
     from epoet.tracking import Tracker
@@ -168,6 +170,7 @@ class LoopState:
     last_eval_frames: int = -1
     last_eval: dict[str, float] = dataclasses.field(default_factory=dict)
     wall_time: float = 0.0  # seconds of training, summed over resumes
+    cpu_time: float = 0.0  # CPU seconds of the run's processes (evaluations too), over resumes
     best_score: float = -math.inf  # the best evaluation return so far
 
 
@@ -223,7 +226,9 @@ class Harness:
         self.state = LoopState(**resume["loop"]) if resume is not None else LoopState()
         self.obs_stats = RunningObsNorm(obs_norm_of(self.env)) if cfg.algo.obs_norm else None
         self.collector: Collector | None = None
+        self.actor: ProbabilisticActor | None = None
         self.progress: tqdm | None = None
+        self.cpu_meter = CpuMeter()
         if resume is None:
             tracker.log_dict(dataclasses.asdict(self.seeds), "seeds.json")
 
@@ -242,10 +247,10 @@ class Harness:
             self.collector.shutdown()
         self.eval_env.close()
 
-    def start(self, collector: Collector, learner: Learner) -> None:
+    def start(self, collector: Collector, learner: Learner, actor: ProbabilisticActor) -> None:
         """Restore a resumed run's state and open the progress bar; the harness shuts
-        `collector` down when it exits."""
-        self.collector = collector
+        `collector` down when it exits and exports `actor` at checkpoints and snapshots."""
+        self.collector, self.actor = collector, actor
         if self.resume is not None:
             # After the collector's construction, which resets the env and may draw random
             # numbers; then a new episode starts exactly as the interrupted run's did right
@@ -265,10 +270,11 @@ class Harness:
         )
 
     def budget_spent(self) -> bool:
-        """The budget's batches are collected or its hours are used."""
-        return self.state.batches >= self.plan.batches or self.cfg.budget.time_is_up(
-            self.state.wall_time
-        )
+        """The budget's batches are collected or its hours (or CPU hours) are used."""
+        return self.state.batches >= self.plan.batches or self.out_of_time() is not None
+
+    def out_of_time(self) -> str | None:
+        return self.cfg.budget.time_is_up(self.state.wall_time, self.state.cpu_time)
 
     def checkpoint_due(self) -> bool:
         """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
@@ -297,6 +303,7 @@ class Harness:
         state.frames += batch.numel()
         state.batches += 1
         state.wall_time += elapsed
+        state.cpu_time += self.cpu_meter.lap()  # since the last batch: its evaluation too
         # env_steps and elapsed are the x-axes every algorithm logs (ePOET too), so MLflow can
         # chart all algorithms against environment steps or training time.
         metrics.update(
@@ -307,11 +314,22 @@ class Harness:
                 "train/episodes": state.episodes,
                 "env_steps": state.frames,
                 "elapsed": state.wall_time,
+                "cpu_time": state.cpu_time,
+                "max_height": max_height_at(self.cfg.terrain, hexapod(self.env).episodes),
             }
         )
         self.tracker.log_metrics(state.frames, metrics)
         assert self.progress is not None  # opened before the first batch
         self.progress.update(batch.numel())
+        info = {k: float(metrics[k]) for k in ("cpu_time", "elapsed", "env_steps", "max_height")}
+        for minutes in take_snapshots(
+            self.run_dir,
+            self.cfg.snapshot_cpu_minutes,
+            state.cpu_time,
+            self.export_policy,
+            {**info, "frames": float(state.frames)},
+        ):
+            self.progress.write(f"[{self.cfg.algo.name}] snapshot at {minutes} CPU minutes")
 
     def evaluate(self, actor: ProbabilisticActor) -> None:
         """Evaluate `actor` (see the module docstring) and log it; the next evaluation is due
@@ -348,8 +366,18 @@ class Harness:
             f"finish={state.last_eval['finish_rate']:.2f}"
         )
 
+    def export_policy(self, folder: Path) -> Path:
+        """The actor as a policy file in `folder` (epoet.rl.policy_file)."""
+        assert self.actor is not None  # given to `start`
+        algo = self.cfg.algo
+        return export_policy(
+            folder / POLICY_FILE, self.actor, self.env, algo.hidden, algo.activation
+        )
+
     def checkpoint(self, learner: Learner) -> None:
-        """Save the counters, `learner`, the normaliser and every random stream."""
+        """Save the counters, `learner`, the normaliser and every random stream, and the policy
+        beside them, so the run's agent evaluates mid-training."""
+        self.export_policy(self.run_dir)
         save_run_state(
             self.run_dir,
             self.tracker,
@@ -363,29 +391,24 @@ class Harness:
             },
         )
 
-    def finish(self, actor: ProbabilisticActor, learner: Learner) -> TrainResult:
+    def finish(self, learner: Learner) -> TrainResult:
         """Log the last evaluation as `final/*`, checkpoint, export the policy, say why the run
         stopped."""
         self.tracker.log_metrics(
             self.state.frames, {f"final/{k}": v for k, v in self.state.last_eval.items()}
         )
-        self.checkpoint(learner)
-        policy_path = export_policy(
-            self.run_dir / POLICY_FILE,
-            actor,
-            self.env,
-            self.cfg.algo.hidden,
-            self.cfg.algo.activation,
-        )
+        self.checkpoint(learner)  # exports the policy too
+        policy_path = self.run_dir / POLICY_FILE
         self.tracker.log_artifact(policy_path)
         report_stop(
             self.tracker,
             self.cfg.algo.name,
             self.cfg.budget,
-            self.state.batches < self.plan.batches,
+            self.out_of_time() if self.state.batches < self.plan.batches else None,
             self.state.frames,
             "frames",
             self.state.wall_time,
+            self.state.cpu_time,
         )
         self.tracker.flush()
         return TrainResult(

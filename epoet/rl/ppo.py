@@ -47,7 +47,7 @@ def train(
         )
         learner = OnPolicyLearner(algo, run.plan, actor, critic, loss)
         collector = make_collector(run.env, actor, run.plan)
-        run.start(collector, learner)  # a resumed run continues from its checkpoint
+        run.start(collector, learner, actor)  # a resumed run continues from its checkpoint
 
         state = run.state
         if state.frames >= state.next_eval:  # frame 0
@@ -68,4 +68,4 @@ def train(
                 collector.reset()  # checkpoints end the running episode (harness.py)
         if state.last_eval_frames != state.frames:  # the final policy, unless just evaluated
             run.evaluate(actor)
-        return run.finish(actor, learner)
+        return run.finish(learner)

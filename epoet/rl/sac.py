@@ -215,7 +215,7 @@ def train(
         # resume that is past them
         random_frames = max(0, run.plan.scaled(algo.init_random_frames) - run.state.frames)
         collector = make_collector(run.env, learner.actor, run.plan, random_frames)
-        run.start(collector, learner)  # a resumed run continues from its checkpoint
+        run.start(collector, learner, learner.actor)  # a resumed run continues from its checkpoint
 
         state = run.state
         if state.frames >= state.next_eval:  # frame 0
@@ -242,4 +242,4 @@ def train(
                 run_dir / CRITICS_FILE, learner.loss.critics, algo.hidden, algo.activation
             )
         )
-        return run.finish(learner.actor, learner)
+        return run.finish(learner)
