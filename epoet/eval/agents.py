@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 Policy = Callable[[np.ndarray], np.ndarray]
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
 MODEL_URI = re.compile(r"^runs:/([0-9a-f]{32})/agent/?$")  # the run's MLflow model (agent_model)
+RECORD_CONFIG = "config.yaml"  # a record's resolved run config (docs/results/README.md)
 
 
 @dataclass(frozen=True)
@@ -167,7 +168,7 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
     if found is None:
         raise AgentError(
             f"run folder {folder} has no policy ({ES_POLICIES}/env<N>.npz or "
-            f"{TORCH_POLICY}): evaluate a run that finished training."
+            f"{TORCH_POLICY}) yet: a run writes its agents with its first checkpoint."
         )
     state: dict[str, Any] = {}
     if (folder / CHECKPOINT_NAME).is_file():
@@ -175,6 +176,9 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
             state = load_checkpoint(folder)
         except CheckpointError as err:
             raise AgentError(str(err)) from err
+    elif (folder / RECORD_CONFIG).is_file():  # a record (pipeline.compute): the run's config
+        loaded = OmegaConf.to_container(OmegaConf.load(folder / RECORD_CONFIG))
+        state = {"config": loaded, "algo": cast(dict[str, Any], loaded)["algo"]["name"]}
     config = state.get("config")
     source, name = found
     source.check()

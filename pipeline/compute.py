@@ -1,0 +1,294 @@
+"""`python -m pipeline.compute --runs <run folder>... --out docs/results/<name>`: success against
+compute. Every CPU-time snapshot of each run (`<run folder>/snapshots/cpu<minutes>/`, written
+at the marks of `snapshot_cpu_minutes` while it trains) is evaluated on the suites with the
+paper's protocol (5 episodes per terrain; solved = finish line and return >= 2000), every agent
+of it: an ePOET pool's every niche agent, a baseline's one policy. The results go to records
+that outlive the machine (docs/results/README.md, "Success against compute"):
+
+    <out>/<algo>_s<seed>/run.json        the run (command, commits, CPU and wall time, load) and,
+                                         per snapshot and suite, the best agent's and the niche
+                                         mean's success
+    <out>/<algo>_s<seed>/curves.csv      its learning curves, one row per logged step
+    <out>/<algo>_s<seed>/config.yaml     its resolved config
+    <out>/<algo>_s<seed>/cpu<m>/         the snapshot's agent files and snapshot.json, and
+                                         <agent>/<suite>/{summary.json,episodes.csv}
+    <out>/<algo>_s<seed>/<suite>/, policies/ or policy.pt: the latest snapshot's best agent's
+                                         evaluation and agents, so `make tables RECORDS=<out>`
+                                         and `run=<out>/<record>` read it as any record
+
+A run still training is fine: what its snapshots hold so far is evaluated, and a second call
+evaluates only what is new (each evaluation is written atomically and never repeated), so the
+command is run again as snapshots arrive. The run's best agent of a snapshot is the pool's
+agent with the best score on its own environment, the one `evaluate run=<run folder>` picks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import yaml
+from mlflow import MlflowClient
+from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT
+
+from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
+from analysis.store import AnalysisError, connect, run_command
+from epoet.core.checkpoint import CheckpointError, load_checkpoint
+from epoet.core.files import atomic_write
+from epoet.eval.agents import RECORD_CONFIG, TrainedRun, policy_in, resolve_run
+from epoet.eval.config import EvaluateConfig
+from epoet.eval.evaluate import evaluate, evaluation_pool, write_results
+from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
+from epoet.eval.suite import Suite, load_suite
+from epoet.rollout.agent_files import ES_POLICIES, TORCH_POLICY
+from epoet.run_state import SNAPSHOT_INFO, SNAPSHOTS
+from epoet.tracking.provenance import git_commit
+from pipeline.records import command_of, iso, load_of, write_json
+
+CURVES = "curves.csv"
+# What a learning curve holds: the score (ePOET: its best active pair's evaluation; baselines:
+# the deterministic evaluation return), the best so far, the pool, S and the three axes.
+CURVE_KEYS = (
+    "score",
+    "best_score",
+    "annecs",
+    "active_envs",
+    "max_height",
+    "env_steps",
+    "cpu_time",
+    "elapsed",
+)
+
+
+def agents_of(snapshot: Path) -> list[Path]:
+    """A snapshot's agent files: a pool's every niche agent, or a baseline's policy."""
+    pool = sorted((snapshot / ES_POLICIES).glob("env*.npz"), key=lambda p: int(p.stem[3:]))
+    return pool or [snapshot / TORCH_POLICY]
+
+
+def snapshots_of(run_dir: Path) -> list[tuple[float, Path]]:
+    """(CPU minutes, folder) of each complete snapshot, in order."""
+    found = []
+    for info in (run_dir / SNAPSHOTS).glob(f"*/{SNAPSHOT_INFO}"):
+        found.append((float(json.loads(info.read_text())["cpu_minutes"]), info.parent))
+    return sorted(found)
+
+
+def evaluated_agent(path: Path, snapshot: str, trained: TrainedRun) -> TrainedRun:
+    """The agent file as its run's agent: the run's episode rules and score scale."""
+    return TrainedRun(
+        resolve_run(str(path)).agent,
+        f"{trained.algo}-s{trained.seed} {snapshot} {path.stem}",
+        None,
+        trained.algo,
+        trained.seed,
+        trained.config,
+        None,
+    )
+
+
+def evaluate_snapshot(
+    snapshot: Path,
+    record: Path,
+    trained: TrainedRun,
+    suites: Sequence[Suite],
+    cfg: EvaluateConfig,
+    pool: Any,
+) -> dict[str, Any]:
+    """Every agent of the snapshot on every suite (those not evaluated before), its files copied
+    into the record; returns the snapshot's entry of run.json."""
+    target = record / snapshot.name
+    for path in [*agents_of(snapshot), snapshot / SNAPSHOT_INFO]:
+        copy = target / path.relative_to(snapshot)
+        if not copy.exists():
+            with atomic_write(copy) as file:
+                file.write(path.read_bytes())
+    info = json.loads((snapshot / SNAPSHOT_INFO).read_text())
+    best, _ = policy_in(snapshot) or (None, None)
+    assert best is not None  # a snapshot holds its agents (take_snapshots writes them first)
+    entry: dict[str, Any] = {**info, "best_agent": best.path.stem, "evaluations": {}}
+    for suite in suites:
+        rates = {}
+        for path in agents_of(snapshot):
+            out = target / path.stem / suite.name
+            if not (out / SUMMARY).is_file():
+                agent = evaluated_agent(path, snapshot.name, trained)
+                print(f"[compute] {agent.label} at {snapshot.name} on {suite.name}", flush=True)
+                result = evaluate(agent, suite, cfg, pool, progress=False)
+                write_results(
+                    result,
+                    out,
+                    {
+                        "label": agent.label,
+                        "algo": trained.algo,
+                        "seed": trained.seed,
+                        "suite_name": suite.name,
+                        "suite_fingerprint": suite.fingerprint,
+                        "course_scale": suite.course.scale(agent.agent_config(cfg.agent)),
+                        "episodes_per_terrain": cfg.episodes,
+                        "eval_seed": cfg.seed,
+                        "commit": git_commit(),
+                    },
+                )
+                (out / "actions.npz").unlink()  # the t-SNE samples: not kept in records
+            rates[path.stem] = json.loads((out / SUMMARY).read_text())
+        summaries = list(rates.values())
+        key = f"suite/{suite.name}/success_rate"
+        entry["evaluations"][suite.name] = {
+            "fingerprint": suite.fingerprint,
+            "course_scale": summaries[0]["course_scale"],
+            "episodes_per_terrain": cfg.episodes,
+            "commit": rates[best.path.stem].get("commit"),
+            "success_rate": rates[best.path.stem][key],
+            "success_rate_mean": sum(s[key] for s in summaries) / len(summaries),
+            "agents": {name: s[key] for name, s in rates.items()},
+        }
+    return entry
+
+
+def curves_of(client: MlflowClient, run_id: str) -> pd.DataFrame:
+    """One row per logged step (an iteration, or a collector batch and evaluation) with every
+    curve key logged at it."""
+    columns = {}
+    for key in CURVE_KEYS:
+        points = client.get_metric_history(run_id, key)
+        if points:
+            columns[key] = pd.Series({p.step: p.value for p in points})
+    table = pd.DataFrame(columns).sort_index()
+    table.index.name = "step"
+    return table
+
+
+def export_run(
+    run_dir: Path,
+    out: Path,
+    suites: Sequence[Suite],
+    cfg: EvaluateConfig,
+    pool: Any,
+    tracking_uri: str | None = None,
+) -> Path:
+    """The run's record, its new snapshots evaluated; run.json written last. The run's MLflow
+    store: `tracking_uri`, else the one its config names, else epoet's default."""
+    try:
+        state = load_checkpoint(run_dir)
+    except CheckpointError as err:
+        raise AnalysisError(f"{run_dir} is not a run folder with a checkpoint: {err}") from None
+    config = state["config"]
+    uri = tracking_uri or config["tracking"]["uri"]
+    trained = resolve_run(str(run_dir), uri)
+    record = out / f"{state['algo']}_s{config['seed']}"
+    snapshots = {
+        f"{minutes:g}": evaluate_snapshot(folder, record, trained, suites, cfg, pool)
+        for minutes, folder in snapshots_of(run_dir)
+    }
+    client, uri = connect(uri)
+    run = client.get_run(state["run_id"])
+    with atomic_write(record / CURVES) as file:
+        file.write(curves_of(client, state["run_id"]).to_csv().encode())
+    with atomic_write(record / RECORD_CONFIG) as file:
+        file.write(yaml.safe_dump(config, sort_keys=False).encode())
+    evaluations = {}
+    if snapshots:  # the latest snapshot's best agent stands for the record
+        last = list(snapshots.values())[-1]
+        folder = record / f"cpu{last['cpu_minutes']:g}"
+        shutil.rmtree(record / ES_POLICIES, ignore_errors=True)  # an earlier snapshot's pool
+        for path in agents_of(folder):
+            with atomic_write(record / path.relative_to(folder)) as file:
+                file.write(path.read_bytes())
+        for suite, entry in last["evaluations"].items():
+            for name in (SUMMARY, EPISODES):
+                with atomic_write(record / suite / name) as file:
+                    file.write((folder / last["best_agent"] / suite / name).read_bytes())
+            evaluations[suite] = {
+                **{k: entry[k] for k in ("fingerprint", "course_scale", "episodes_per_terrain")},
+                "success_rate": entry["success_rate"],
+                "commit": entry["commit"],
+                "snapshot": f"cpu{last['cpu_minutes']:g}",
+            }
+    overrides = run_dir / ".hydra" / "overrides.yaml"
+    command = (
+        {
+            "command": shlex.join(
+                ["python", "-m", "epoet", *yaml.safe_load(overrides.read_text())]
+            ),
+            "command_source": "overrides",
+        }
+        if overrides.is_file()
+        else command_of(client, run)  # from its params
+    )
+    poet = state.get("poet")
+    loop = state.get("loop", {})
+    write_json(
+        record / RUN_FILE,
+        {
+            "format": FORMAT,
+            "record": record.name,
+            "algo": state["algo"],
+            "seed": str(config["seed"]),
+            "budget": config["budget"]["name"],
+            "run_name": run.info.run_name,
+            "run_id": run.info.run_id,
+            "experiment": client.get_experiment(run.info.experiment_id).name,
+            "store": uri,
+            "status": run.info.status,
+            **command,
+            "commit": run.data.tags.get(MLFLOW_GIT_COMMIT),
+            "started": iso(run.info.start_time),
+            "ended": iso(run.info.end_time),
+            "training": {
+                "cpu_time_s": poet["cpu_time"] if poet else loop.get("cpu_time"),
+                "wall_time_s": poet["elapsed"] if poet else loop.get("wall_time"),
+                "env_steps": poet["env_steps"] if poet else loop.get("frames"),
+                **({"iterations": poet["iteration"]} if poet else {"frames": loop.get("frames")}),
+                "workers": config["workers"]["num"],
+                "stop_reason": run.data.tags.get("stop_reason"),
+            },
+            "load": load_of(client, run),
+            "snapshots": snapshots,
+            "evaluations": evaluations,
+        },
+    )
+    return record
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.compute", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--runs", nargs="+", type=Path, required=True, help="run folders")
+    parser.add_argument("--out", type=Path, required=True, help="records folder")
+    parser.add_argument(
+        "--suites", default=f"{PAPER_NAME},{SHIPPED_NAME}", help="suites, comma-separated"
+    )
+    parser.add_argument("--episodes", type=int, default=5, help="episodes per terrain (paper: 5)")
+    parser.add_argument("--processes", type=int, default=1, help="evaluation processes (default 1)")
+    parser.add_argument(
+        "--tracking-uri",
+        default=None,
+        help="the runs' MLflow store (default: their config's, else MLFLOW_TRACKING_URI, else "
+        "epoet's)",
+    )
+    args = parser.parse_args(argv)
+
+    def export() -> None:
+        from epoet.config import compose, validate
+
+        suites = [load_suite(name) for name in args.suites.split(",")]
+        with evaluation_pool(args.processes) as pool:
+            for run_dir in args.runs:
+                overrides = [f"run={run_dir}", f"episodes={args.episodes}"]
+                cfg = validate(compose(overrides, config_name="evaluate"))
+                record = export_run(run_dir, args.out, suites, cfg, pool, args.tracking_uri)
+                print(f"[compute] {run_dir} -> {record}", flush=True)
+
+    return run_command(export)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,75 @@
+"""Success against compute (pipeline.compute): a run's CPU-time snapshots become a record that
+holds each snapshot's agents and their evaluations, the run's curves and config, and that
+evaluates anywhere as `run=<record>`; a second export evaluates only what is new."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from conftest import subset_suite
+from epoet.eval.agents import resolve_run
+from epoet.run import run
+from pipeline.compute import main
+
+EPOET = [
+    "budget=smoke",
+    "workers.num=1",
+    "algo.es.hidden=[8]",
+    "terrain.grid=40",
+    "budget.iterations=4",
+    "algo.iterations_before_transfer=1",
+    "algo.adjust_interval=2",
+    "algo.num_children=2",
+    "algo.repro_threshold=-100000",
+    "algo.mc_lower=-100000",
+    "algo.mc_upper=100000",
+    "snapshot_cpu_minutes=[1e-6,1e-5,1000]",
+]
+
+
+def test_a_runs_snapshots_become_a_record_with_curves_and_agents(
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
+    folder, out = tmp_path / "run", tmp_path / "records"
+    run(compose(EPOET), folder)
+    suite = subset_suite(tmp_path / "suite", [("easy", 0), ("hard", 0)])
+    args = ["--runs", str(folder), "--out", str(out), "--episodes", "2", "--suites", str(suite)]
+    assert main(args) == 0
+    record = out / "epoet_s0"
+    info = json.loads((record / "run.json").read_text())
+    assert list(info["snapshots"]) == ["1e-06", "1e-05"]  # 1000 minutes never came
+    assert info["training"]["cpu_time_s"] > 0 and info["training"]["iterations"] == 4
+    assert info["command"].startswith("python -m epoet algo=epoet budget=smoke seed=0 ")
+    for minutes, snapshot in info["snapshots"].items():
+        pool = sorted(p.stem for p in (record / f"cpu{minutes}" / "policies").glob("*.npz"))
+        evaluation = snapshot["evaluations"][suite.name]
+        assert sorted(evaluation["agents"]) == pool and snapshot["best_agent"] in pool
+        assert evaluation["episodes_per_terrain"] == 2 and len(evaluation["commit"]) == 40
+        rates = list(evaluation["agents"].values())
+        assert evaluation["success_rate_mean"] == pytest.approx(sum(rates) / len(rates))
+        episodes = pd.read_csv(record / f"cpu{minutes}" / pool[0] / suite.name / "episodes.csv")
+        assert len(episodes) == 2 * 2  # two terrains, two episodes each
+    curves = pd.read_csv(record / "curves.csv")
+    assert list(curves.step) == [0, 1, 2, 3]
+    assert curves.cpu_time.is_monotonic_increasing and curves.max_height.iloc[0] == 1.0
+    # The record is an agent anywhere: the latest snapshot's pool, with the run's rules.
+    agent = resolve_run(str(record))
+    assert agent.algo == "epoet" and agent.score_scale == 0.025
+    assert (
+        agent.agent.path == record / "policies" / f"{info['snapshots']['1e-05']['best_agent']}.npz"
+    )
+    # Again: nothing is evaluated twice.
+    summaries = sorted(record.glob("cpu*/*/*/summary.json"))
+    stamps = [p.stat().st_mtime_ns for p in summaries]
+    assert main(args) == 0
+    assert [p.stat().st_mtime_ns for p in summaries] == stamps
+
+
+def test_a_folder_without_a_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
+    assert main(["--runs", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a run folder with a checkpoint" in err[0]
