@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery tables figures paper epoet-sac-starts reference records suite bench bench-learning clean-venv
+.PHONY: install test train gallery tables figures compute paper epoet-sac-starts reference records suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -40,8 +40,16 @@ RECORDS ?=
 tables: install
 	$(PY) -m analysis.tables $(if $(RECORDS),--records $(RECORDS),$(if $(EXPERIMENT),--experiment $(EXPERIMENT))) $(if $(SUITE),--suite $(SUITE))
 
+# RECORDS=docs/results/<name>: success against CPU hours and the learning curves from those
+# records alone (analysis.compute; SUITE default: paper), into results/compute/<name>/<suite>/.
 figures: install
-	$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE))
+	$(if $(RECORDS),$(PY) -m analysis.compute --records $(RECORDS) $(if $(SUITE),--suite $(SUITE)),$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE)))
+
+# Success against compute: evaluate the CPU-time snapshots of RUNS (run folders, still training
+# or finished) on the paper and shipped suites into the records folder RECORDS (pipeline.compute).
+RUNS ?=
+compute: install
+	$(PY) -m pipeline.compute --runs $(RUNS) --out $(RECORDS) $(OVERRIDES)
 
 # Every algorithm x seed at one budget, evaluated on each of SUITES (default: shipped,paper),
 # tabled and plotted; resumable (README). RECORDS=docs/results/<name> also exports the runs'

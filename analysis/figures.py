@@ -122,13 +122,13 @@ def mean_std_on_grid(curves: pd.DataFrame, x: str) -> pd.DataFrame:
     return pd.concat(out, ignore_index=True)
 
 
-def plot_learning_curves(curves: pd.DataFrame, out: Path) -> list[Path]:
+def plot_learning_curves(
+    curves: pd.DataFrame, out: Path, time_axis: tuple[str, str] = ("elapsed", "training time (s)")
+) -> list[Path]:
+    """Score against environment steps and against `time_axis` (curves' column, label)."""
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     tables = []
-    for ax, x, label in (
-        (axes[0], "env_steps", "environment steps"),
-        (axes[1], "elapsed", "training time (s)"),
-    ):
+    for ax, x, label in ((axes[0], "env_steps", "environment steps"), (axes[1], *time_axis)):
         table = mean_std_on_grid(curves, x)
         tables.append(table.assign(axis=x).rename(columns={x: "x"}))
         for algo in in_order(table.algo):

@@ -73,3 +73,33 @@ def test_a_folder_without_a_checkpoint_is_one_line(tmp_path: Path, capsys) -> No
     assert main(["--runs", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is not a run folder with a checkpoint" in err[0]
+
+
+def test_success_against_compute_is_drawn_from_records_alone(
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
+    """The figure, table and learning curves come from the records (the run folder and the
+    store removed first), an ePOET pool read both ways."""
+    import shutil
+
+    from analysis.compute import main as figures
+
+    folder, out = tmp_path / "run", tmp_path / "records"
+    run(compose(EPOET), folder)
+    suite = subset_suite(tmp_path / "suite", [("easy", 0)])
+    assert (
+        main(["--runs", str(folder), "--out", str(out), "--episodes", "1", "--suites", str(suite)])
+        == 0
+    )
+    shutil.rmtree(folder)
+    Path(mlflow_uri.removeprefix("sqlite:///")).unlink()
+    assert (
+        figures(["--records", str(out), "--suite", str(suite), "--out", str(tmp_path / "fig")]) == 0
+    )
+    table = pd.read_csv(tmp_path / "fig" / "success_vs_compute.csv")
+    assert sorted(set(zip(table.algo, table.reading))) == [("epoet", "best"), ("epoet", "niches")]
+    assert list(table[table.reading == "best"].minutes) == [1e-6, 1e-5]
+    for name in ("success_vs_compute.png", "success_vs_compute.md", "learning_curves.png"):
+        assert (tmp_path / "fig" / name).stat().st_size > 0
+    curves = pd.read_csv(tmp_path / "fig" / "learning_curves.csv")
+    assert set(curves.axis) == {"env_steps", "cpu_time"}

@@ -1,0 +1,251 @@
+"""`python -m analysis.compute --records docs/results/<name> [--suite paper]`: success against
+compute, and the learning curves, from records alone (pipeline.compute writes them).
+
+For each algorithm and CPU-time mark (the runs' `snapshot_cpu_minutes`): the IQM over runs and
+terrains of the success of each run's agent at that mark, with its 95 % stratified-bootstrap
+interval (analysis.stats: terrains, and runs within them, drawn with replacement). The
+interval of an algorithm at a mark is a function of its own runs only: each is bootstrapped
+alone, seeded by `analysis.stats.SEED`. Two readings of an ePOET pool, where they differ: the
+run's best agent (the pool's best on its own environment) and the mean over its niche agents
+(the success of a niche agent drawn at random, as the authors' agents are counted one by one).
+The authors' agents are the horizontal references: the mean success of each algorithm's
+published agents in the reference records (docs/results/reference).
+
+Writes to `--out` (default results/compute/<records folder name>/<suite>/):
+success_vs_compute.{md,csv,png} and learning_curves.{png,csv} (score against environment
+steps and against CPU hours).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # figures are files; never need a display
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from analysis.figures import plot_learning_curves  # noqa: E402
+from analysis.records import EPISODES, read_records  # noqa: E402
+from analysis.stats import CONFIDENCE, REPS, SEED, iqm, rliable, seeded  # noqa: E402
+from analysis.store import ALGO_COLOURS, AnalysisError, in_order, run_command  # noqa: E402
+from analysis.tables import to_markdown  # noqa: E402
+from epoet.eval.keys import PAPER_NAME  # noqa: E402
+from epoet.eval.suite import load_suite  # noqa: E402
+
+REFERENCE = Path(__file__).resolve().parent.parent / "docs" / "results" / "reference"
+READINGS = {"best": "the run's best agent", "niches": "mean over its niche agents"}
+
+
+def success_matrix(record: Path, snapshot: str, agents: Sequence[str], suite: str) -> pd.Series:
+    """Per terrain (suite order), the success of the agents' episodes at the snapshot, averaged
+    over the agents."""
+    frames = [pd.read_csv(record / snapshot / a / suite / EPISODES) for a in agents]
+    episodes = pd.concat(frames, ignore_index=True)
+    return episodes.groupby("terrain", sort=False).solved.mean().astype(float)
+
+
+def compute_table(records: Path, suite: str) -> pd.DataFrame:
+    """One row per run, mark and reading: algo, seed, minutes, cpu_hours (the snapshot's own
+    CPU time), reading, success (the run's success rate) and per-terrain successes."""
+    rows = []
+    for info in read_records(records):
+        for minutes, snap in info.get("snapshots", {}).items():
+            evaluation = snap["evaluations"].get(suite)
+            if evaluation is None:
+                continue
+            folder = Path(records) / info["record"]
+            readings = {"best": [snap["best_agent"]], "niches": sorted(evaluation["agents"])}
+            for reading, agents in readings.items():
+                terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
+                rows.append(
+                    {
+                        "algo": info["algo"],
+                        "seed": info["seed"],
+                        "minutes": float(minutes),
+                        "cpu_hours": snap["cpu_time"] / 3600,
+                        "reading": reading,
+                        "success": float(terrains.mean()),
+                        "terrains": terrains,
+                    }
+                )
+    if not rows:
+        raise AnalysisError(
+            f"no record in {records} has a CPU-time snapshot evaluated on suite {suite}: "
+            f"run python -m pipeline.compute --runs <run folders> --out {records}."
+        )
+    return pd.DataFrame(rows)
+
+
+def iqm_interval(matrix: np.ndarray, reps: int = REPS, seed: int = SEED) -> tuple[float, ...]:
+    """IQM of a (runs, terrains) matrix and its 95 % stratified-bootstrap interval, from this
+    matrix alone."""
+    with seeded(seed):
+        points, intervals = rliable()[0].get_interval_estimates(
+            {"x": matrix}, iqm, task_bootstrap=True, reps=reps, confidence_interval_size=CONFIDENCE
+        )
+    return float(points["x"][0]), float(intervals["x"][0][0]), float(intervals["x"][1][0])
+
+
+def summary(table: pd.DataFrame) -> pd.DataFrame:
+    """Per algorithm, mark and reading: runs, the seeds' success rates, mean CPU hours, IQM and
+    its interval (ePOET's niche reading only where the pool held more than one agent)."""
+    out = []
+    for (algo, minutes, reading), rows in table.groupby(["algo", "minutes", "reading"]):
+        if reading == "niches" and algo not in ("epoet", "epoet_sac"):
+            continue
+        matrix = np.stack([t.to_numpy() for t in rows.terrains])
+        point, low, high = iqm_interval(matrix)
+        out.append(
+            {
+                "algo": algo,
+                "minutes": minutes,
+                "reading": reading,
+                "runs": len(rows),
+                "cpu_hours": rows.cpu_hours.mean(),
+                "seeds": " ".join(f"s{s}:{v:.1%}" for s, v in zip(rows.seed, rows.success)),
+                "iqm": point,
+                "ci_low": low,
+                "ci_high": high,
+            }
+        )
+    frame = pd.DataFrame(out)
+    order = {a: i for i, a in enumerate(in_order(frame.algo))}
+    return frame.sort_values(
+        ["algo", "reading", "minutes"], key=lambda c: c.map(order) if c.name == "algo" else c
+    )
+
+
+def reference_lines(suite: str, folder: Path = REFERENCE) -> dict[str, float]:
+    """Mean success of each algorithm's published agents on the suite (their records)."""
+    rates: dict[str, list[float]] = {}
+    for path in sorted(folder.glob("*/run.json")):
+        info = json.loads(path.read_text())
+        evaluation = info.get("evaluations", {}).get(suite)
+        if evaluation is not None:
+            rates.setdefault(info["algo"], []).append(evaluation["success_rate"])
+    return {algo: float(np.mean(v)) for algo, v in rates.items() if np.mean(v) > 0}
+
+
+def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    algos = in_order(frame.algo)
+    for algo in algos:
+        color = ALGO_COLOURS[algo]
+        for reading, style in (("best", "-o"), ("niches", ":s")):
+            rows = frame[(frame.algo == algo) & (frame.reading == reading)]
+            if rows.empty:
+                continue
+            label = algo if reading == "best" else f"{algo} ({READINGS[reading]})"
+            ax.plot(rows.cpu_hours, 100 * rows.iqm, style, color=color, label=label)
+            ax.fill_between(
+                rows.cpu_hours, 100 * rows.ci_low, 100 * rows.ci_high, color=color, alpha=0.12
+            )
+        if algo in references:
+            ax.axhline(100 * references[algo], color=color, ls="--", lw=1)
+    for algo, value in references.items():
+        if algo not in algos:
+            continue
+        ax.annotate(
+            f"authors' {algo} {value:.1%}",
+            (ax.get_xlim()[1], 100 * value),
+            fontsize=7,
+            ha="right",
+            va="bottom",
+        )
+    ax.set_xlabel("CPU hours of training (one core)")
+    ax.set_ylabel(f"success on suite {suite} (%), IQM, 95 % CI")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def curves_from_records(records: Path) -> pd.DataFrame:
+    """The records' learning curves in analysis.figures' layout, with the CPU time the runs are
+    compared on."""
+    frames = []
+    for info in read_records(records):
+        path = Path(records) / info["record"] / "curves.csv"
+        if not path.is_file():
+            continue
+        curves = pd.read_csv(path).dropna(subset=["score", "env_steps", "cpu_time"])
+        frames.append(
+            pd.DataFrame(
+                {
+                    "run_id": info["run_id"],
+                    "algo": info["algo"],
+                    "seed": info["seed"],
+                    "step": curves.step,
+                    "env_steps": curves.env_steps,
+                    "cpu_time": curves.cpu_time,
+                    "score": curves.score,
+                }
+            )
+        )
+    if not frames:
+        raise AnalysisError(f"no record in {records} holds learning curves (curves.csv).")
+    return pd.concat(frames, ignore_index=True)
+
+
+def write(records: Path, suite: str, out: Path) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    frame = summary(compute_table(records, suite))
+    references = reference_lines(suite)
+    frame.to_csv(out / "success_vs_compute.csv", index=False)
+    shown = frame.assign(
+        iqm=[
+            f"{100 * r.iqm:.1f} [{100 * r.ci_low:.1f}, {100 * r.ci_high:.1f}]"
+            for r in frame.itertuples()
+        ],
+        cpu_hours=frame.cpu_hours.round(2),
+        reading=frame.reading.map(READINGS),
+    ).drop(columns=["ci_low", "ci_high"])
+    notes = [
+        f"- authors' {a}: {v:.1%} (mean over their published agents)" for a, v in references.items()
+    ]
+    (out / "success_vs_compute.md").write_text(
+        f"Success on suite {suite} against CPU hours (IQM over runs x terrains, 95 % "
+        f"stratified-bootstrap interval)\n\n{to_markdown(shown)}\n\n" + "\n".join(notes) + "\n"
+    )
+    paths = [out / "success_vs_compute.csv", out / "success_vs_compute.md"]
+    paths.append(plot(frame, references, suite, out / "success_vs_compute.png"))
+    paths += plot_learning_curves(
+        curves_from_records(records), out, ("cpu_time", "CPU time of training (s)")
+    )
+    return paths
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m analysis.compute", description=__doc__.split("\n\n")[0]
+    )
+    parser.add_argument("--records", type=Path, required=True, help="records folder")
+    parser.add_argument("--suite", default=PAPER_NAME, help="suite name (default: paper)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: results/compute/<records>/<suite>)",
+    )
+    args = parser.parse_args(argv)
+
+    def report() -> None:
+        suite = load_suite(args.suite).name  # a suite folder's evaluations are keyed by its name
+        out = args.out or Path("results") / "compute" / args.records.name / suite
+        for path in write(args.records, suite, out):
+            print(path, flush=True)
+
+    return run_command(report)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
