@@ -261,7 +261,8 @@ def test_running_obs_norm_matches_the_data_and_survives_tiny_spreads():
 def test_training_env_draws_a_new_terrain_per_episode_on_the_height_schedule(terrain, limit):
     """Baselines train on bowls by default; terrain=cppn gives a fresh random CPPN terrain per
     episode. Either way the maximum height S grows by max_height_step per episode."""
-    raw = compose_config(["algo=ppo", *TINY, f"terrain={terrain}", "terrain.max_height_step=0.3"])
+    schedule = ["budget.max_height=0.1", "budget.max_height_step=0.3"]
+    raw = compose_config(["algo=ppo", *TINY, f"terrain={terrain}", *schedule])
     env = make_env(validate(raw), obs_norm=True, seed=0)
     seen = []
     for _ in range(4):

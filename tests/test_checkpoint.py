@@ -120,15 +120,24 @@ def test_state_must_be_a_dict(tmp_path):
 
 # Configs as checkpoints stored them before the budgets owned their integrator and S schedule and
 # the algorithm x budget values lived in conf/algo_budget/ (written by that code, commit 28f1848),
-# each with today's overrides for the same run (ePOET-SAC then had no SAC warm start).
+# each with today's overrides for the same run (ePOET-SAC then had no SAC warm start; the smoke
+# and laptop budgets' S then started at 0.1 m).
 BEFORE_ALGO_BUDGET = Path(__file__).with_name("configs_before_algo_budget.json")
+OLD_START = "budget.max_height=0.1"
 TODAY = {
     "algo=epoet budget=smoke algo.later_reproduce_interval=15": [
         "algo=epoet",
         "budget=smoke",
         "algo.later_adjust_interval=1",
+        OLD_START,
     ],
-    "algo=epoet_sac budget=laptop": ["algo=epoet_sac", "budget=laptop", "algo.sac_init=null"],
+    "algo=epoet budget=laptop": ["algo=epoet", "budget=laptop", OLD_START],
+    "algo=epoet_sac budget=laptop": [
+        "algo=epoet_sac",
+        "budget=laptop",
+        "algo.sac_init=null",
+        OLD_START,
+    ],
 }
 
 
