@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test train gallery tables figures compute paper epoet-sac-starts reference records suite bench bench-learning clean-venv
+.PHONY: install test docs train gallery tables figures compute paper epoet-sac-starts reference records suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -19,12 +19,20 @@ $(STAMP): pyproject.toml constraints.txt
 # tests, which stop every Ray process on the machine, never overlap one another); the longest
 # files first (tests/conftest.py LONGEST_FIRST).
 # Style first (ruff format and import order, then mypy on epoet/, analysis/, pipeline/: the
-# paths and options are pyproject.toml's), so CI checks it too.
+# paths and options are pyproject.toml's), then the documentation's strict build, so CI checks
+# them too.
 test: install
 	$(PY) -m ruff format --check epoet analysis pipeline tests
 	$(PY) -m ruff check epoet analysis pipeline tests
 	$(PY) -m mypy
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --quiet
 	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=10 tests
+
+# The documentation site (mkdocs.yml, pages under docs/) into site/, strictly: a broken link, a
+# missing page or an unknown anchor fails the build. `.venv/bin/mkdocs serve` previews it.
+# (NO_MKDOCS_2_WARNING: Material's notice about MkDocs 2, which pyproject.toml keeps out.)
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict
 
 # The main job (see README): one laptop-scale ePOET run, tracked in ./mlflow.db.
 train: install
@@ -52,7 +60,7 @@ compute: install
 	$(PY) -m pipeline.compute --runs $(RUNS) --out $(RECORDS) $(OVERRIDES)
 
 # Every algorithm x seed at one budget, evaluated on each of SUITES (default: shipped,paper),
-# tabled and plotted; resumable (README). RECORDS=docs/results/<name> also exports the runs'
+# tabled and plotted; resumable (docs/analysis.md). RECORDS=docs/results/<name> also exports the runs'
 # evaluation records there.
 BUDGET ?= laptop
 SEEDS  ?= 1,2,3
@@ -63,8 +71,8 @@ paper: install
 	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(if $(SUITES),--suites $(SUITES)) $(if $(RECORDS),--records $(RECORDS)) $(OVERRIDES)
 
 # ePOET-SAC's three starts (cold, a SAC run of ours, the authors' SAC) x SEEDS at the workstation
-# budget, evaluated on both suites, tabled, records in docs/results/epoet-sac-starts (README
-# "ePOET-SAC"); resumable. SAC_RUN=<run folder | MLflow run id>: the SAC run of ours (default:
+# budget, evaluated on both suites, tabled, records in docs/results/epoet-sac-starts
+# (docs/algorithms/epoet-sac.md); resumable. SAC_RUN=<run folder | MLflow run id>: the SAC run of ours (default:
 # trained first).
 SAC_RUN ?=
 epoet-sac-starts: install
@@ -79,7 +87,7 @@ records: install
 reference: install
 	$(PY) -m pipeline.reference $(if $(RECORDS),--records $(RECORDS))
 
-# Check the shipped evaluation suite against a fresh regeneration (about a minute).
+# Check the shipped evaluation suite against a fresh regeneration (seconds: docs/RESULTS.md).
 suite: install
 	$(PY) -m epoet.eval.suite check=true
 

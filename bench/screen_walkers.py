@@ -28,7 +28,7 @@ from time_to_walker import describe, root_pair_config, time_to_walker  # noqa: E
 
 from epoet.core.compute import default_workers  # noqa: E402
 
-# Why each: README "Walker experiments" keeps the reasoning and the outcome.
+# Why each: docs/benchmarks.md "Walker experiments" keeps the reasoning and the outcome.
 # Each names every setting it changes, whatever the budget's default (budget=workstation has
 # normalised observations since the screen found them; the rows before that ran its defaults).
 CANDIDATES: dict[str, list[str]] = {

@@ -1,0 +1,53 @@
+"""The README stays short and the documentation site's nav names only pages that exist (the
+strict build in `make test`, `make docs`, checks every link and anchor)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+README_MAX_LINES = 250
+
+
+def nav_pages(entries: Any) -> list[str]:
+    """Every page path in a mkdocs nav (a list of pages, `title: page` and `title: [section]`)."""
+    if isinstance(entries, str):
+        return [entries]
+    if isinstance(entries, list):
+        return [page for entry in entries for page in nav_pages(entry)]
+    if isinstance(entries, dict):
+        return [page for value in entries.values() for page in nav_pages(value)]
+    raise AssertionError(f"unexpected nav entry {entries!r}")
+
+
+def test_the_readme_has_at_most_250_lines() -> None:
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines"
+
+
+def test_every_page_in_the_nav_exists() -> None:
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
+    docs = ROOT / config.get("docs_dir", "docs")
+    pages = nav_pages(config["nav"])
+    assert pages, "mkdocs.yml has no nav"
+    missing = [page for page in pages if not (docs / page).is_file()]
+    assert not missing, f"pages in mkdocs.yml's nav that do not exist under {docs}: {missing}"
+    assert len(pages) == len(set(pages)), "a page is listed twice in the nav"
+
+
+def test_every_page_under_docs_is_in_the_nav() -> None:
+    """A page left out of the nav is unreachable from the site's menu; the records under
+    docs/results/ are data, excluded from the build, except their README."""
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
+    docs = ROOT / config.get("docs_dir", "docs")
+    pages = set(nav_pages(config["nav"]))
+    on_disk = {
+        path.relative_to(docs).as_posix()
+        for path in docs.rglob("*.md")
+        if not path.relative_to(docs).as_posix().startswith("results/")
+    }
+    assert on_disk <= pages, f"pages not in mkdocs.yml's nav: {sorted(on_disk - pages)}"
+    assert "results/README.md" in pages
