@@ -1,4 +1,4 @@
-"""`python -m epoet`: the Hydra entry point (see README for the commands)."""
+"""`python -m epoet`: the Hydra entry point; `--help` is conf/hydra/help/epoet.yaml."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from epoet.config import CONF_DIR, run_hydra_app
+from epoet import __version__
+from epoet.cli import run_hydra_app
+from epoet.config import CONF_DIR
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.core.cli import fail
 from epoet.core.lifecycle import Stopped
@@ -40,4 +42,7 @@ def _app(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    if "--version" in sys.argv[1:]:  # Hydra's --version would print Hydra's
+        print(f"epoet {__version__}")
+        sys.exit(0)
     run_hydra_app(_app)

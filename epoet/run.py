@@ -33,6 +33,7 @@ DONE = "DONE"  # written into the run folder when a run finished (holds its MLfl
 # before the key existed resume.)
 RESUMABLE = (
     "resume",
+    "check",
     "workers",
     "tracking",
     "checkpoint_every",
@@ -99,10 +100,10 @@ def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
 def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict[str, str]:
     """The run's MLflow params: the values it runs with (the worker count and store the defaults
     resolve to), without the settings it never reads (`Config.unused_keys`) and without `resume`
-    (where a run continues, not a setting of it)."""
+    and `check` (where a run continues and whether it runs, not settings of it)."""
     from epoet.tracking import flatten
 
-    params = flatten({k: v for k, v in resolved.items() if k != "resume"})
+    params = flatten({k: v for k, v in resolved.items() if k not in ("resume", "check")})
     unused = cfg.unused_keys()
     params = {
         k: v for k, v in params.items() if not any(k == u or k.startswith(f"{u}.") for u in unused)
