@@ -14,6 +14,12 @@
    `results/paper-<budget>/figures/` (the t-SNE and the suite gallery of the first suite);
 4. with `--records <folder>`, exports every evaluated run as evaluation records there
    (`pipeline.records`), so the tables can be rebuilt without the store.
+
+Examples:
+
+    python -m pipeline.paper --budget smoke --seeds 1          # a few minutes, end to end
+    python -m pipeline.paper --budget workstation --seeds 1,2,3 --jobs 2 budget.hours=0.25
+    python -m pipeline.paper --budget laptop --algos epoet,ppo --records docs/results/mine
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from analysis.store import ALGOS, connect, require_runs, run_command, select_run
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
 from epoet.core.compute import default_workers
+from epoet.core.help import HelpParser
 from epoet.eval.evaluate import evaluate_run, evaluation_pool
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import load_suite
@@ -133,10 +140,8 @@ def evaluate_missing(
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.paper", description=__doc__.split("\n")[0]
-    )
-    parser.add_argument("--budget", default="laptop")
+    parser = HelpParser("python -m pipeline.paper", __doc__)
+    parser.add_argument("--budget", default="laptop", help="the budget every job trains at")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
     parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
     parser.add_argument(
@@ -144,19 +149,19 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--suite",
         default=SUITES,
         help="comma-separated suite names (shipped, paper) or folders that every "
-        f"run is evaluated and tabled on (default: {SUITES})",
+        "run is evaluated and tabled on",
     )
     parser.add_argument(
-        "--episodes", type=int, default=None, help="evaluation episodes per terrain (default: 5)"
+        "--episodes", type=int, default=None, help="evaluation episodes per terrain (None: 5)"
     )
     parser.add_argument(
         "--jobs",
         type=int,
         default=1,
-        help="training jobs at a time; each gets cores / jobs workers (default 1)",
+        help="training jobs at a time; each gets cores / jobs workers",
     )
     parser.add_argument(
-        "--out", type=Path, default=None, help="results folder (default: results/paper-<budget>)"
+        "--out", type=Path, default=None, help="results folder (None: results/paper-<budget>)"
     )
     parser.add_argument(
         "--records",

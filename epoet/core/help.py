@@ -111,7 +111,7 @@ class HelpParser(argparse.ArgumentParser):
         found = examples(doc)
         super().__init__(
             prog=prog,
-            description=summary(doc),
+            description=textwrap.fill(summary(doc), WIDTH, break_on_hyphens=False),
             epilog="examples:\n" + "\n".join(f"  {line}" for line in found) if found else None,
             formatter_class=_Formatter,
         )
