@@ -16,6 +16,7 @@ from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.core.cli import fail
 from epoet.core.lifecycle import Stopped
 from epoet.core.schema import ConfigError
+from epoet.preflight import remove_refused
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
@@ -28,8 +29,11 @@ def _app(cfg: DictConfig) -> None:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         run(cfg, run_dir)
-    except (ConfigError, TrackingError, CheckpointError, EvaluationError) as err:
+    except (ConfigError, TrackingError, CheckpointError) as err:
+        remove_refused(run_dir)  # the folder Hydra made for it, if new and only Hydra's
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
+    except EvaluationError as err:  # the run trained: its folder holds it
+        fail(err)
     except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
         fail(err)
     except Stopped as stop:  # SIGINT / SIGTERM: the checkpoint is written

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from hydra import initialize_config_dir
+from hydra._internal.utils import get_args_parser  # Hydra's flag parser (hydra.main's)
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
@@ -81,6 +82,11 @@ def run_hydra_app(app: Callable[[], None]) -> None:
     register_configs()
     OmegaConf.register_new_resolver("epoet_run_options", run_options, replace=True)
     os.environ["HYDRA_FULL_ERROR"] = "1"  # make Hydra re-raise instead of printing its report
+    # Hydra's own flags are read by its argparse parser, whose errors print a usage block: the
+    # same parser reads them first here, with a one-line error (Hydra then reads them again).
+    flags = get_args_parser()
+    flags.error = lambda message: fail(ConfigError(f"{message} (see --help)"))  # type: ignore[method-assign]
+    flags.parse_args(sys.argv[1:])
     try:
         app()
     except (HydraException, OmegaConfBaseException) as err:

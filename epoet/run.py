@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, cast
 
@@ -130,20 +131,29 @@ def check_inputs(cfg: Config) -> None:
         check(cfg)
 
 
-def run(raw: DictConfig, run_dir: Path) -> Any:
-    """Train the configured algorithm; returns the runner's final state (None when
-    `resume=auto` finds the run folder already finished)."""
+@dataclass(frozen=True)
+class Prepared:
+    """A run that passed every check a run makes before any work: its validated config and the
+    checkpoint it continues (`resume`: its state, from `resume_path`), if any."""
+
+    cfg: Config
+    resume: dict[str, Any] | None = None
+    resume_path: Path | None = None
+
+
+def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
+    """Validate a run as it would start in `run_dir`: the config's ranges and combinations,
+    the checkpoint to resume (its algorithm and config), a Ray address, the algorithm's inputs.
+    Raises ConfigError / CheckpointError in one sentence; None: `resume=auto` finds `run_dir`
+    finished (DONE). Writes nothing, so `check=true` calls it too."""
     cfg: Config = validate(raw)
     resume = None
     resume_from: str | Path | None = cfg.resume
+    path = None
     if resume_from == AUTO:
         # `make paper` calls the same sweep again after an interruption: finished jobs are
         # skipped, interrupted ones continue from their checkpoint, the rest start.
         if (run_dir / DONE).is_file():
-            print(
-                f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped",
-                flush=True,
-            )
             return None
         resume_from = run_dir if (run_dir / CHECKPOINT_NAME).is_file() else None
     if resume_from:
@@ -167,6 +177,43 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         check_address(cfg.workers.address)
     if resume is None:
         check_inputs(cfg)
+    return Prepared(cfg, resume, path)
+
+
+def check(raw: DictConfig, run_dir: Path) -> str:
+    """`check=true`: the checks of `prepare` and of the tracking store, and the one line that
+    says what the run would do; nothing is written (no folder, no MLflow run or store)."""
+    from epoet.tracking import check_store
+
+    prepared = prepare(raw, run_dir)
+    cfg: Config = prepared.cfg if prepared else validate(raw)
+    uri = check_store(cfg.tracking.uri)
+    what = (
+        f"{run_dir} already finished: a run would skip it"
+        if prepared is None
+        else f"would resume {prepared.resume_path}"
+        if prepared.resume_path
+        else f"would start a new run in {run_dir}"
+    )
+    return (
+        f"[epoet] config OK: algo={cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
+        f"terrain={cfg.terrain.kind} workers={cfg.workers.backend}; {what}, tracked in {uri} "
+        f"(experiment {cfg.tracking.experiment})"
+    )
+
+
+def run(raw: DictConfig, run_dir: Path) -> Any:
+    """Train the configured algorithm; returns the runner's final state (None when
+    `resume=auto` finds the run folder already finished)."""
+    prepared = prepare(raw, run_dir)
+    if prepared is None:
+        cfg: Config = validate(raw)
+        print(
+            f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped",
+            flush=True,
+        )
+        return None
+    cfg, resume = prepared.cfg, prepared.resume
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
 
