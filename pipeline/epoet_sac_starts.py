@@ -42,7 +42,7 @@ from analysis.tables import make_tables
 from epoet.core.help import HelpParser
 from epoet.eval.agents import resolve_run
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME, suite_metric
-from pipeline.paper import evaluate_missing
+from pipeline.paper import check_jobs, check_suites, evaluate_missing
 from pipeline.paper import train_command as paper_train_command
 from pipeline.records import export
 
@@ -198,6 +198,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     sac_run = args.sac_run
+    check_suites([s for s in args.suites.split(",") if s])
+    # every job before any training (without --sac-run, `ours` is checked as the cold start)
+    check_jobs(
+        [["algo=sac", "budget=workstation", *args.overrides]]
+        + [
+            ["algo=epoet_sac", "budget=workstation", f"algo.sac_init={init}", *args.overrides]
+            for init in starts(sac_run or "null").values()
+        ]
+    )
     if sac_run is None:
         sac = sac_command(args.overrides)
         print(f"[{NAME}] the SAC run of ours: {' '.join(sac[1:])}", flush=True)

@@ -99,7 +99,13 @@ def page(usage: str, doc: str | None, sections: Sequence[tuple[str, str]]) -> st
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    """The epilog (examples) keeps its lines; every option's help ends with its default."""
+    """The epilog (examples) keeps its lines; every option's help ends with its default (a
+    required option's says so instead)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.required and action.option_strings:
+            return f"{action.help} (required)"
+        return super()._get_help_string(action)
 
 
 class HelpParser(argparse.ArgumentParser):
