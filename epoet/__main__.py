@@ -23,16 +23,18 @@ from epoet.preflight import remove_refused
 def _app(cfg: DictConfig) -> None:
     # Imported here, after Hydra composed the config: mlflow is a slow import, which a
     # composition error (a typo in an override) should not wait for.
-    from epoet.run import EvaluationError, run
+    from epoet.run import EvaluationError, prepare, run
     from epoet.tracking import TrackingError
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        run(cfg, run_dir)
-    except (ConfigError, TrackingError, CheckpointError) as err:
+        prepared = prepare(cfg, run_dir)
+    except (ConfigError, TrackingError, CheckpointError) as err:  # refused: nothing has run
         remove_refused(run_dir)  # the folder Hydra made for it, if new and only Hydra's
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
-    except EvaluationError as err:  # the run trained: its folder holds it
+    try:
+        run(cfg, run_dir, prepared)
+    except (ConfigError, TrackingError, CheckpointError, EvaluationError) as err:
         fail(err)
     except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
         fail(err)

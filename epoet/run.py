@@ -144,8 +144,9 @@ class Prepared:
 def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
     """Validate a run as it would start in `run_dir`: the config's ranges and combinations,
     the checkpoint to resume (its algorithm and config), a Ray address, the algorithm's inputs.
-    Raises ConfigError / CheckpointError in one sentence; None: `resume=auto` finds `run_dir`
-    finished (DONE). Writes nothing, so `check=true` calls it too."""
+    and, last (it imports mlflow), the tracking store. Raises ConfigError, CheckpointError or
+    TrackingError in one sentence; None: `resume=auto` finds `run_dir` finished (DONE). Writes
+    nothing (a new sqlite store is not made yet), so `check=true` calls it too."""
     cfg: Config = validate(raw)
     resume = None
     resume_from: str | Path | None = cfg.resume
@@ -177,6 +178,9 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
         check_address(cfg.workers.address)
     if resume is None:
         check_inputs(cfg)
+    from epoet.tracking import check_store
+
+    check_store(cfg.tracking.uri)
     return Prepared(cfg, resume, path)
 
 
@@ -187,7 +191,7 @@ def check(raw: DictConfig, run_dir: Path) -> str:
 
     prepared = prepare(raw, run_dir)
     cfg: Config = prepared.cfg if prepared else validate(raw)
-    uri = check_store(cfg.tracking.uri)
+    uri = check_store(cfg.tracking.uri)  # prepare checked it, unless the run is DONE
     what = (
         f"{run_dir} already finished: a run would skip it"
         if prepared is None
@@ -202,10 +206,11 @@ def check(raw: DictConfig, run_dir: Path) -> str:
     )
 
 
-def run(raw: DictConfig, run_dir: Path) -> Any:
-    """Train the configured algorithm; returns the runner's final state (None when
-    `resume=auto` finds the run folder already finished)."""
-    prepared = prepare(raw, run_dir)
+def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any:
+    """Train the configured algorithm (`prepared`: what `prepare` gave for it, if called
+    already); returns the runner's final state (None when `resume=auto` finds the run folder
+    already finished)."""
+    prepared = prepared or prepare(raw, run_dir)
     if prepared is None:
         cfg: Config = validate(raw)
         print(
