@@ -133,3 +133,8 @@ def test_the_run_help_lists_only_what_a_user_chooses(helps):
     assert "algo=epoet|epoet_sac|ppo|sac|vmpo" in text
     assert "budget=laptop|paper|smoke|workstation" in text
     assert "check=" in text and "python -m epoet check=true" in text
+
+
+def test_evaluate_says_it_writes_into_the_working_directory(helps):
+    text = helps[("epoet.eval.evaluate", "--help")].stdout
+    assert "./evaluation/<run>/<suite> in the working directory" in " ".join(text.split())
