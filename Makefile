@@ -42,6 +42,9 @@ train: install
 # default: the runs' default, tracking.experiment; SUITE: the suite whose evaluations they read,
 # a name (shipped, paper) or a folder; default: shipped). RECORDS=docs/results/<name>: the tables
 # from those evaluation records instead of the store (python -m pipeline.records writes them).
+# Both write to results/<input>/<suite>/, <input> being the experiment or the records folder's
+# name (e.g. results/epoet/shipped/table1_shipped.md, results/workstation/paper/iqm_paper.png),
+# so two inputs never overwrite each other's files.
 EXPERIMENT ?=
 SUITE ?=
 RECORDS ?=

@@ -1,7 +1,5 @@
 """Learning curves in the style of the paper's Figure 2, read from the MLflow store.
 
-    python -m analysis.curves [--experiment epoet] [--out figures] [--run RUN_ID ...]
-
 Writes to `--out`:
 - `epoet_curves.png` / `.csv`: each ePOET run's mean ES training return per iteration, one curve
   per environment-agent pair (metric `pair<N>/return_mean`, step = iteration), one panel per run.
@@ -15,6 +13,12 @@ parent run has none and is skipped); `--run` picks runs by id instead, whatever 
 The CSV files hold exactly the plotted points, so the figures can be redrawn or tabulated
 elsewhere. The store is epoet's (`sqlite:///<project root>/mlflow.db`); MLFLOW_TRACKING_URI
 overrides it.
+
+Examples:
+
+    python -m analysis.curves
+    python -m analysis.curves --experiment paper-laptop --out figures/laptop
+    python -m analysis.curves --run <run id> <run id>
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ from analysis.store import (  # noqa: E402
     select_runs,
 )
 from analysis.store import seed_of as _seed  # noqa: E402
+from epoet.core.help import HelpParser
 
 EPOET_ALGOS = ("epoet",)
 PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
@@ -177,22 +182,18 @@ def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path, source: s
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m analysis.curves",
-        description="Learning curves (paper Figure 2 style) of ePOET and baseline runs from "
-        "the MLflow store (MLFLOW_TRACKING_URI overrides the project's mlflow.db).",
-    )
+    parser = HelpParser("python -m analysis.curves", __doc__)
     parser.add_argument(
         "--experiment",
         default=default_experiment(),
-        help="MLflow experiment whose FINISHED runs are plotted (default: the "
-        "runs' default, tracking.experiment)",
+        help="MLflow experiment whose FINISHED runs are plotted (the runs' default, "
+        "tracking.experiment)",
     )
     parser.add_argument(
         "--out",
         type=Path,
         default=Path("figures"),
-        help="folder for the PNG and CSV files (default: figures)",
+        help="folder for the PNG and CSV files",
     )
     parser.add_argument(
         "--run",

@@ -1,8 +1,8 @@
 """The paper's figures from the MLflow store (`make figures`).
 
-    python -m analysis.figures [--experiment epoet] [--out results/figures] [--suite NAME | FOLDER]
-
-Writes to `--out` (each figure with the CSV of exactly its plotted points):
+Writes into a folder of its input and suite, `<--out>/<input>/<suite name>/` (input: the
+experiment, or `runs-<hash>` for `--run`; the tables of the same input go there too), each
+figure with the CSV of exactly its plotted points:
 - `learning_curves.png`: every algorithm's `score` (ePOET: the best active pair's evaluation
   score; baselines: the evaluation return), mean +- std over seeds, against environment steps
   and against training time (Figure 2a). Seeds are put on a common grid by linear
@@ -16,11 +16,16 @@ Writes to `--out` (each figure with the CSV of exactly its plotted points):
   `make paper` evaluates its runs).
 - `suite_gallery.png`: the evaluation suite by level, as 3D surfaces (Figure 3).
 - `admitted_<run>.png`: the terrains a ePOET-family run admitted, in admission order (Figure 4).
+
+Examples:
+
+    python -m analysis.figures                         # results/epoet/shipped/
+    python -m analysis.figures --suite paper
+    python -m analysis.figures --experiment reference --suite paper --out /tmp/figures
 """
 
 from __future__ import annotations
 
-import argparse
 import re
 import tempfile
 from collections.abc import Sequence
@@ -47,11 +52,13 @@ from analysis.store import (  # noqa: E402
     evaluation_on,
     history,
     in_order,
+    output_folder,
     require_runs,
     run_command,
     seed_of,
     select_runs,
 )
+from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import suite_argument  # noqa: E402
 from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
@@ -362,12 +369,17 @@ def write_figures(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m analysis.figures", description="The paper's figures from the MLflow store."
-    )
-    add_store_arguments(parser, Path("results/figures"))
+    parser = HelpParser("python -m analysis.figures", __doc__)
+    add_store_arguments(parser, Path("results"))
     args = parser.parse_args(argv)
-    return run_command(lambda: write_figures(args.experiment, args.out, args.suite, args.run))
+    return run_command(
+        lambda: write_figures(
+            args.experiment,
+            output_folder(args.out, args.suite, args.experiment, args.run),
+            args.suite,
+            args.run,
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -28,7 +28,10 @@ Per suite, from the episodes of every run (`analysis.tables.episodes_of` or the 
   Y in table order (ppo, sac, vmpo, epoet, epoet_sac), so each reads as the paper's claim
   (ePOET-SAC > ePOET, ePOET > SAC, SAC > PPO); P(Y > X) = 1 - P(X > Y).
 
-Every bootstrap uses a fixed seed (`SEED`), so the intervals are the same on every call. The
+An interval is a function of the runs it summarises only: each bootstrap draws from a generator
+seeded by `SEED` and a hash of its own scores (`stable_seed`; the runs in a canonical order,
+`canonical`), never from one stream shared with the other algorithms, so the same runs give
+the same interval whichever other runs share their folder or store, in whatever order. The
 point estimates come from rliable's own functions; inside the bootstrap the probability of
 improvement uses `poi`, the same number vectorised (rliable's calls scipy once per terrain,
 ~25 ms per resample; tests/test_stats.py checks the two agree).
@@ -38,6 +41,7 @@ analysis/stats_report.py writes these numbers as tables and figures.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -50,7 +54,7 @@ import pandas as pd
 from analysis.store import in_order
 
 REPS = 2000  # bootstrap resamples per interval
-SEED = 0  # the bootstraps' seed: reproducible intervals
+SEED = 0  # with the scores, seeds each bootstrap (stable_seed): reproducible intervals
 CONFIDENCE = 0.95
 METRICS = {"success": "solved", "return": "return"}  # score -> episodes.csv column
 LABELS = {"success": "success rate (%)", "return": "return"}
@@ -123,6 +127,22 @@ def score_matrices(episodes: pd.DataFrame, score: str) -> dict[str, np.ndarray]:
     return matrices
 
 
+def canonical(matrix: np.ndarray) -> np.ndarray:
+    """The (runs, terrains) matrix with its runs (rows) sorted, so a bootstrap sees the same
+    matrix whatever order the runs were read in."""
+    return matrix[np.lexsort(matrix.T[::-1])] if matrix.size else matrix
+
+
+def stable_seed(seed: int, *matrices: np.ndarray) -> int:
+    """A bootstrap's seed from `seed` and the scores it resamples only (sha256: the same on
+    every machine and Python, unlike `hash`)."""
+    digest = hashlib.sha256(str(seed).encode())
+    for matrix in matrices:
+        digest.update(str(matrix.shape).encode())
+        digest.update(np.ascontiguousarray(matrix, dtype=np.float64).tobytes())
+    return int.from_bytes(digest.digest()[:4], "little")
+
+
 def iqm(scores: np.ndarray) -> np.ndarray:
     return np.array([rliable()[1].aggregate_iqm(scores)])
 
@@ -155,12 +175,16 @@ def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.
     and score, the IQM of its score matrix with its 95 % stratified-bootstrap interval."""
     rows = []
     for score in METRICS:
-        matrices = score_matrices(episodes, score)
-        with seeded(seed):
-            points, intervals = rliable()[0].get_interval_estimates(
-                matrices, iqm, task_bootstrap=True, reps=reps, confidence_interval_size=CONFIDENCE
-            )
-        for algo, matrix in matrices.items():
+        for algo, matrix in score_matrices(episodes, score).items():
+            matrix = canonical(matrix)
+            with seeded(stable_seed(seed, matrix)):  # this algorithm's runs alone
+                points, intervals = rliable()[0].get_interval_estimates(
+                    {algo: matrix},
+                    iqm,
+                    task_bootstrap=True,
+                    reps=reps,
+                    confidence_interval_size=CONFIDENCE,
+                )
             rows.append(
                 {
                     "algo": algo,
@@ -198,8 +222,9 @@ def poi_interval(
     x: np.ndarray, y: np.ndarray, reps: int = REPS, seed: int = SEED
 ) -> tuple[float, float, float]:
     """P(X > Y) (rliable's) and its 95 % interval over runs and terrains."""
+    x, y = canonical(x), canonical(y)
     point = float(rliable()[1].probability_of_improvement(x, y))
-    with seeded(seed):
+    with seeded(stable_seed(seed, x, y)):
         low, high = _pair_bootstrap()(x, y).conf_int(
             _poi_array, reps=reps, size=CONFIDENCE, method="percentile"
         )

@@ -59,7 +59,8 @@ def notes(iqm_rows: pd.DataFrame, reps: int, seed: int) -> list[str]:
     lines = [
         f"IQM: interquartile mean over runs x {terrains} terrains (each entry a run's mean "
         f"over its episodes on one terrain); 95 % CI: percentile stratified bootstrap over "
-        f"runs (within each terrain) and terrains, {reps} resamples, seed {seed} "
+        f"runs (within each terrain) and terrains, {reps} resamples, seeded by {seed} and "
+        f"each interval's own scores "
         f"(rliable, Agarwal et al. 2021; analysis/stats.py)."
     ]
     single = in_order(iqm_rows[iqm_rows.runs == 1].algo)

@@ -7,6 +7,7 @@ An analysis never writes training data: a missing store is an error, not a new e
 from __future__ import annotations
 
 import argparse
+import hashlib
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -19,8 +20,8 @@ from omegaconf import OmegaConf
 from epoet.config import CONF_DIR
 from epoet.core.errors import first_line
 from epoet.eval.agents import AgentError
-from epoet.eval.keys import Logged, logged_evaluation
-from epoet.eval.suite import Suite, SuiteError
+from epoet.eval.keys import SHIPPED_NAME, Logged, logged_evaluation
+from epoet.eval.suite import Suite, SuiteError, load_suite
 from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path
 
 ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")  # table and legend order
@@ -42,19 +43,24 @@ def default_experiment() -> str:
 
 def add_store_arguments(parser: argparse.ArgumentParser, out: Path) -> None:
     """The options of every command that reads runs from the store: which experiment (or which
-    runs), which suite's evaluations, and the output folder."""
+    runs), which suite's evaluations, and the output root (`output_folder` names the rest)."""
     parser.add_argument(
         "--experiment",
         default=default_experiment(),
-        help="MLflow experiment whose FINISHED runs are read (default: the runs' default, "
+        help="MLflow experiment whose FINISHED runs are read (the runs' default, "
         "tracking.experiment)",
     )
-    parser.add_argument("--out", type=Path, default=out, help=f"output folder (default: {out})")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=out,
+        help="output root: files go to OUT/<input>/<suite>/, <input> being the experiment, "
+        "the records folder's name or runs-<id hash> for --run",
+    )
     parser.add_argument(
         "--suite",
-        default=None,
-        help="suite name (shipped, paper) or suite folder whose evaluations are read "
-        "(default: shipped)",
+        default=SHIPPED_NAME,
+        help="suite name (shipped, paper) or suite folder whose evaluations are read",
     )
     parser.add_argument(
         "--run",
@@ -63,6 +69,21 @@ def add_store_arguments(parser: argparse.ArgumentParser, out: Path) -> None:
         metavar="RUN_ID",
         help="read these runs instead of the experiment's",
     )
+
+
+def output_folder(
+    out: Path, suite: str, experiment: str, run_ids: Sequence[str] = (), records: Path | None = None
+) -> Path:
+    """`out/<input>/<suite name>/`: a folder of its own for each input (the records folder's
+    name, the chosen runs or the experiment) and suite, so that tables and figures of one input
+    never overwrite another's."""
+    if records is not None:
+        source = records.resolve().name
+    elif run_ids:
+        source = f"runs-{hashlib.sha1(' '.join(sorted(run_ids)).encode()).hexdigest()[:8]}"
+    else:
+        source = experiment
+    return out / source / load_suite(suite).name
 
 
 def in_order(present: Iterable[str], order: Sequence[str] = ALGOS) -> list[str]:

@@ -1,8 +1,6 @@
 """The paper's Tables 1 and 2, and statistics that can separate algorithms, from the evaluations
 in the MLflow store or in evaluation records (`make tables`).
 
-    python -m analysis.tables [--experiment epoet] [--out results] [--suite NAME | FOLDER]
-    python -m analysis.tables --records docs/results/<name> [--out results] [--suite ...]
 
 - Table 1: success rate per difficulty level (and in total) per algorithm: each run's rate over
   its suite episodes, then mean +- sample std over the algorithm's runs (seeds).
@@ -16,7 +14,9 @@ in the MLflow store or in evaluation records (`make tables`).
   `analysis/stats.py` says exactly what each of these numbers is.
 
 The tables are of one suite (`--suite`: "shipped", the default, "paper" or a suite folder; its
-name is in their titles), each written as Markdown, LaTeX and CSV under `--out`, named per suite
+name is in their titles), each written as Markdown, LaTeX and CSV into a folder of their input and
+suite, `<--out>/<input>/<suite name>/` (input: the experiment, the records folder's name, or
+`runs-<hash>` for `--run`; so two inputs never overwrite each other), named per suite
 (`table1_<suite name>.md`, ..., `iqm_<suite name>.{md,tex,csv,png}`,
 `poi_<suite name>.{md,tex,csv,png}`), and printed. The numbers come from each run's
 `evaluation/<suite name>/episodes.csv` artifact (a run logged before evaluations were keyed by
@@ -26,6 +26,12 @@ records without an evaluation on the suite are named and left out). The tables o
 store: a FINISHED run without an evaluation on the suite (its `eval_suite/<suite name>` tag is
 not the suite's fingerprint) is an error that names the command evaluating it
 (pipeline/paper.py evaluates for `make paper`).
+
+Examples:
+
+    python -m analysis.tables                         # results/epoet/shipped/
+    python -m analysis.tables --records docs/results/workstation --suite paper
+    python -m analysis.tables --experiment reference --suite paper --out /tmp/tables
 """
 
 from __future__ import annotations
@@ -47,12 +53,14 @@ from analysis.store import (
     connect,
     evaluation_of,
     in_order,
+    output_folder,
     require_runs,
     run_command,
     seed_of,
     select_runs,
     unevaluated,
 )
+from epoet.core.help import HelpParser
 from epoet.eval.keys import SHIPPED_NAME
 from epoet.eval.suite import LEVELS, Suite, load_suite
 from epoet.tracking import StoredRun
@@ -241,11 +249,7 @@ def tables_from_records(records: Path, out: Path, suite: str | None = None) -> l
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m analysis.tables",
-        description="Success-rate and return tables (paper Tables 1-2), IQM and probability of "
-        "improvement from the evaluations in the MLflow store or in records.",
-    )
+    parser = HelpParser("python -m analysis.tables", __doc__)
     add_store_arguments(parser, Path("results"))
     parser.add_argument(
         "--records",
@@ -261,9 +265,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI entry; bad input gives one sentence on stderr and exit code 2."""
     args = parse_args(argv)
-    if args.records is not None:
-        return run_command(lambda: tables_from_records(args.records, args.out, args.suite))
-    return run_command(lambda: make_tables(args.experiment, args.out, args.suite, args.run))
+
+    def tables() -> list[Path]:
+        out = output_folder(args.out, args.suite, args.experiment, args.run, args.records)
+        if args.records is not None:
+            return tables_from_records(args.records, out, args.suite)
+        return make_tables(args.experiment, out, args.suite, args.run)
+
+    return run_command(tables)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""`python -m epoet`: the Hydra entry point (see README for the commands)."""
+"""`python -m epoet`: the Hydra entry point; `--help` is conf/hydra/help/epoet.yaml."""
 
 from __future__ import annotations
 
@@ -9,25 +9,33 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from epoet.config import CONF_DIR, run_hydra_app
+from epoet import __version__
+from epoet.cli import run_hydra_app
+from epoet.config import CONF_DIR
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.core.cli import fail
 from epoet.core.lifecycle import Stopped
 from epoet.core.schema import ConfigError
+from epoet.preflight import remove_refused
 
 
 @hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def _app(cfg: DictConfig) -> None:
     # Imported here, after Hydra composed the config: mlflow is a slow import, which a
     # composition error (a typo in an override) should not wait for.
-    from epoet.run import EvaluationError, run
+    from epoet.run import EvaluationError, prepare, run
     from epoet.tracking import TrackingError
 
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        run(cfg, run_dir)
-    except (ConfigError, TrackingError, CheckpointError, EvaluationError) as err:
+        prepared = prepare(cfg, run_dir)
+    except (ConfigError, TrackingError, CheckpointError) as err:  # refused: nothing has run
+        remove_refused(run_dir)  # the folder Hydra made for it, if new and only Hydra's
         fail(err)  # bad input: one line, exit 2, nothing written or overwritten
+    try:
+        run(cfg, run_dir, prepared)
+    except (ConfigError, TrackingError, CheckpointError, EvaluationError) as err:
+        fail(err)
     except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
         fail(err)
     except Stopped as stop:  # SIGINT / SIGTERM: the checkpoint is written
@@ -40,4 +48,7 @@ def _app(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    if "--version" in sys.argv[1:]:  # Hydra's --version would print Hydra's
+        print(f"epoet {__version__}")
+        sys.exit(0)
     run_hydra_app(_app)

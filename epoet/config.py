@@ -12,22 +12,18 @@ which runs each `__post_init__` range check before any work starts; every failur
 from __future__ import annotations
 
 import importlib.util
-import os
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Optional, cast
+from typing import Any, ClassVar, Optional, cast
 
 from hydra import compose as hydra_compose
 from hydra import initialize_config_dir
 from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
-from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from epoet.core.cli import fail
 from epoet.core.schema import ConfigError, check, positive
 from epoet.envs.config import AgentConfig
 from epoet.epoet_sac.config import EpoetSacConfig
@@ -146,19 +142,21 @@ class Config:
 
     KEY: ClassVar[str] = ""
 
-    algo: Any  # one of ALGO_SCHEMAS (its YAML names its schema and runner)
-    agent: AgentConfig
-    terrain: TerrainConfig
-    budget: BudgetConfig  # the algorithm's YAML picks its family's (its compute's unit)
-    workers: WorkersConfig
-    tracking: TrackingConfig
-    seed: int
+    # Each field's comment is its line in `python -m epoet --help` (conf/hydra/help/epoet.yaml).
+    algo: Any  # the algorithm trained (its YAML names its schema and its runner)
+    agent: AgentConfig  # the robot and its task: reward, episode rules, physics
+    terrain: TerrainConfig  # the ground; each algorithm picks its own (ePOET: cppn)
+    budget: BudgetConfig  # how much compute: episode length, iterations or frames, hours
+    workers: WorkersConfig  # where ES rollouts run: local processes or a Ray cluster
+    tracking: TrackingConfig  # the MLflow store and experiment a run logs to
+    seed: int  # seeds everything the run draws
     checkpoint_every: int  # ES iterations, or collector batches (baselines), per checkpoint
     snapshot_cpu_minutes: list[float]  # CPU minutes of training at which the agents are saved
     agent_choice: str  # best | final: which parameters of each pair a run exports
-    evaluate: bool  # evaluate the exported agent on the suite at the end
-    resume: Optional[str]  # a run folder or checkpoint file to continue; "auto": this
-    # job's own folder if it has a checkpoint (run.py)
+    evaluate: bool  # evaluate the exported agent on the shipped suite at the end
+    resume: Optional[str]  # a run folder or checkpoint file to continue; auto: this
+    # job's own folder if it has a checkpoint
+    check: bool  # validate the config as the run would, print one line, run nothing
 
     def __post_init__(self) -> None:
         check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")
@@ -197,16 +195,22 @@ ALGO_SCHEMAS: dict[str, type] = {
     "vmpo": VmpoConfig,
 }
 
+# conf/<name>.yaml -> the schema of `python -m epoet.eval.<name>` (epoet.cli.KeyValueCommand)
+COMMAND_SCHEMAS: dict[str, type] = {
+    "gallery": GalleryConfig,
+    "suite": SuiteConfig,
+    "evaluate": EvaluateConfig,
+    "render": RenderConfig,
+    "reference": ReferenceConfig,
+}
+
 
 def register_configs() -> None:
     """Make each dataclass the schema of its YAML file (type checks at composition)."""
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
-    cs.store(name="gallery_schema", node=GalleryConfig)
-    cs.store(name="suite_schema", node=SuiteConfig)
-    cs.store(name="evaluate_schema", node=EvaluateConfig)
-    cs.store(name="render_schema", node=RenderConfig)
-    cs.store(name="reference_schema", node=ReferenceConfig)
+    for name, schema in COMMAND_SCHEMAS.items():
+        cs.store(name=f"{name}_schema", node=schema)
     cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
@@ -219,19 +223,6 @@ def register_configs() -> None:
 
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
-
-
-def run_hydra_app(app: Callable[[], None]) -> None:
-    """Run a @hydra.main app with the schemas registered, so composition errors become one line
-    (`epoet.core.cli.fail`) instead of Hydra's report."""
-    register_configs()
-    os.environ["HYDRA_FULL_ERROR"] = "1"  # make Hydra re-raise instead of printing its report
-    try:
-        app()
-    except (HydraException, OmegaConfBaseException) as err:
-        fail(err)
-    except OSError as err:  # e.g. an output folder that cannot be written (Hydra makes it)
-        fail(err)
 
 
 def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:

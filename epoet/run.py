@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, cast
 
@@ -33,6 +34,7 @@ DONE = "DONE"  # written into the run folder when a run finished (holds its MLfl
 # before the key existed resume.)
 RESUMABLE = (
     "resume",
+    "check",
     "workers",
     "tracking",
     "checkpoint_every",
@@ -104,10 +106,10 @@ def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
 def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict[str, str]:
     """The run's MLflow params: the values it runs with (the worker count and store the defaults
     resolve to), without the settings it never reads (`Config.unused_keys`) and without `resume`
-    (where a run continues, not a setting of it)."""
+    and `check` (where a run continues and whether it runs, not settings of it)."""
     from epoet.tracking import flatten
 
-    params = flatten({k: v for k, v in resolved.items() if k != "resume"})
+    params = flatten({k: v for k, v in resolved.items() if k not in ("resume", "check")})
     unused = cfg.unused_keys()
     params = {
         k: v for k, v in params.items() if not any(k == u or k.startswith(f"{u}.") for u in unused)
@@ -134,20 +136,30 @@ def check_inputs(cfg: Config) -> None:
         check(cfg)
 
 
-def run(raw: DictConfig, run_dir: Path) -> Any:
-    """Train the configured algorithm; returns the runner's final state (None when
-    `resume=auto` finds the run folder already finished)."""
+@dataclass(frozen=True)
+class Prepared:
+    """A run that passed every check a run makes before any work: its validated config and the
+    checkpoint it continues (`resume`: its state, from `resume_path`), if any."""
+
+    cfg: Config
+    resume: dict[str, Any] | None = None
+    resume_path: Path | None = None
+
+
+def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
+    """Validate a run as it would start in `run_dir`: the config's ranges and combinations,
+    the checkpoint to resume (its algorithm and config), a Ray address, the algorithm's inputs.
+    and, last (it imports mlflow), the tracking store. Raises ConfigError, CheckpointError or
+    TrackingError in one sentence; None: `resume=auto` finds `run_dir` finished (DONE). Writes
+    nothing (a new sqlite store is not made yet), so `check=true` calls it too."""
     cfg: Config = validate(raw)
     resume = None
     resume_from: str | Path | None = cfg.resume
+    path = None
     if resume_from == AUTO:
         # `make paper` calls the same sweep again after an interruption: finished jobs are
         # skipped, interrupted ones continue from their checkpoint, the rest start.
         if (run_dir / DONE).is_file():
-            print(
-                f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped",
-                flush=True,
-            )
             return None
         resume_from = run_dir if (run_dir / CHECKPOINT_NAME).is_file() else None
     if resume_from:
@@ -171,6 +183,47 @@ def run(raw: DictConfig, run_dir: Path) -> Any:
         check_address(cfg.workers.address)
     if resume is None:
         check_inputs(cfg)
+    from epoet.tracking import check_store
+
+    check_store(cfg.tracking.uri)
+    return Prepared(cfg, resume, path)
+
+
+def check(raw: DictConfig, run_dir: Path) -> str:
+    """`check=true`: the checks of `prepare` and of the tracking store, and the one line that
+    says what the run would do; nothing is written (no folder, no MLflow run or store)."""
+    from epoet.tracking import check_store
+
+    prepared = prepare(raw, run_dir)
+    cfg: Config = prepared.cfg if prepared else validate(raw)
+    uri = check_store(cfg.tracking.uri)  # prepare checked it, unless the run is DONE
+    what = (
+        f"{run_dir} already finished: a run would skip it"
+        if prepared is None
+        else f"would resume {prepared.resume_path}"
+        if prepared.resume_path
+        else f"would start a new run in {run_dir}"
+    )
+    return (
+        f"[epoet] config OK: algo={cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} "
+        f"terrain={cfg.terrain.kind} workers={cfg.workers.backend}; {what}, tracked in {uri} "
+        f"(experiment {cfg.tracking.experiment})"
+    )
+
+
+def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any:
+    """Train the configured algorithm (`prepared`: what `prepare` gave for it, if called
+    already); returns the runner's final state (None when `resume=auto` finds the run folder
+    already finished)."""
+    prepared = prepared or prepare(raw, run_dir)
+    if prepared is None:
+        cfg: Config = validate(raw)
+        print(
+            f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped",
+            flush=True,
+        )
+        return None
+    cfg, resume = prepared.cfg, prepared.resume
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
 

@@ -21,6 +21,12 @@ SAC baseline trained here first, `algo=sac budget=workstation seed=1` into
 
 Overrides after the options go to every ePOET-SAC job and to the SAC run trained for `ours`
 (e.g. `budget.hours=0.25 workers.num=1`).
+
+Examples:
+
+    python -m pipeline.epoet_sac_starts --seeds 1
+    python -m pipeline.epoet_sac_starts --sac-run multirun/epoet-sac-starts/sac_s1 --jobs 2
+    python -m pipeline.epoet_sac_starts --seeds 1,2 budget.hours=0.1 workers.num=1
 """
 
 from __future__ import annotations
@@ -33,9 +39,10 @@ from pathlib import Path
 
 from analysis.store import connect, history, run_command, seed_of, select_runs
 from analysis.tables import make_tables
+from epoet.core.help import HelpParser
 from epoet.eval.agents import resolve_run
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME, suite_metric
-from pipeline.paper import evaluate_missing
+from pipeline.paper import check_jobs, check_suites, evaluate_missing
 from pipeline.paper import train_command as paper_train_command
 from pipeline.records import export
 
@@ -158,21 +165,32 @@ def sac_note(sac_run: str) -> str:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.epoet_sac_starts", description=__doc__.split("\n")[0]
-    )
+    parser = HelpParser("python -m pipeline.epoet_sac_starts", __doc__)
     parser.add_argument(
         "--sac-run",
         default=None,
         help="the SAC run the `ours` start loads (run folder or MLflow run id; "
-        f"default: train one into {SAC_RUN})",
+        f"None: train one into {SAC_RUN})",
     )
-    parser.add_argument("--seeds", default="1,2,3")
+    parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds of each start")
     parser.add_argument("--jobs", type=int, default=1, help="training jobs at a time")
-    parser.add_argument("--suites", default=f"{SHIPPED_NAME},{PAPER_NAME}")
-    parser.add_argument("--episodes", type=int, default=None)
-    parser.add_argument("--out", type=Path, default=Path("results") / NAME)
-    parser.add_argument("--records", type=Path, default=Path("docs") / "results" / NAME)
+    parser.add_argument(
+        "--suites",
+        default=f"{SHIPPED_NAME},{PAPER_NAME}",
+        help="comma-separated suites every run is evaluated and tabled on",
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=None, help="evaluation episodes per terrain (None: 5)"
+    )
+    parser.add_argument(
+        "--out", type=Path, default=Path("results") / NAME, help="tables: OUT/<start>/"
+    )
+    parser.add_argument(
+        "--records",
+        type=Path,
+        default=Path("docs") / "results" / NAME,
+        help="evaluation records and starts.md: RECORDS/<start>/",
+    )
     parser.add_argument("overrides", nargs="*", help="Hydra overrides for every ePOET-SAC job")
     return parser.parse_args(argv)
 
@@ -180,6 +198,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     sac_run = args.sac_run
+    check_suites([s for s in args.suites.split(",") if s])
+    # every job before any training (without --sac-run, `ours` is checked as the cold start)
+    check_jobs(
+        [["algo=sac", "budget=workstation", *args.overrides]]
+        + [
+            ["algo=epoet_sac", "budget=workstation", f"algo.sac_init={init}", *args.overrides]
+            for init in starts(sac_run or "null").values()
+        ]
+    )
     if sac_run is None:
         sac = sac_command(args.overrides)
         print(f"[{NAME}] the SAC run of ours: {' '.join(sac[1:])}", flush=True)

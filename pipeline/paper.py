@@ -14,6 +14,12 @@
    `results/paper-<budget>/figures/` (the t-SNE and the suite gallery of the first suite);
 4. with `--records <folder>`, exports every evaluated run as evaluation records there
    (`pipeline.records`), so the tables can be rebuilt without the store.
+
+Examples:
+
+    python -m pipeline.paper --budget smoke --seeds 1          # a few minutes, end to end
+    python -m pipeline.paper --budget workstation --seeds 1,2,3 --jobs 2 budget.hours=0.25
+    python -m pipeline.paper --budget laptop --algos epoet,ppo --records docs/results/mine
 """
 
 from __future__ import annotations
@@ -24,14 +30,21 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
+from omegaconf.errors import OmegaConfBaseException
+
 from analysis.figures import write_figures
 from analysis.store import ALGOS, connect, require_runs, run_command, select_runs, unevaluated
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
+from epoet.core.cli import fail
 from epoet.core.compute import default_workers
+from epoet.core.help import HelpParser
+from epoet.core.schema import ConfigError
 from epoet.eval.evaluate import evaluate_run, evaluation_pool
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
-from epoet.eval.suite import load_suite
+from epoet.eval.suite import SuiteError, load_suite
 from pipeline.records import COMMIT_TAG, export
 
 SUITES = f"{SHIPPED_NAME},{PAPER_NAME}"
@@ -76,6 +89,32 @@ def train_command(
         "hydra.sweep.subdir=${algo.name}_s${seed}",
         *overrides,
     ]
+
+
+def check_suites(suites: Sequence[str]) -> None:
+    """Every suite the runs will be evaluated on exists and reads, before hours of training."""
+    try:
+        for suite in suites:
+            load_suite(suite)
+    except SuiteError as err:
+        fail(err)
+
+
+def check_jobs(jobs: Sequence[Sequence[str]]) -> None:
+    """Each training job's overrides checked as its run will check them (composition, ranges,
+    combinations, what it starts from: `epoet.run.check_inputs`), before any training, so bad
+    input is one line and exit 2 at once instead of a failed job minutes later. Sweep values
+    (`a=1,2`) are the launcher's to expand and are left out of the check."""
+    from epoet.run import check_inputs
+
+    parser = OverridesParser.create()
+    for overrides in jobs:
+        try:
+            parsed = parser.parse_overrides(list(overrides))
+            single = [str(o.input_line) for o in parsed if not o.is_sweep_override()]
+            check_inputs(validate(compose(single)))
+        except (ConfigError, HydraException, OmegaConfBaseException) as err:
+            fail(err)
 
 
 def evaluate_missing(
@@ -133,10 +172,8 @@ def evaluate_missing(
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.paper", description=__doc__.split("\n")[0]
-    )
-    parser.add_argument("--budget", default="laptop")
+    parser = HelpParser("python -m pipeline.paper", __doc__)
+    parser.add_argument("--budget", default="laptop", help="the budget every job trains at")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
     parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
     parser.add_argument(
@@ -144,19 +181,19 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--suite",
         default=SUITES,
         help="comma-separated suite names (shipped, paper) or folders that every "
-        f"run is evaluated and tabled on (default: {SUITES})",
+        "run is evaluated and tabled on",
     )
     parser.add_argument(
-        "--episodes", type=int, default=None, help="evaluation episodes per terrain (default: 5)"
+        "--episodes", type=int, default=None, help="evaluation episodes per terrain (None: 5)"
     )
     parser.add_argument(
         "--jobs",
         type=int,
         default=1,
-        help="training jobs at a time; each gets cores / jobs workers (default 1)",
+        help="training jobs at a time; each gets cores / jobs workers",
     )
     parser.add_argument(
-        "--out", type=Path, default=None, help="results folder (default: results/paper-<budget>)"
+        "--out", type=Path, default=None, help="results folder (None: results/paper-<budget>)"
     )
     parser.add_argument(
         "--records",
@@ -196,6 +233,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problems:
         print(f"error: {problems[0]}.", file=sys.stderr)
         return 2
+    check_suites(suites)
+    seed = args.seeds.split(",")[0]
+    check_jobs(
+        [[f"algo={a}", f"budget={args.budget}", f"seed={seed}", *args.overrides] for a in algos]
+    )
     experiment = f"paper-{args.budget}"
     out = args.out or Path("results") / experiment
     command = train_command(

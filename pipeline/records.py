@@ -25,11 +25,14 @@ job folder whose DONE file holds the run id), and its `.hydra/overrides.yaml` gi
 (`command_source: overrides`); otherwise the command is rebuilt from the run's params: the
 settings that differ from the config composed from its algo, budget and seed
 (`command_source: params`; a setting equal to that default is left out even if it was given).
+
+Examples:
+
+    python -m pipeline.records --experiment paper-workstation --out docs/results/workstation
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import shutil
@@ -58,6 +61,7 @@ from analysis.store import (
 )
 from epoet.core.errors import first_line
 from epoet.core.files import atomic_write
+from epoet.core.help import HelpParser
 from epoet.eval.keys import (
     EPISODES_TAG,
     PAPER_NAME,
@@ -367,9 +371,7 @@ def export(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.records", description=__doc__.split("\n\n")[0]
-    )
+    parser = HelpParser("python -m pipeline.records", __doc__)
     parser.add_argument(
         "--experiment",
         required=True,
@@ -381,7 +383,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--tracking-uri",
         default=None,
-        help="the MLflow store (default: MLFLOW_TRACKING_URI, else epoet's)",
+        help="the MLflow store (None: MLFLOW_TRACKING_URI, else epoet's)",
     )
     parser.add_argument(
         "--run",

@@ -12,11 +12,16 @@ authors' published agents (epoet/reference/) on the paper's suite, tabled like r
    `ppo_0`), so `python -m analysis.tables --records <folder> --suite paper` rebuilds the
    tables without the store.
 The paper reports neither VMPO nor which niche makes an algorithm's row; both are shown.
+
+Examples:
+
+    python -m pipeline.reference
+    python -m pipeline.reference --episodes 1 --out /tmp/reference
+    python -m pipeline.reference --suite shipped --records docs/results/reference
 """
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -26,6 +31,7 @@ from analysis.store import connect, evaluation_on, run_command
 from analysis.tables import EASY_MEDIUM, episodes_of, make_tables, to_markdown
 from epoet.config import compose, validate
 from epoet.core.compute import default_workers
+from epoet.core.help import HelpParser
 from epoet.eval.agents import resolve_run
 from epoet.eval.evaluate import evaluate_run, evaluation_pool
 from epoet.eval.reference import EXPERIMENT, PREFIX, names
@@ -86,10 +92,12 @@ def agent_rows(episodes: pd.DataFrame) -> pd.DataFrame:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.reference", description=__doc__)
-    parser.add_argument("--suite", default="paper", help="suite name or folder (default: paper)")
-    parser.add_argument("--episodes", type=int, default=5, help="episodes per terrain (5)")
-    parser.add_argument("--out", type=Path, default=Path("results") / "reference")
+    parser = HelpParser("python -m pipeline.reference", __doc__)
+    parser.add_argument("--suite", default="paper", help="suite name or folder")
+    parser.add_argument("--episodes", type=int, default=5, help="episodes per terrain")
+    parser.add_argument(
+        "--out", type=Path, default=Path("results") / "reference", help="tables: OUT/<suite>/"
+    )
     parser.add_argument(
         "--records",
         type=Path,

@@ -29,6 +29,7 @@ LONGEST_FIRST = (
     "test_scale_out.py",
     "test_epoet_sac.py",
     "test_bad_input.py",
+    "test_help.py",
     "test_faults.py",
     "test_poet.py",
     "test_render.py",

@@ -35,7 +35,7 @@ WINGS: list[tuple[str, tuple[str, ...]]] = [
             "epoet.eval.config",
         ),
     ),
-    ("config", ("epoet.config",)),
+    ("config", ("epoet.config", "epoet.cli")),
     ("tracking", ("epoet.tracking",)),
     ("run state", ("epoet.run_state",)),
     ("terrain", ("epoet.terrain",)),

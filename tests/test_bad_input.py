@@ -8,6 +8,7 @@ The evaluation and analysis commands' rows are tested where those commands are
 
 from __future__ import annotations
 
+import importlib
 import os
 import subprocess
 import sys
@@ -159,6 +160,46 @@ def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) ->
     assert checkpoint.read_bytes() == saved
     assert _runs(uri) == before  # no run created, finished, failed or deleted
     assert not list((tmp / "bad").rglob("checkpoint.pkl"))
+    # a refused run leaves no folder: Hydra's (new, holding only its .hydra/) is removed
+    assert not (tmp / "bad").exists() or not list((tmp / "bad").iterdir())
+
+
+def test_check_validates_a_run_as_it_would_start_and_writes_nothing(good) -> None:
+    """`check=true` makes the run's checks (ranges, combinations, the checkpoint to resume, the
+    store) and prints one line, creating no folder, MLflow run or store; a refused run removes
+    only the folder Hydra made for it, never one that held anything before."""
+    tmp, uri = good
+    checkpoint = tmp / "good" / "checkpoint.pkl"
+    saved = checkpoint.read_bytes()
+    (tmp / "fresh").mkdir()
+    (tmp / "existing").mkdir()
+    (tmp / "existing" / "notes.txt").write_text("mine")
+    new_store = f"tracking.uri=sqlite:///{tmp}/fresh/mlflow.db"
+    cases = [  # (overrides, exit code, the one line holds)
+        ([new_store, f"hydra.run.dir={tmp}/checked/run"], 0, f"would start a new run in {tmp}"),
+        ([f"resume={tmp / 'good'}"], 0, f"would resume {checkpoint}"),
+        ([f"resume={tmp / 'good'}", "seed=1"], 2, "seed (0 -> 1)"),
+        (["terrain=bowl", f"hydra.run.dir={tmp}/checked/bowl"], 2, "needs terrain=cppn"),
+    ]
+    refused = [  # runs (not checks) refused after Hydra made their folder
+        ([f"hydra.run.dir={tmp}/new/deep/run", "workers.num=0"], 2, "workers.num must be > 0"),
+        ([f"hydra.run.dir={tmp}/existing", "terrain=bowl"], 2, "needs terrain=cppn"),
+    ]
+    before = _runs(uri)
+    procs = [_epoet([*SMOKE, "check=true", *args], tmp, uri) for args, _, _ in cases]
+    procs += [_epoet([*SMOKE, *args], tmp, uri) for args, _, _ in refused]
+    for proc, (args, code, message) in zip(procs, cases + refused):
+        out, err = proc.communicate(timeout=300)
+        assert proc.returncode == code, (args, err[-2000:])
+        lines = (out if code == 0 else err).strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (args, out, err[-2000:])
+        assert code == 0 or lines[0].startswith("error: ")
+        assert code != 0 or lines[0].startswith("[epoet] config OK: algo=epoet seed=0 budget=smoke")
+    assert not (tmp / "checked").exists() and not (tmp / "new").exists()
+    assert not (tmp / "fresh" / "mlflow.db").exists()  # a check makes no store
+    assert (tmp / "existing" / "notes.txt").read_text() == "mine"
+    assert checkpoint.read_bytes() == saved
+    assert _runs(uri) == before
 
 
 def _mount(point: Path, options: str) -> None:
@@ -205,3 +246,74 @@ def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> 
     finally:
         for point in (read_only, full):
             subprocess.run(["umount", "-l", str(point)], check=False)
+
+
+# Every other command's bad input, as users type it: per command a missing file, a wrong type
+# (or a malformed value) and an unknown key ({tmp}: a scratch folder, a_file a file in it).
+COMMAND_ROWS = [
+    ("epoet.eval.evaluate", "missing", ["run={tmp}/missing"], "run={tmp}/missing is neither"),
+    ("epoet.eval.evaluate", "type", ["run=x", "episodes=abc"], "converted to Integer"),
+    ("epoet.eval.evaluate", "key", ["run=x", "bogus=1"], "Key 'bogus' not in 'EvaluateConfig'"),
+    ("epoet.eval.render", "missing", ["run={tmp}/missing", "terrain=r0l0"], "is neither"),
+    ("epoet.eval.render", "type", ["run=x", "terrain=r0l0", "width=abc"], "converted to Integer"),
+    ("epoet.eval.render", "key", ["run=x", "bogus=1"], "Key 'bogus' not in 'RenderConfig'"),
+    ("epoet.eval.suite", "missing", ["check=true", "out={tmp}/missing"], "has no suite.json"),
+    ("epoet.eval.suite", "type", ["seed=abc"], "converted to Integer"),
+    ("epoet.eval.suite", "key", ["bogus=1"], "Key 'bogus' not in 'SuiteConfig'"),
+    ("epoet.eval.gallery", "missing", ["out={tmp}/a_file/gallery"], "Not a directory"),
+    ("epoet.eval.gallery", "type", ["n=abc"], "converted to Integer"),
+    ("epoet.eval.gallery", "key", ["bogus=1"], "Key 'bogus' not in 'GalleryConfig'"),
+    ("epoet.eval.reference", "missing", ["source={tmp}/missing"], "is not a checkout"),
+    ("epoet.eval.reference", "type", ["source=x", "check=maybe"], "'maybe' is not a valid bool"),
+    ("epoet.eval.reference", "key", ["bogus=1"], "Key 'bogus' not in 'ReferenceConfig'"),
+    ("analysis.tables", "missing", ["--records", "{tmp}/missing"], "there is no records folder"),
+    ("analysis.tables", "type", ["--run"], "expected at least one argument"),
+    ("analysis.tables", "key", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("analysis.figures", "missing", ["--suite", "{tmp}/missing"], "has no suite.json"),
+    ("analysis.figures", "type", ["--run"], "expected at least one argument"),
+    ("analysis.figures", "key", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("analysis.curves", "missing", [], "there is no MLflow store"),
+    ("analysis.curves", "type", ["--run"], "expected at least one argument"),
+    ("analysis.curves", "key", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("pipeline.paper", "missing", ["--suites", "{tmp}/missing"], "has no suite.json"),
+    ("pipeline.paper", "type", ["--jobs", "abc"], "invalid int value: 'abc'"),
+    ("pipeline.paper", "key", ["budget.iteration=3"], "Key 'iteration' not in"),
+    ("pipeline.records", "missing", ["--experiment", "e", "--out", "o"], "no MLflow store"),
+    ("pipeline.records", "type", ["--experiment", "e", "--out", "o", "--run"], "expected at"),
+    ("pipeline.records", "key", ["--experiment", "e", "--out", "o", "--bogus"], "unrecognized"),
+    ("pipeline.reference", "missing", ["--suite", "{tmp}/missing"], "has no suite.json"),
+    ("pipeline.reference", "type", ["--episodes", "abc"], "invalid int value: 'abc'"),
+    ("pipeline.reference", "key", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("pipeline.epoet_sac_starts", "missing", ["--sac-run", "{tmp}/missing"], "is neither"),
+    ("pipeline.epoet_sac_starts", "type", ["--jobs", "abc"], "invalid int value: 'abc'"),
+    ("pipeline.epoet_sac_starts", "key", ["algo.bogus=1"], "Key 'bogus' not in"),
+]
+
+
+def test_every_command_answers_bad_input_in_one_line(tmp_path, monkeypatch, capsys) -> None:
+    """Each command (every entry point but `python -m epoet`, whose rows are above) refuses a
+    missing file, a wrong type and an unknown key in one line on stderr with exit 2, writing
+    nothing. Called in this process (each command's `main(argv)`, as `python -m` calls it):
+    an exception other than the exit would fail the test with its traceback."""
+    from test_help import entry_points
+
+    commands = {module for module, *_ in COMMAND_ROWS}
+    assert commands | {"epoet"} == set(entry_points())  # a new command needs its rows
+    for module in commands:
+        kinds = sorted(kind for m, kind, *_ in COMMAND_ROWS if m == module)
+        assert kinds == ["key", "missing", "type"], module
+    (tmp_path / "a_file").write_text("not a folder")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path}/no_store/mlflow.db")
+    monkeypatch.chdir(tmp_path)
+    for module, kind, args, message in COMMAND_ROWS:
+        main = importlib.import_module(MAINS.get(module, module)).main
+        with pytest.raises(SystemExit) as exited:
+            raise SystemExit(main([a.format(tmp=tmp_path) for a in args]))
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert exited.value.code == 2, (module, kind, lines)
+        assert len(lines) == 1 and lines[0].startswith("error: "), (module, kind, lines)
+        assert message.format(tmp=tmp_path) in lines[0], (module, kind, lines[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]  # nothing written
+
+
+MAINS = {"epoet.eval.reference": "epoet.eval.reference.convert"}  # its __main__.py calls it

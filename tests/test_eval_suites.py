@@ -110,6 +110,10 @@ def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, mo
         # the local results
         summary = json.loads((run_dir / "evaluation" / name / "summary.json").read_text())
         assert summary["suite_name"] == name and summary["suite_fingerprint"] == suite.fingerprint
+        # where it writes, said before it starts (and again at the end)
+        folder = (run_dir / "evaluation" / name).absolute()
+        assert f"  writing to {folder}/ (out=<folder> to choose)" in printed[name].splitlines()
+        assert f"  results:  {folder}/ (episodes.csv, actions.npz, summary.json)" in printed[name]
         # the printed summary: which suite, and a render hint on one of its terrains
         render = next(line for line in printed[name].splitlines() if "render:" in line)
         assert printed[name].count(f"suite {name}: success rate") == 1

@@ -237,6 +237,44 @@ def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
         record_episodes(tmp_path / "old", paper)
 
 
+def write_record(folder: Path, episodes: pd.DataFrame, suites: dict[str, str]) -> None:
+    """A hand-made evaluation record `<algo>_s1` on the shipped suite (`suites`: the suites it
+    says it was evaluated on, with their fingerprints)."""
+    (folder / "shipped").mkdir(parents=True)
+    episodes.to_csv(folder / "shipped" / "episodes.csv", index=False)
+    record = {
+        "format": "epoet-record/1",
+        "algo": folder.name.split("_s")[0],
+        "seed": "1",
+        "run_id": folder.name,
+        "evaluations": {s: {"fingerprint": f, "course_scale": "1"} for s, f in suites.items()},
+    }
+    (folder / "run.json").write_text(json.dumps(record))
+
+
+def test_make_tables_writes_each_input_to_a_folder_of_its_own(tmp_path, capsys):
+    """`make tables RECORDS=A` then `RECORDS=B`: results/A/shipped/ and results/B/shipped/,
+    each with its own numbers; neither overwrites the other."""
+    from analysis.tables import main
+
+    shipped = load_suite("shipped")
+    for name, solved in (("A", True), ("B", False)):
+        episodes = pd.DataFrame(
+            [
+                [t.name, t.level, t.roughness, 0, 7, 5.0, solved, solved, 1.0, 10, 0.0]
+                for t in shipped.terrains
+            ],
+            columns=COLUMNS,
+        )
+        write_record(tmp_path / name / "ppo_s1", episodes, {"shipped": shipped.fingerprint})
+        assert main(["--records", str(tmp_path / name), "--out", str(tmp_path / "results")]) == 0
+    capsys.readouterr()
+    for name, rate in (("A", 1.0), ("B", 0.0)):
+        table = pd.read_csv(tmp_path / "results" / name / "shipped" / "table1_shipped.csv")
+        assert table.iloc[0].total_mean == rate, name
+    assert sorted(p.name for p in (tmp_path / "results").iterdir()) == ["A", "B"]
+
+
 def test_records_on_other_terrains_are_refused_and_records_without_the_suite_named(
     tmp_path, capsys
 ):
@@ -248,22 +286,8 @@ def test_records_on_other_terrains_are_refused_and_records_without_the_suite_nam
         ],
         columns=COLUMNS,
     )
-    for name, suites in (("ppo_s1", {"shipped": shipped.fingerprint}), ("sac_s1", {})):
-        (tmp_path / name / "shipped").mkdir(parents=True)
-        episodes.to_csv(tmp_path / name / "shipped" / "episodes.csv", index=False)
-        (tmp_path / name / "run.json").write_text(
-            json.dumps(
-                {
-                    "format": "epoet-record/1",
-                    "algo": name[:3],
-                    "seed": "1",
-                    "run_id": name,
-                    "evaluations": {
-                        s: {"fingerprint": f, "course_scale": "1"} for s, f in suites.items()
-                    },
-                }
-            )
-        )
+    write_record(tmp_path / "ppo_s1", episodes, {"shipped": shipped.fingerprint})
+    write_record(tmp_path / "sac_s1", episodes, {})
     written = tables_from_records(tmp_path, tmp_path / "out")
     assert (
         "left out 1 record(s) without an evaluation on suite shipped: sac_s1"

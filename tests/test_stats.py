@@ -116,3 +116,31 @@ def test_pairs_read_as_the_papers_claims_and_one_run_is_said(tmp_path):
     assert "One run only (ppo, sac, epoet)" in text and "terrains only" in text
     assert "\\begin{tabular}" in (tmp_path / "poi_shipped.tex").read_text()
     assert (tmp_path / "iqm_shipped.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_an_interval_depends_only_on_its_own_runs():
+    """The same three runs give the same IQM interval alone, beside other algorithms (listed
+    before it in table order, so a shared random stream would have been drawn from first), and
+    with their runs read in another order; so does a pair's probability of improvement."""
+    rng = np.random.default_rng(7)
+    mine = rng.uniform(0, 3000, (3, 8))
+    others = {algo: rng.uniform(0, 3000, (3, 8)) for algo in ("ppo", "sac")}
+
+    def iqm_row(scores: dict[str, np.ndarray]) -> pd.Series:
+        table = iqm_table(episodes_of(scores), reps=300)
+        return table[(table.algo == "epoet") & (table.score == "return")].iloc[0]
+
+    alone = iqm_row({"epoet": mine})
+    crowded = iqm_row({**others, "epoet": mine})
+    reordered = iqm_row({"epoet": mine[::-1]})
+    for row in (crowded, reordered):
+        assert (row.ci_low, row.ci_high, row.iqm) == (alone.ci_low, alone.ci_high, alone.iqm)
+    assert alone.ci_low < alone.iqm < alone.ci_high  # a real interval, not a point
+
+    def poi_row(scores: dict[str, np.ndarray]) -> pd.Series:
+        table = poi_table(episodes_of(scores), reps=300)
+        return table[(table.x == "epoet") & (table.y == "sac") & (table.score == "return")].iloc[0]
+
+    pair = poi_row({"sac": others["sac"], "epoet": mine})
+    crowded_pair = poi_row({**others, "epoet": mine[::-1]})
+    assert (crowded_pair.ci_low, crowded_pair.ci_high) == (pair.ci_low, pair.ci_high)

@@ -1,5 +1,5 @@
 """Shared by the command-line entry points: bad input ends in one line on stderr, exit 2
-(`epoet.config.run_hydra_app` runs a Hydra app this way)."""
+(`epoet.cli` parses the key=value commands and runs the Hydra app this way)."""
 
 from __future__ import annotations
 

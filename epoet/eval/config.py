@@ -22,14 +22,14 @@ class SuiteConfig:
 
     KEY: ClassVar[str] = ""
 
-    terrain: TerrainConfig
+    terrain: TerrainConfig  # the CPPN settings the terrains are drawn with (conf/terrain/)
     agent: AgentConfig  # the course (start_x .. finish_x) the roughness is read along
     episode_ratio: float  # evaluation episodes last this x the agent's training ones
-    seed: int
+    seed: int  # seeds the whole generation: the same seed, the same suite
     children: int  # children per round (lineages)
     max_heights: list[float]  # S of each round, metres: one round per entry
     max_tries: int  # mutations tried per child before taking the closest
-    out: Optional[str]  # None: the shipped suite folder
+    out: Optional[str]  # the suite folder written (or checked); null: the shipped suite
     check: bool  # regenerate and compare with `out`, write nothing
 
     def __post_init__(self) -> None:
@@ -49,10 +49,10 @@ class AgentCommandConfig:
 
     KEY: ClassVar[str] = ""
 
-    run: Optional[str]  # MLflow run id, run folder or policy file
+    run: Optional[str]  # required: an MLflow run id, a run folder or a policy file
     agent: AgentConfig  # episode rules for a bare policy file (a run brings its own)
-    tracking: TrackingConfig
-    suite: Optional[str]  # None: the shipped suite
+    tracking: TrackingConfig  # the MLflow store a run id is looked up in and logged to
+    suite: Optional[str]  # shipped, paper or a suite folder; null: shipped
     seed: int  # keys the episodes' starts
 
     def __post_init__(self) -> None:
@@ -64,11 +64,12 @@ class AgentCommandConfig:
 class EvaluateConfig(AgentCommandConfig):
     """`python -m epoet.eval.evaluate`: a trained agent on the evaluation suite."""
 
-    episodes: int  # per terrain
+    episodes: int  # episodes per terrain
     solve_score: float  # "solved": finish line and this return (x the run's scale)
     action_samples: int  # actions kept per episode, for t-SNE
-    processes: Optional[int]  # None: one per available core ("workers" is a config group)
-    out: Optional[str]  # results folder; None: <run folder>/evaluation or ./evaluation
+    processes: Optional[int]  # worker processes; null: one per available core
+    out: Optional[str]  # results folder; null: <run folder>/evaluation/<suite>, else
+    # ./evaluation/<run>/<suite> in the working directory
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -84,11 +85,11 @@ class EvaluateConfig(AgentCommandConfig):
 class RenderConfig(AgentCommandConfig):
     """`python -m epoet.eval.render`: an mp4 of a trained agent on one terrain."""
 
-    terrain: Optional[str]  # a suite terrain's name or a terrain .npz file
-    steps: Optional[int]  # None: the run's episode length
-    width: int
-    height: int
-    out: Optional[str]  # None: videos/<run>_<terrain>.mp4
+    terrain: Optional[str]  # required: a suite terrain's name or a terrain .npz file
+    steps: Optional[int]  # steps to film; null: the run's episode length
+    width: int  # video width in pixels (even)
+    height: int  # video height in pixels (even)
+    out: Optional[str]  # the mp4 written; null: videos/<run>_<terrain>.mp4
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -103,10 +104,10 @@ class GalleryConfig:
 
     KEY: ClassVar[str] = ""
 
-    terrain: TerrainConfig
-    seed: int
-    n: int
-    out: str
+    terrain: TerrainConfig  # the terrain group: cppn (mutated chain) or bowl
+    seed: int  # seeds the root terrain and each mutation
+    n: int  # terrains drawn: the root and n - 1 descendants
+    out: str  # folder for gallery.png and the terrains' npz files
 
     def __post_init__(self) -> None:
         non_negative(self, "seed")
@@ -120,8 +121,8 @@ class ReferenceConfig:
 
     KEY: ClassVar[str] = ""
 
-    source: Optional[str]  # a checkout of github.com/ml-tue/ePOET_3D
-    out: Optional[str]  # None: the shipped folder, epoet/reference
+    source: Optional[str]  # required: a checkout of github.com/ml-tue/ePOET_3D
+    out: Optional[str]  # the folder written (or checked); null: the shipped epoet/reference
     check: bool  # convert and compare with `out`, write nothing
 
     def __post_init__(self) -> None:

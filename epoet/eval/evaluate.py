@@ -24,6 +24,12 @@ with the tags `eval_suite/<name>` (the suite's fingerprint), `eval_course_scale/
 `eval_episodes/<name>` (`epoet.eval.keys`). A metric point the run already holds (same key,
 step and value: an evaluation interrupted after logging and run again on resume) is not logged
 twice.
+
+Examples:
+
+    python -m epoet.eval.evaluate run=outputs/2026-11-25/10-00-00_epoet_s0
+    python -m epoet.eval.evaluate run=<MLflow run id> suite=paper episodes=1
+    python -m epoet.eval.evaluate run=reference:poet_hexA8/flat out=results/authors_flat
 """
 
 from __future__ import annotations
@@ -41,11 +47,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from hydra.errors import HydraException
-from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.config import compose, validate
+from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
 from epoet.core.compute import default_workers
 from epoet.core.files import atomic_write, savez
@@ -91,6 +95,9 @@ COLUMNS = [
     "length",
     "path_roughness",
 ]
+
+
+COMMAND = KeyValueCommand("evaluate", __doc__)
 
 
 @dataclass(frozen=True)
@@ -318,7 +325,8 @@ def evaluate_run(
     print(
         f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
         f"episodes of suite {suite.name} ({suite.folder}), {workers} processes; course "
-        f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps",
+        f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps"
+        f"\n  writing to {folder.absolute()}/{'' if cfg.out else ' (out=<folder> to choose)'}",
         flush=True,
     )
     scale = suite.course.scale(run.agent_config(cfg.agent))
@@ -352,20 +360,10 @@ def evaluate_run(
 
 def main(argv: list[str] | None = None) -> None:
     """CLI: bad input (config, run, suite, store) ends in one line and exit code 2."""
+    cfg: EvaluateConfig = COMMAND.parse(argv)
     try:
-        cfg: EvaluateConfig = validate(
-            compose(sys.argv[1:] if argv is None else argv, config_name="evaluate")
-        )
         result, folder, run = evaluate_run(cfg)
-    except (
-        ConfigError,
-        AgentError,
-        SuiteError,
-        TrackingError,
-        OSError,
-        HydraException,
-        OmegaConfBaseException,
-    ) as err:
+    except (ConfigError, AgentError, SuiteError, TrackingError, OSError) as err:
         fail(err)
     m, suite = result.metrics, result.suite
     levels = ", ".join(
@@ -378,7 +376,7 @@ def main(argv: list[str] | None = None) -> None:
         f"({levels}); mean return {m[metric(suite.name, 'return_mean')]:.1f}; mean forward "
         f"distance {m[metric(suite.name, 'forward_distance_mean')]:.2f} m"
     )
-    print(f"  results:  {folder}/ (episodes.csv, actions.npz, summary.json)")
+    print(f"  results:  {folder.absolute()}/ (episodes.csv, actions.npz, summary.json)")
     if run.stored is not None:
         print(f"  logged to MLflow run {run.run_id} under {artifacts(suite.name)}/")
         print(f"  runs:     {run.stored.ui_hint()}")

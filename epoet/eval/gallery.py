@@ -4,6 +4,12 @@ Writes DIR/gallery.png (a chain: each panel is a mutated child of the previous o
 iterations 0, 25, 50, ... so S grows by the schedule) and each terrain's npz in DIR. With
 terrain=bowl there is nothing to mutate: the panels are fresh bowls along the same schedule.
 Bad values end with one line on stderr and exit status 2.
+
+Examples:
+
+    python -m epoet.eval.gallery
+    python -m epoet.eval.gallery terrain=cppn n=12 seed=3 out=gallery/seed3
+    python -m epoet.eval.gallery terrain=bowl n=4 out=gallery/bowls
 """
 
 from __future__ import annotations
@@ -11,12 +17,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import hydra
 import numpy as np
 from matplotlib.figure import Figure
-from omegaconf import DictConfig
 
-from epoet.config import CONF_DIR, run_hydra_app, validate
+from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.eval.config import GalleryConfig
@@ -56,11 +60,12 @@ def write_gallery(terrains: list[Terrain], out: Path) -> Path:
     return path
 
 
-@hydra.main(config_path=str(CONF_DIR), config_name="gallery", version_base="1.3")
-def _app(raw: DictConfig) -> None:
-    # Failures are reported here: an exception escaping the task makes Hydra log its own lines.
+COMMAND = KeyValueCommand("gallery", __doc__)
+
+
+def main(argv: list[str] | None = None) -> None:
+    cfg: GalleryConfig = COMMAND.parse(argv)
     try:
-        cfg: GalleryConfig = validate(raw)
         out = Path(cfg.out)
         out.mkdir(parents=True, exist_ok=True)
         terrains = chain(cfg)
@@ -70,10 +75,6 @@ def _app(raw: DictConfig) -> None:
         print(f"wrote {png} and {len(terrains)} terrain files to {out}/")
     except (ConfigError, CppnMutationError, OSError) as err:
         fail(err)
-
-
-def main() -> None:
-    run_hydra_app(_app)
 
 
 if __name__ == "__main__":

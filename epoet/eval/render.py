@@ -22,6 +22,12 @@ imageio-ffmpeg).
 
 Bad input (config, run, terrain, suite, store, a missing GL backend or video writer) ends in
 one line on stderr and exit code 2, before the episode starts.
+
+Examples:
+
+    python -m epoet.eval.render run=outputs/2026-11-25/10-00-00_epoet_s0 terrain=r1l3
+    python -m epoet.eval.render run=reference:poet_hexA8/flat terrain=r0c0 suite=paper
+    python -m epoet.eval.render run=policy.pt terrain=gallery/cppn_0.npz steps=500 out=walk.mp4
 """
 
 from __future__ import annotations
@@ -40,11 +46,9 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from hydra.errors import HydraException
-from omegaconf.errors import OmegaConfBaseException
 from tqdm import tqdm
 
-from epoet.config import compose, validate
+from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.eval.agents import AgentError, TrainedRun, resolve_run
@@ -66,17 +70,12 @@ class RenderError(RuntimeError):
     """What rendering needs from the machine is missing; one sentence naming the fix."""
 
 
-def parse_args(argv: list[str]) -> RenderConfig:
-    """The validated config of the command line.
+COMMAND = KeyValueCommand("render", __doc__, plain=("terrain",))
 
-    Hydra reads `terrain=X` as a choice in the conf/terrain group and fails, so that item is
-    kept out of the composition and set on the composed config afterwards.
-    """
-    terrains = [arg.split("=", 1)[1] for arg in argv if arg.startswith("terrain=")]
-    raw = compose([arg for arg in argv if not arg.startswith("terrain=")], config_name="render")
-    if terrains:
-        raw.terrain = terrains[-1]
-    cfg: RenderConfig = validate(raw)
+
+def parse_args(argv: list[str]) -> RenderConfig:
+    """The validated config of the command line."""
+    cfg: RenderConfig = COMMAND.parse(argv)
     if cfg.width % 2 or cfg.height % 2:  # H.264's 4:2:0 chroma halves both sides
         raise ConfigError(
             f"width and height must be even for an mp4, got {cfg.width} x {cfg.height}."
@@ -243,8 +242,6 @@ def main(argv: list[str] | None = None) -> None:
         ConfigError,
         RenderError,
         AgentError,
-        HydraException,
-        OmegaConfBaseException,
         OSError,
     ) as err:
         fail(err)

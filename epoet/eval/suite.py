@@ -46,11 +46,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import hydra
 import numpy as np
-from omegaconf import DictConfig
 
-from epoet.config import CONF_DIR, load, run_hydra_app, validate
+from epoet.cli import KeyValueCommand
+from epoet.config import load
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
@@ -273,14 +272,24 @@ def load_suite(folder: str | Path | None = None) -> Suite:
 # --- command --------------------------------------------------------------------------------
 
 
-@hydra.main(config_path=str(CONF_DIR), config_name="suite", version_base="1.3")
-def _app(raw: DictConfig) -> None:
+def main(argv: Sequence[str] | None = None) -> None:
+    """`python -m epoet.eval.suite [key=value ...]`: generate the fixed evaluation suite into
+    `out` (by default the shipped epoet/suite/, which these defaults produce bit for bit), or,
+    with check=true, regenerate it and compare with `out`, writing nothing (about a minute).
+
+    Examples:
+
+        python -m epoet.eval.suite check=true
+        python -m epoet.eval.suite out=suites/seed7 seed=7
+        python -m epoet.eval.suite out=suites/hard 'max_heights=[1.5,2.2]' children=16
+    """
+    cfg: SuiteConfig = COMMAND.parse(argv)
     # generation reads this module's format and loader, so it is imported here
     from epoet.eval.suite_generation import differences, generate, write_suite
 
     try:
-        cfg: SuiteConfig = validate(raw)
         folder = SHIPPED if cfg.out is None else Path(cfg.out)
+        stored = len(load_suite(folder).terrains) if cfg.check else 0  # before a minute's work
         print(
             f"generating {len(cfg.max_heights)} rounds x {cfg.children} terrains (seed {cfg.seed})",
             flush=True,
@@ -288,14 +297,11 @@ def _app(raw: DictConfig) -> None:
         terrains, entries = generate(cfg, progress=True)
         if cfg.check:
             found = differences(folder, terrains, entries)
-            stored = len(load_suite(folder).terrains)
             if stored != len(entries):
                 found.append(f"{stored} terrains stored, {len(entries)} generated")
             if found:
-                fail(
-                    SuiteError(
-                        f"suite {folder} differs from the regenerated one: {'; '.join(found[:5])}."
-                    )
+                raise SuiteError(
+                    f"suite {folder} differs from the regenerated one: {'; '.join(found[:5])}."
                 )
             print(f"suite {folder} matches the regenerated suite bit for bit")
             return
@@ -309,8 +315,7 @@ def _app(raw: DictConfig) -> None:
         fail(err)
 
 
-def main() -> None:
-    run_hydra_app(_app)
+COMMAND = KeyValueCommand("suite", main.__doc__)
 
 
 if __name__ == "__main__":

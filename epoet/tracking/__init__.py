@@ -2,7 +2,8 @@
 
 - writer.py: `Tracker`, what algorithms report to, and `MlflowTracker`, the run that records it
 - stored_run.py: `StoredRun`, a finished run read and added to by evaluation, videos, analysis
-- store.py: where the store is (`resolve_tracking_uri`) and proof that it works (`open_store`)
+- store.py: where the store is (`resolve_tracking_uri`) and proof that it works (`open_store`,
+  `check_store`)
 - provenance.py: the config as params, the git commit, the sweep's parent run
 - inputs.py: metric keys, steps, values and artifact paths, checked before anything is sent
 - errors.py: `TrackingError`, one sentence
@@ -28,6 +29,7 @@ if TYPE_CHECKING:  # `X as X`: re-exported names (for the type checker; __getatt
     from epoet.tracking.provenance import parent_run_id as parent_run_id
     from epoet.tracking.store import DEFAULT_TRACKING_URI as DEFAULT_TRACKING_URI
     from epoet.tracking.store import PROJECT_ROOT as PROJECT_ROOT
+    from epoet.tracking.store import check_store as check_store
     from epoet.tracking.store import open_store as open_store
     from epoet.tracking.store import resolve_tracking_uri as resolve_tracking_uri
     from epoet.tracking.store import sqlite_path as sqlite_path
@@ -45,6 +47,7 @@ _HOME = {
     "parent_run_id": "epoet.tracking.provenance",
     "DEFAULT_TRACKING_URI": "epoet.tracking.store",
     "PROJECT_ROOT": "epoet.tracking.store",
+    "check_store": "epoet.tracking.store",
     "open_store": "epoet.tracking.store",
     "resolve_tracking_uri": "epoet.tracking.store",
     "sqlite_path": "epoet.tracking.store",

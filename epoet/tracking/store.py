@@ -126,6 +126,18 @@ def open_store(tracking_uri: str | None = None) -> MlflowClient:
     return client  # type: ignore[return-value]  # an MlflowClient in all but retries
 
 
+def check_store(tracking_uri: str | None = None) -> str:
+    """What `open_store` proves, without creating anything (`check=true`): a sqlite file that
+    does not exist yet is checked for the folder it would be made in, not made. The URI."""
+    uri = resolve_tracking_uri(tracking_uri)
+    db = sqlite_path(uri)
+    if db is not None and not db.exists():
+        _check_sqlite(uri, db)
+    else:
+        open_store(uri)
+    return uri
+
+
 def ui_hint(tracking_uri: str, experiment_id: str) -> str:
     """The command that serves the store and the URL of the experiment's runs table (MLflow
     3's UI opens on a GenAI overview without `workflowType`)."""

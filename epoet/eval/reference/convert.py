@@ -14,6 +14,12 @@ Every agent is re-ordered to epoet's observation and action (layout.py) and `man
 lists each with its source path, the checkout's commit and the score the reference logged.
 Nothing of the authors' code is imported (pickles.py); the output is the same bytes each time,
 so check=true proves the shipped folder is the checkout's conversion.
+
+Examples:
+
+    git clone https://github.com/ml-tue/ePOET_3D /tmp/ePOET_3D
+    python -m epoet.eval.reference source=/tmp/ePOET_3D check=true
+    python -m epoet.eval.reference source=/tmp/ePOET_3D out=/tmp/reference
 """
 
 from __future__ import annotations
@@ -23,7 +29,6 @@ import io
 import json
 import re
 import subprocess
-import sys
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -31,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from epoet.config import compose, validate
+from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
 from epoet.core.files import atomic_write
 from epoet.core.schema import ConfigError
@@ -51,6 +56,8 @@ from epoet.eval.reference.terrain import EVAL_HEIGHT, render
 from epoet.eval.suite import SUITE_FORMAT, level_of, load_suite, quantize
 from epoet.rollout.agent_files import POLICY_FORMAT
 from epoet.rollout.policy import num_params, policy_sizes
+
+COMMAND = KeyValueCommand("reference", __doc__)
 
 REPOSITORY = "github.com/ml-tue/ePOET_3D"
 MODELS = "trained_models"
@@ -348,10 +355,8 @@ def differences(out: Path, files: dict[str, bytes]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    cfg: ReferenceConfig = COMMAND.parse(argv)
     try:
-        cfg: ReferenceConfig = validate(
-            compose(sys.argv[1:] if argv is None else argv, config_name="reference")
-        )
         out = FOLDER if cfg.out is None else Path(cfg.out)
         assert cfg.source is not None  # required: ReferenceConfig checks it
         files = convert(Path(cfg.source))

@@ -1,0 +1,128 @@
+"""`--help` and `-h` on every entry point: the commands are found by walking the packages
+(a module with `if __name__ == "__main__":`, or a package's `__main__.py`), so a new command
+cannot be left out. Each help exits 0 and lists every option the command reads, each with a
+description, and shows examples; `python -m epoet --help` lists only the choices a user has."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import os
+import re
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("epoet", "analysis", "pipeline")
+
+
+def entry_points() -> list[str]:
+    """Every `python -m <module>` command of the packages."""
+    found = set()
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            if parts[-1] == "__main__":
+                found.add(".".join(parts[:-1]))
+            elif 'if __name__ == "__main__":' in path.read_text():
+                found.add(".".join(parts))
+    return sorted(found)
+
+
+def run(module: str, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", module, *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "COLUMNS": "100"},
+        timeout=240,
+    )
+
+
+# `-h` is `--help` by the parser each kind of command shares (Hydra's, KeyValueCommand's,
+# HelpParser's): it is run on one command of each kind.
+SHORT = ("epoet", "epoet.eval.evaluate", "analysis.tables")
+pytestmark = pytest.mark.timeout(900)  # about 16 commands' imports on a shared machine
+
+
+@pytest.fixture(scope="module")
+def helps() -> dict[tuple[str, str], subprocess.CompletedProcess]:
+    """Each entry point's `--help` (and `-h` of SHORT), two at a time (each waits on its
+    imports)."""
+    calls = [(module, "--help") for module in entry_points()] + [(m, "-h") for m in SHORT]
+    with ThreadPoolExecutor(2) as pool:
+        return dict(zip(calls, pool.map(lambda call: run(*call), calls)))
+
+
+def options_of(module: str, text: str) -> list[str]:
+    """What the command's help must list: the run's groups and top-level keys (`python -m
+    epoet`), a KeyValueCommand's schema fields, or every option of an argparse command's usage
+    line (argparse builds it from the parser's own options)."""
+    from epoet.config import COMMAND_SCHEMAS, Config
+
+    if module == "epoet":
+        return [f"{f.name}=" for f in dataclasses.fields(Config)]
+    imported = importlib.import_module(
+        module if module != "epoet.eval.reference" else f"{module}.convert"
+    )
+    if (command := getattr(imported, "COMMAND", None)) is not None:
+        return [f"{f.name}" for f in dataclasses.fields(COMMAND_SCHEMAS[command.name])]
+    usage = text.split("\n\n")[0]
+    options = re.findall(r"\[(--[\w-]+)|\s(--[\w-]+) ", usage)
+    positional = re.findall(r"\[([a-z_]+) \.\.\.\]", usage)  # metavars are upper case
+    return [a or b for a, b in options if (a or b) != "--help"] + positional
+
+
+def entry(text: str, option: str) -> str:
+    """The help's entry of an option: its line and the lines wrapped below it."""
+    lines = text.splitlines()
+    start = next((i for i, line in enumerate(lines) if line.strip().startswith(option)), None)
+    assert start is not None, f"no entry for {option}"
+    block = [lines[start]]
+    for line in lines[start + 1 :]:
+        if not line.startswith("    ") or not line.strip():  # the next entry, or the end
+            break
+        block.append(line)
+    return " ".join(" ".join(block).split())
+
+
+def test_the_walk_finds_every_kind_of_command():
+    found = entry_points()
+    for module in ("epoet", "epoet.eval.evaluate", "epoet.eval.reference", "analysis.tables"):
+        assert module in found
+    assert "pipeline.paper" in found and len(found) >= 13
+
+
+@pytest.mark.parametrize("module", entry_points())
+def test_help_lists_every_option_with_a_description_and_examples(helps, module):
+    for flag in ("--help", "-h") if module in SHORT else ("--help",):
+        done = helps[(module, flag)]
+        assert done.returncode == 0, (module, flag, done.stderr[-2000:])
+        assert not done.stderr.strip(), (module, flag, done.stderr[-2000:])
+        assert done.stdout == helps[(module, "--help")].stdout
+    text = helps[(module, "--help")].stdout
+    assert text.startswith("usage: ")
+    assert "examples:\n" in text and f"python -m {module} " in text.split("examples:\n")[1]
+    for option in options_of(module, text):
+        described = entry(text, option)
+        assert re.search(r"\(default: .+\)|\(required\)", described), (module, described)
+        assert len(described.split()) >= 5, (module, described)  # the option and what it is
+
+
+def test_the_run_help_lists_only_what_a_user_chooses(helps):
+    text = helps[("epoet", "--help")].stdout
+    for internal in ("_schema", "algo_budget", "learner", "hydra/job_logging"):
+        assert internal not in text, internal
+    assert "algo=epoet|epoet_sac|ppo|sac|vmpo" in text
+    assert "budget=laptop|paper|smoke|workstation" in text
+    assert "check=" in text and "python -m epoet check=true" in text
+
+
+def test_evaluate_says_it_writes_into_the_working_directory(helps):
+    text = helps[("epoet.eval.evaluate", "--help")].stdout
+    assert "./evaluation/<run>/<suite> in the working directory" in " ".join(text.split())
