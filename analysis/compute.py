@@ -11,14 +11,18 @@ run's best agent (the pool's best on its own environment) and the mean over its 
 The authors' agents are the horizontal references: the mean success of each algorithm's
 published agents in the reference records (docs/results/reference).
 
-Writes to `--out` (default results/compute/<records folder name>/<suite>/):
+Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
 success_vs_compute.{md,csv,png} and learning_curves.{png,csv} (score against environment
 steps and against CPU hours).
+
+Examples:
+
+    python -m analysis.compute --records docs/results/compute
+    python -m analysis.compute --records docs/results/compute --suite shipped --out /tmp/fig
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,10 +38,16 @@ import pandas as pd  # noqa: E402
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.records import EPISODES, read_records  # noqa: E402
 from analysis.stats import CONFIDENCE, REPS, SEED, iqm, rliable, seeded  # noqa: E402
-from analysis.store import ALGO_COLOURS, AnalysisError, in_order, run_command  # noqa: E402
+from analysis.store import (  # noqa: E402
+    ALGO_COLOURS,
+    AnalysisError,
+    in_order,
+    output_folder,
+    run_command,
+)
 from analysis.tables import to_markdown  # noqa: E402
+from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import PAPER_NAME  # noqa: E402
-from epoet.eval.suite import load_suite  # noqa: E402
 
 REFERENCE = Path(__file__).resolve().parent.parent / "docs" / "results" / "reference"
 READINGS = {"best": "the run's best agent", "niches": "mean over its niche agents"}
@@ -225,23 +235,24 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m analysis.compute", description=__doc__.split("\n\n")[0]
+    parser = HelpParser("python -m analysis.compute", __doc__)
+    parser.add_argument(
+        "--records", type=Path, required=True, help="records folder (pipeline.compute's)"
     )
-    parser.add_argument("--records", type=Path, required=True, help="records folder")
-    parser.add_argument("--suite", default=PAPER_NAME, help="suite name (default: paper)")
+    parser.add_argument(
+        "--suite", default=PAPER_NAME, help="suite whose evaluations are read (name or folder)"
+    )
     parser.add_argument(
         "--out",
         type=Path,
-        default=None,
-        help="output folder (default: results/compute/<records>/<suite>)",
+        default=Path("results") / "compute",
+        help="output folder; the figures go to <out>/<records folder name>/<suite name>/",
     )
     args = parser.parse_args(argv)
 
     def report() -> None:
-        suite = load_suite(args.suite).name  # a suite folder's evaluations are keyed by its name
-        out = args.out or Path("results") / "compute" / args.records.name / suite
-        for path in write(args.records, suite, out):
+        out = output_folder(args.out, args.suite, "", records=args.records)
+        for path in write(args.records, out.name, out):  # evaluations are keyed by suite name
             print(path, flush=True)
 
     return run_command(report)

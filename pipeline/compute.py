@@ -20,11 +20,15 @@ A run still training is fine: what its snapshots hold so far is evaluated, and a
 evaluates only what is new (each evaluation is written atomically and never repeated), so the
 command is run again as snapshots arrive. The run's best agent of a snapshot is the pool's
 agent with the best score on its own environment, the one `evaluate run=<run folder>` picks.
+
+Examples:
+
+    python -m pipeline.compute --runs runs/epoet_s1 runs/ppo_s1 --out docs/results/compute
+    python -m pipeline.compute --runs outputs/<date>/<run> --out /tmp/records --suites paper
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import shlex
 import shutil
@@ -41,6 +45,7 @@ from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
 from analysis.store import AnalysisError, connect, run_command
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.files import atomic_write
+from epoet.core.help import HelpParser
 from epoet.eval.agents import RECORD_CONFIG, TrainedRun, policy_in, resolve_run
 from epoet.eval.config import EvaluateConfig
 from epoet.eval.evaluate import evaluate, evaluation_pool, write_results
@@ -258,20 +263,26 @@ def export_run(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m pipeline.compute", description=__doc__.split("\n\n")[0]
-    )
-    parser.add_argument("--runs", nargs="+", type=Path, required=True, help="run folders")
-    parser.add_argument("--out", type=Path, required=True, help="records folder")
+    parser = HelpParser("python -m pipeline.compute", __doc__)
     parser.add_argument(
-        "--suites", default=f"{PAPER_NAME},{SHIPPED_NAME}", help="suites, comma-separated"
+        "--runs", nargs="+", type=Path, required=True, help="run folders, training or finished"
     )
-    parser.add_argument("--episodes", type=int, default=5, help="episodes per terrain (paper: 5)")
+    parser.add_argument(
+        "--out", type=Path, required=True, help="records folder, e.g. docs/results/compute"
+    )
+    parser.add_argument(
+        "--suites",
+        default=f"{PAPER_NAME},{SHIPPED_NAME}",
+        help="suites (names or folders), comma-separated",
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=5, help="episodes per terrain and agent (the paper's 5)"
+    )
     parser.add_argument("--processes", type=int, default=1, help="evaluation processes (default 1)")
     parser.add_argument(
         "--tracking-uri",
         default=None,
-        help="the runs' MLflow store (default: their config's, else MLFLOW_TRACKING_URI, else "
+        help="the runs' MLflow store (None: their config's, else MLFLOW_TRACKING_URI, else "
         "epoet's)",
     )
     args = parser.parse_args(argv)

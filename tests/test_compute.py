@@ -96,10 +96,11 @@ def test_success_against_compute_is_drawn_from_records_alone(
     assert (
         figures(["--records", str(out), "--suite", str(suite), "--out", str(tmp_path / "fig")]) == 0
     )
-    table = pd.read_csv(tmp_path / "fig" / "success_vs_compute.csv")
+    figs = tmp_path / "fig" / "records" / "suite"  # <out>/<records folder name>/<suite name>
+    table = pd.read_csv(figs / "success_vs_compute.csv")
     assert sorted(set(zip(table.algo, table.reading))) == [("epoet", "best"), ("epoet", "niches")]
     assert list(table[table.reading == "best"].minutes) == [1e-6, 1e-5]
     for name in ("success_vs_compute.png", "success_vs_compute.md", "learning_curves.png"):
-        assert (tmp_path / "fig" / name).stat().st_size > 0
-    curves = pd.read_csv(tmp_path / "fig" / "learning_curves.csv")
+        assert (figs / name).stat().st_size > 0
+    curves = pd.read_csv(figs / "learning_curves.csv")
     assert set(curves.axis) == {"env_steps", "cpu_time"}
