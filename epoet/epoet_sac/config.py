@@ -31,10 +31,33 @@ class DistillConfig:
 
 
 @dataclass
+class WarmConfig:
+    """How a warm-started learner resumes its trained actor (`algo.sac_init` set; a cold start
+    ignores these). Defaults measured in docs/results/epoet-sac-warm-start/."""
+
+    KEY: ClassVar[str] = "algo.warm"
+
+    alpha: Optional[float]  # the temperature; None: the source's final one (warm_start.py)
+    critic_updates: int  # critic-only updates on the first Train_SAC's replay
+    actor_lr: Optional[float]  # the actor's learning rate; None: algo.sac.lr
+    anchor: float  # weight of the actor's pull towards the actor it was given (0: plain SAC)
+
+    def __post_init__(self) -> None:
+        non_negative(self, "critic_updates", "anchor")
+        for name in ("alpha", "actor_lr"):
+            value = getattr(self, name)
+            check(
+                value is None or value > 0,
+                f"{self.KEY}.{name} must be > 0 or null, got {value}.",
+            )
+
+
+@dataclass
 class EpoetSacConfig(PoetConfig):
     """ePOET plus a SAC learner trained every iteration (Algorithm 1's red steps)."""
 
     sac: SacLearnerConfig
+    warm: WarmConfig
     distill: DistillConfig
     frames_per_iteration: int  # SAC's own environment steps per ePOET iteration (Train_SAC;
     # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
