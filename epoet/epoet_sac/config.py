@@ -12,7 +12,7 @@ from epoet.rl.config import SacLearnerConfig
 # --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
 
 SAC_TERRAINS = ("pool", "bowl")
-JOIN_MAPPINGS = ("distill", "random")
+JOIN_MAPPINGS = ("dagger", "distill", "random")
 
 
 @dataclass
@@ -28,6 +28,22 @@ class DistillConfig:
 
     def __post_init__(self) -> None:
         positive(self, "states", "epochs", "batch", "lr")
+
+
+@dataclass
+class DaggerConfig:
+    """DAgger from the SAC actor into the ES network at the join (epoet/epoet_sac/dagger.py)."""
+
+    KEY: ClassVar[str] = "algo.dagger"
+
+    rounds: int  # student rollouts after the teacher's
+    episodes: int  # episodes per round (the teacher's and the student's)
+    epochs: int  # passes over the aggregated states per round
+    batch: int
+    lr: float
+
+    def __post_init__(self) -> None:
+        positive(self, "rounds", "episodes", "epochs", "batch", "lr")
 
 
 @dataclass
@@ -59,12 +75,13 @@ class EpoetSacConfig(PoetConfig):
     sac: SacLearnerConfig
     warm: WarmConfig
     distill: DistillConfig
+    dagger: DaggerConfig
     frames_per_iteration: int  # SAC's own environment steps per ePOET iteration (Train_SAC;
     # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
     updates_per_frame: float  # gradient updates per SAC frame (paper: 1)
     es_episodes_per_pair: int  # ES-step episodes per active pair recorded into the replay
     sac_terrain: str  # pool: a sampled active environment; bowl: the reference's
-    mapping: str  # the join's SAC actor -> ES mapping: distill | random
+    mapping: str  # the join's SAC actor -> ES mapping: dagger | distill | random
     join_every_transfers: int  # the join at t mod (k N_transfer) = k N_transfer - 2
     pretrain_iterations: int  # Train_SAC iterations before iteration 0 (reference: 500)
     sac_init: Optional[str]  # None: cold; a SAC run (folder or MLflow run id) or

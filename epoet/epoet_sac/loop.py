@@ -131,6 +131,7 @@ class EpoetSac:
             self.score_env,
             self.learner.buffer,
             algo.distill,
+            algo.dagger,
         )
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
@@ -352,6 +353,7 @@ class EpoetSac:
             "join/sac_score": mapped.sac_score,
             "join/mapped_score": mapped.score,
             "join/mapping_error": mapped.error,
+            **{f"join/{k}": v for k, v in mapped.cost.items()},
             "replaced": float(sum(new > old for old, new in outcome.values())),
         }
         for index, (old, new) in outcome.items():
