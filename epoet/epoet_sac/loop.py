@@ -40,7 +40,7 @@ from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import (
     ReplacedAgent,
 )
-from epoet.epoet_sac.collect import collect
+from epoet.epoet_sac.collect import collect, es_transitions
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.exchange import ActorExchange
 from epoet.epoet_sac.replay_mix import ReplayMix
@@ -48,7 +48,7 @@ from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for, warm_start_
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET, annecs, best_by_lineage
 from epoet.poet.pairs import Environment, Pair
-from epoet.rl.env import OBS, episode_metrics, hexapod, make_env
+from epoet.rl.env import episode_metrics, hexapod, make_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
@@ -244,26 +244,10 @@ class EpoetSac:
 
     def add_to_replay(self, episodes: list[Episodes]) -> None:
         """The recorded ES transitions (float32, from the workers) into SAC's replay buffer."""
-        recorded = [e.transitions for e in episodes if e.transitions is not None]
-        if not recorded:
-            return
-        t = {k: np.concatenate([r[k] for r in recorded]) for k in recorded[0]}
-        n = len(t["reward"])
-        self.learner.add(
-            TensorDict(
-                {
-                    OBS: torch.from_numpy(t["obs"]),
-                    "action": torch.from_numpy(t["action"]),
-                    "next": {
-                        OBS: torch.from_numpy(t["next_obs"]),
-                        "reward": torch.from_numpy(t["reward"])[:, None],
-                        "terminated": torch.from_numpy(t["terminated"])[:, None],
-                    },
-                },
-                batch_size=[n],
-            )
-        )
-        self.mix.add("es", n)
+        data = es_transitions(episodes)
+        if data is not None:
+            self.learner.add(data)
+            self.mix.add("es", data.numel())
 
     def sac_pair(self, t: int) -> Pair:
         """The active pair whose environment SAC uses at iteration t (paper: sampled)."""
