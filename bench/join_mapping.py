@@ -12,6 +12,7 @@ actor; the last line is the smallest ratio per mapping over the seeds.
     .venv/bin/python bench/join_mapping.py [--seeds 1,2,3] [--iterations 1]
         [--mappings dagger,distill,random] override ...
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,8 +75,14 @@ def main() -> None:
                 if out:
                     out.write(json.dumps(row) + "\n")
                     out.flush()
-    print(" ".join(f"min ratio {m} = {min(r):.3f} ({len(r)} walking)" if r else
-                   f"min ratio {m} = n/a (0 walking)" for m, r in ratios.items()))
+    print(
+        " ".join(
+            f"min ratio {m} = {min(r):.3f} ({len(r)} walking)"
+            if r
+            else f"min ratio {m} = n/a (0 walking)"
+            for m, r in ratios.items()
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -12,6 +12,10 @@ uses, so the run is the one `python -m epoet` would make with the same overrides
 
 Each line of `--out`: iteration, environment, score, the iteration's `sac/alpha`,
 `sac/updated_from_pool` and `sac/score` where it has them, wall seconds and the load average.
+
+    .venv/bin/python bench/warm_start_curve.py --table old=a.jsonl,b.jsonl new=c.jsonl,...
+
+prints the curves side by side as a markdown table (one column per file, the scored rows).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import json
 import os
 import time
 from contextlib import closing
+from pathlib import Path
 
 from epoet.config import load
 from epoet.epoet_sac.loop import EpoetSac
@@ -48,12 +53,35 @@ def score(loop: EpoetSac, t: int) -> tuple[int, float]:
     return pair.env.index, loop.exchange.actor_score(service.terrain(pair.env, t), seeds)
 
 
+def table(groups: list[str]) -> str:
+    """The scored rows of `name=file,file,...` groups as one markdown table."""
+    columns: dict[str, dict[int, float]] = {}
+    for group in groups:
+        name, files = group.split("=", 1)
+        for path in files.split(","):
+            rows = [json.loads(line) for line in open(path)]
+            label = f"{name} {Path(path).stem}"
+            columns[label] = {r["iteration"]: r["score"] for r in rows if "score" in r}
+    iterations = sorted({t for c in columns.values() for t in c})
+    lines = ["| iteration | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for t in iterations:
+        cells = [f"{c[t]:.0f}" if t in c else "" for c in columns.values()]
+        lines.append(f"| {'start' if t < 0 else t} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True)
+    parser.add_argument("--table", nargs="+", help="name=file,file ... : print the curves")
+    parser.add_argument("--out")
     parser.add_argument("--every", type=int, default=2)
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_args()
+    if args.table:
+        print(table(args.table))
+        return
+    if not args.out:
+        parser.error("--out is required to run")
     cfg = load(["algo=epoet_sac", *args.overrides])
     started = time.perf_counter()
     with (
