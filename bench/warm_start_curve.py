@@ -36,13 +36,16 @@ from epoet.rollout.evaluators import evaluator_for
 
 KEPT = (
     "sac/alpha",
-    "sac/updated_from_pool",
     "sac/score",
     "sac/top_score",
-    "join/sac_score",
-    "join/mapped_score",
+    "sac/updated_from_pool",
+    "sac/distilled_score",
     "sac/warm_loss_qvalue",
-)
+    "join/",
+    "admitted",
+    "transfers",
+    "replaced",
+)  # key prefixes
 
 
 def score(loop: EpoetSac, t: int) -> tuple[int, float]:
@@ -94,7 +97,7 @@ def main() -> None:
             row: dict[str, object] = {"iteration": t}
             if scored:
                 row["env"], row["score"] = score(loop, max(t, 0))
-            row.update({k: metrics[k] for k in KEPT if k in metrics})
+            row.update({k: v for k, v in metrics.items() if k.startswith(KEPT)})
             row["wall_s"] = round(time.perf_counter() - started, 1)
             row["load1"] = os.getloadavg()[0]
             out.write(json.dumps(row) + "\n")

@@ -1,4 +1,16 @@
-"""Probe: do the loaded critics pull the loaded actor apart on its own states?"""
+"""The exploration probe of issue 36 (kept as the record of what README.md's probe rows ran;
+not maintained). Loads the authors' actor into ePOET-SAC's learner at the workstation budget,
+seed 1, without observation normalisation, collects `frames` frames of the actor on the root
+environment's iteration-0 terrain, then runs `n` updates in three thirds and scores the actor
+(3 episodes, Key.EVAL starts) after each:
+
+    python probe.py adam 3e-4 300 4000      # actor-only updates, critics frozen
+    python probe.py full 3e-4 300 4000      # the learner's SAC updates
+    python probe.py warm2000 3e-4 300 4000  # 2000 critic-only updates first, then SAC updates
+    python probe.py anchor1 3e-4 300 4000   # SAC updates with the actor anchored (weight 1)
+
+(The anchor here scales by |Q(s, mu_0(s))|; epoet/rl/sac_loss.py uses |Q| of the sampled
+action, which is cheaper.)"""
 import sys, torch, numpy as np
 from epoet.config import load
 from epoet.epoet_sac.loop import EpoetSac
