@@ -1,52 +1,89 @@
-"""What ePOET-SAC's join loses: the mapped ES agent's score against the SAC actor's.
+"""What ePOET-SAC's join keeps of the SAC actor: the mapped ES agent's score over the actor's.
 
-Loads an `algo=epoet_sac` run's checkpoint and, on every active environment's terrain of the
-run's last iteration, maps the SAC actor into the ES shape with both mappings (`distill`, ours,
-and `random`, the paper's random parameter selection; three mapping seeds each) and scores the
-mapped agents and the actor itself from the same starts:
+For each run seed, builds `algo=epoet_sac` with the overrides (the default start is the
+authors' SAC actor, `reference:sac/42`), runs `--iterations` iterations of the real loop (at
+least one, so the pool's observation statistics exist and the mapping works in the pool's
+standardised space, as at a join), then on the terrain Train_SAC used at the last of them maps
+the actor into the ES network with each of `--mappings` (the join's own code,
+`ActorExchange.map_and_score`, keyed by the iteration) and scores the mapped agent and the actor
+from the same starts (Key.JOIN_EVAL). For actors that walk (score >= 1000), it reports mapped /
+actor; the last line is the smallest ratio per mapping over the seeds.
 
-    python bench/join_mapping.py /path/to/run/folder budget=laptop
-
-The overrides are the run's (as for `resume=`). The last line is
-`gap distill = X random = Y` (mean |mapped score - SAC actor score|).
+    .venv/bin/python bench/join_mapping.py [--seeds 1,2,3] [--iterations 1]
+        [--mappings dagger,distill,random] override ...
 """
+
 from __future__ import annotations
 
-import sys
+import argparse
+import json
+import os
+import time
+from contextlib import closing
 
-import numpy as np
-
-from epoet.core.checkpoint import find_checkpoint, load_checkpoint
 from epoet.config import load
-from epoet.rollout.evaluators import make_evaluator
 from epoet.epoet_sac.loop import EpoetSac
+from epoet.epoet_sac.runner import warm_start_of
 from epoet.poet.runner import layer_sizes
+from epoet.rollout.evaluators import evaluator_for
 
-SEEDS = 3
+WALKS = 1000.0  # an actor that walks: the issue's threshold
 
 
-def main(run_dir: str, overrides: list[str]) -> None:
-    state = load_checkpoint(find_checkpoint(run_dir))["poet"]
-    cfg = load(["algo=epoet_sac", *overrides])
-    with make_evaluator(cfg.agent, cfg.terrain, "local", cfg.workers.batch,
-                        layer_sizes(cfg)) as evaluator:
-        poet = EpoetSac.from_config(cfg, evaluator)
-        poet.load_state_dict(state)
-        t = poet.iteration - 1
-        gaps: dict[str, list[float]] = {"distill": [], "random": []}
-        for pair in poet.pool.active:
-            terrain = poet.service.terrain(pair.env, t)
-            for mapping in gaps:
-                runs = [poet.exchange.map_and_score(t + k, terrain, mapping, pair.env.index)
-                        for k in range(SEEDS)]
-                gaps[mapping] += [abs(m.score - m.sac_score) for m in runs]
-                print(f"env{pair.env.index}: SAC actor {runs[0].sac_score:8.1f}  {mapping:7s} "
-                      + " ".join(f"{m.score:8.1f}" for m in runs), flush=True)
-        poet.close()
-    print(f"gap distill = {np.mean(gaps['distill']):.1f} random = {np.mean(gaps['random']):.1f}")
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", default="1,2,3")
+    parser.add_argument("--iterations", type=int, default=1)
+    parser.add_argument("--mappings", default="dagger,distill,random")
+    parser.add_argument("--out", default=None, help="JSON lines, one per seed and mapping")
+    parser.add_argument("overrides", nargs="*")
+    args = parser.parse_args()
+    ratios: dict[str, list[float]] = {m: [] for m in args.mappings.split(",")}
+    out = open(args.out, "w") if args.out else None
+    for seed in (int(s) for s in args.seeds.split(",")):
+        cfg = load(["algo=epoet_sac", *args.overrides, f"seed={seed}"])
+        with (
+            evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator,
+            closing(EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg))) as loop,
+        ):
+            for _ in range(max(1, args.iterations)):
+                loop.run_iteration()
+            t = loop.iteration - 1
+            pair = loop.sac_pair(t)
+            terrain = loop.service.terrain(pair.env, t)
+            for mapping in ratios:
+                started = time.perf_counter()
+                mapped = loop.exchange.map_and_score(t, terrain, mapping, t)
+                walks = mapped.sac_score >= WALKS
+                ratio = mapped.score / mapped.sac_score if walks else float("nan")
+                if walks:
+                    ratios[mapping].append(ratio)
+                row = {
+                    "seed": seed,
+                    "iteration": t,
+                    "env": pair.env.index,
+                    "mapping": mapping,
+                    "actor": round(mapped.sac_score, 1),
+                    "mapped": round(mapped.score, 1),
+                    "ratio": round(ratio, 3),
+                    "error": mapped.error,
+                    **mapped.cost,
+                    "seconds": round(time.perf_counter() - started, 1),
+                    "load1": os.getloadavg()[0],
+                }
+                print(json.dumps(row), flush=True)
+                if out:
+                    out.write(json.dumps(row) + "\n")
+                    out.flush()
+    print(
+        " ".join(
+            f"min ratio {m} = {min(r):.3f} ({len(r)} walking)"
+            if r
+            else f"min ratio {m} = n/a (0 walking)"
+            for m, r in ratios.items()
+        )
+    )
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 2:
-        sys.exit("usage: python bench/join_mapping.py <run folder> [overrides...]")
-    main(sys.argv[1], sys.argv[2:])
+    main()

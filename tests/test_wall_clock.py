@@ -116,7 +116,7 @@ def test_epoet_sac_runs_as_the_paper_at_the_paper_budget() -> None:
     paper = load(["algo=epoet_sac", "budget=paper"]).algo
     assert (paper.pretrain_iterations, paper.mapping) == (500, "random")
     laptop = load(["algo=epoet_sac", "budget=laptop"]).algo
-    assert (laptop.pretrain_iterations, laptop.mapping) == (0, "distill")
+    assert (laptop.pretrain_iterations, laptop.mapping) == (0, "dagger")
 
 
 def test_bad_hours_are_one_sentence() -> None:

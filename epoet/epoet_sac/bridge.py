@@ -49,9 +49,10 @@ class Mapped(NamedTuple):
     one terrain from the same starts (their gap: what the mapping loses)."""
 
     theta: np.ndarray
-    error: float  # distillation's mean squared action error; NaN for `random`
+    error: float  # the fit's mean squared action error; NaN for `random`
     score: float
     sac_score: float
+    cost: dict[str, float]  # DAgger's episodes, env steps, states and seconds (else empty)
 
 
 def crossover(theta: np.ndarray, donor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -87,15 +88,30 @@ def random_mapping(
     return theta
 
 
-def _es_module(layer_sizes: Sequence[int]) -> nn.Sequential:
-    """The ES network as torch layers (tanh after every layer, as epoet/rollout/policy.py)."""
+def es_module(theta: np.ndarray, layer_sizes: Sequence[int]) -> nn.Sequential:
+    """The ES network of `theta` as float64 torch layers (tanh after every layer, as
+    epoet/rollout/policy.py), to be trained by gradient."""
     layers: list[nn.Module] = []
     for n_in, n_out in zip(layer_sizes[:-1], layer_sizes[1:]):
         layers += [nn.Linear(n_in, n_out, dtype=torch.float64), nn.Tanh()]
-    return nn.Sequential(*layers)
+    module = nn.Sequential(*layers)
+    with torch.no_grad():  # the flat layout holds (in, out) weights, nn.Linear (out, in)
+        for (w, b), linear in zip(unflatten(theta.copy(), layer_sizes), _actor_linears(module)):
+            linear.weight.copy_(torch.from_numpy(w.T.copy()))
+            linear.bias.copy_(torch.from_numpy(b.copy()))
+    return module
 
 
-def _fit(
+def es_theta(module: nn.Module, layer_sizes: Sequence[int]) -> np.ndarray:
+    """The flat ES vector of a module made by `es_module`."""
+    theta = np.zeros(num_params(layer_sizes))
+    for (w, b), linear in zip(unflatten(theta, layer_sizes), _actor_linears(module)):
+        w[...] = linear.weight.detach().numpy().T
+        b[...] = linear.bias.detach().numpy()
+    return theta
+
+
+def fit(
     module: nn.Module,
     predict,
     states: torch.Tensor,
@@ -143,12 +159,8 @@ def distill_into_es(
         states if standardizer is None else (states - standardizer.mean) / standardizer.std,
         dtype=torch.float64,
     )
-    student = _es_module(layer_sizes)
-    with torch.no_grad():  # start from `init`, in the flat layout's (in, out) orientation
-        for (w, b), linear in zip(unflatten(init.copy(), layer_sizes), _actor_linears(student)):
-            linear.weight.copy_(torch.from_numpy(w.T.copy()))
-            linear.bias.copy_(torch.from_numpy(b.copy()))
-    error = _fit(
+    student = es_module(init, layer_sizes)
+    error = fit(
         student,
         student,
         es_obs,
@@ -158,11 +170,7 @@ def distill_into_es(
         lr=lr,
         generator=torch.Generator().manual_seed(seed),
     )
-    theta = np.zeros(num_params(layer_sizes))
-    for (w, b), linear in zip(unflatten(theta, layer_sizes), _actor_linears(student)):
-        w[...] = linear.weight.detach().numpy().T
-        b[...] = linear.bias.detach().numpy()
-    return theta, error
+    return es_theta(student, layer_sizes), error
 
 
 def distill_into_actor(
@@ -180,7 +188,7 @@ def distill_into_actor(
     (in place); returns the final mean squared action error."""
     targets = torch.as_tensor(forward(theta, states, layer_sizes), dtype=torch.float32)
     obs = torch.as_tensor(states, dtype=torch.float32)
-    return _fit(
+    return fit(
         policy_net,
         lambda s: torch.tanh(policy_net(s)[0]),
         obs,

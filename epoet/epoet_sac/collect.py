@@ -1,4 +1,5 @@
-"""Train_SAC's frames, stepped on the gym env directly.
+"""Train_SAC's frames, stepped on the gym env directly; and the pool's recorded ES transitions
+as the same replay rows (`es_transitions`).
 
 The same transitions TorchRL's `env.rollout(frames, policy=actor, break_when_any_done=False)`
 gives on ePOET-SAC's SAC env (DoubleToFloat, RewardSum, StepCounter; a new episode after each
@@ -19,6 +20,7 @@ from torch import nn
 from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.spaces import OBS_DIM
 from epoet.rl.env import OBS
+from epoet.rollout.engine import Episodes
 
 
 @torch.no_grad()
@@ -67,4 +69,24 @@ def collect(
             },
         },
         batch_size=[frames],
+    )
+
+
+def es_transitions(episodes: list[Episodes]) -> TensorDict | None:
+    """The transitions the workers recorded (float32) as the replay's rows; None if none were."""
+    recorded = [e.transitions for e in episodes if e.transitions is not None]
+    if not recorded:
+        return None
+    t = {k: np.concatenate([r[k] for r in recorded]) for k in recorded[0]}
+    return TensorDict(
+        {
+            OBS: torch.from_numpy(t["obs"]),
+            "action": torch.from_numpy(t["action"]),
+            "next": {
+                OBS: torch.from_numpy(t["next_obs"]),
+                "reward": torch.from_numpy(t["reward"])[:, None],
+                "terminated": torch.from_numpy(t["terminated"])[:, None],
+            },
+        },
+        batch_size=[len(t["reward"])],
     )

@@ -12,7 +12,7 @@ from epoet.rl.config import SacLearnerConfig
 # --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
 
 SAC_TERRAINS = ("pool", "bowl")
-JOIN_MAPPINGS = ("distill", "random")
+JOIN_MAPPINGS = ("dagger", "distill", "random")
 
 
 @dataclass
@@ -31,17 +31,57 @@ class DistillConfig:
 
 
 @dataclass
+class DaggerConfig:
+    """DAgger from the SAC actor into the ES network at the join (epoet/epoet_sac/dagger.py)."""
+
+    KEY: ClassVar[str] = "algo.dagger"
+
+    rounds: int  # student rollouts after the teacher's
+    episodes: int  # episodes per round (the teacher's and the student's)
+    epochs: int  # passes over the aggregated states per round
+    batch: int
+    lr: float
+
+    def __post_init__(self) -> None:
+        positive(self, "rounds", "episodes", "epochs", "batch", "lr")
+
+
+@dataclass
+class WarmConfig:
+    """How a warm-started learner resumes its trained actor (`algo.sac_init` set; a cold start
+    ignores these). Defaults measured in docs/results/epoet-sac-warm-start/."""
+
+    KEY: ClassVar[str] = "algo.warm"
+
+    alpha: Optional[float]  # the temperature; None: the source's final one (warm_start.py)
+    critic_updates: int  # critic-only updates on the first Train_SAC's replay
+    actor_lr: Optional[float]  # the actor's learning rate; None: algo.sac.lr
+    anchor: float  # weight of the actor's pull towards the actor it was given (0: plain SAC)
+
+    def __post_init__(self) -> None:
+        non_negative(self, "critic_updates", "anchor")
+        for name in ("alpha", "actor_lr"):
+            value = getattr(self, name)
+            check(
+                value is None or value > 0,
+                f"{self.KEY}.{name} must be > 0 or null, got {value}.",
+            )
+
+
+@dataclass
 class EpoetSacConfig(PoetConfig):
     """ePOET plus a SAC learner trained every iteration (Algorithm 1's red steps)."""
 
     sac: SacLearnerConfig
+    warm: WarmConfig
     distill: DistillConfig
+    dagger: DaggerConfig
     frames_per_iteration: int  # SAC's own environment steps per ePOET iteration (Train_SAC;
     # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
     updates_per_frame: float  # gradient updates per SAC frame (paper: 1)
     es_episodes_per_pair: int  # ES-step episodes per active pair recorded into the replay
     sac_terrain: str  # pool: a sampled active environment; bowl: the reference's
-    mapping: str  # the join's SAC actor -> ES mapping: distill | random
+    mapping: str  # the join's SAC actor -> ES mapping: dagger | distill | random
     join_every_transfers: int  # the join at t mod (k N_transfer) = k N_transfer - 2
     pretrain_iterations: int  # Train_SAC iterations before iteration 0 (reference: 500)
     sac_init: Optional[str]  # None: cold; a SAC run (folder or MLflow run id) or

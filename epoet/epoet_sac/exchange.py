@@ -5,6 +5,8 @@ donor with pool agents. `EpoetSac` (loop.py) calls these from its transfer and j
 
 from __future__ import annotations
 
+import copy
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,12 +24,14 @@ from epoet.epoet_sac.bridge import (
     distill_into_es,
     random_mapping,
 )
-from epoet.epoet_sac.config import DistillConfig
+from epoet.epoet_sac.config import DaggerConfig, DistillConfig
+from epoet.epoet_sac.dagger import dagger_into_es
 from epoet.poet.keys import Key
 from epoet.poet.pairs import Pair, Pool
 from epoet.poet.service import Service
 from epoet.rl.env import OBS
 from epoet.rollout.policy import init_params
+from epoet.rollout.populations import Agents, Request
 from epoet.terrain import Terrain
 
 
@@ -42,25 +46,74 @@ class ActorExchange:
     score_env: HexapodEnv
     buffer: ReplayBuffer
     distill: DistillConfig
+    dagger_cfg: DaggerConfig
     replaced: list[ReplacedAgent] = field(default_factory=list)
 
-    def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
-        """Mean return of the SAC actor's deterministic policy, tanh(loc(s)), on `terrain`,
-        one episode per spawn seed."""
-        env, returns = self.score_env, []
+    def actor_episodes(self, terrain: Terrain, spawn_seeds: np.ndarray) -> tuple[list, np.ndarray]:
+        """Episodes of the SAC actor's deterministic policy, tanh(loc(s)), on `terrain`, one per
+        spawn seed: their returns and the raw observations the actor acted on."""
+        env, returns, states = self.score_env, [], []
         env.set_terrain(terrain)  # kept by every reset below (SAC's env never resamples)
         with torch.no_grad():
             for seed in spawn_seeds:
                 obs, _ = env.reset(seed=int(seed))
                 total, done = 0.0, False
                 while not done:
+                    states.append(obs)
                     loc, _ = self.actor_net(torch.as_tensor(obs, dtype=torch.float32))
                     obs, reward, terminated, truncated, info = env.step(torch.tanh(loc).numpy())
                     total += reward
                     done = terminated or truncated
                 self.service.env_steps += info["steps"]
                 returns.append(total)
-        return float(np.mean(returns))
+        return returns, np.asarray(states)
+
+    def actor_score(self, terrain: Terrain, spawn_seeds: np.ndarray) -> float:
+        """Mean return of the SAC actor's deterministic policy on `terrain`, one episode per
+        spawn seed."""
+        return float(np.mean(self.actor_episodes(terrain, spawn_seeds)[0]))
+
+    @torch.no_grad()
+    def actor_actions(self, states: np.ndarray) -> np.ndarray:
+        """The actor's deterministic actions tanh(loc(s)) on raw observations (N, obs)."""
+        loc, _ = self.actor_net(torch.as_tensor(states, dtype=torch.float32))
+        return torch.tanh(loc).double().numpy()
+
+    def dagger(self, t: int, terrain: Terrain) -> tuple[np.ndarray, float, dict[str, float]]:
+        """The actor mapped by DAgger on `terrain` (dagger.py; keyed by t), its final action
+        error and its cost: episodes and environment steps (the actor's and the student's) and
+        seconds."""
+        service, d = self.service, self.dagger_cfg
+        started = time.perf_counter()
+        returns, teacher_states = self.actor_episodes(
+            terrain, service.seeds(d.episodes, Key.DAGGER, t, 0)
+        )
+
+        def roll_out(theta: np.ndarray, round_: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            seeds = service.seeds(d.episodes, Key.DAGGER, t, round_)
+            agents = Agents.of(service.policy(theta[None]), seeds)
+            episodes = service.run([Request(terrain, agents, record=d.episodes)])[0]
+            assert episodes.transitions is not None  # every episode was recorded
+            return episodes.transitions["obs"], episodes.returns.ravel(), episodes.lengths.ravel()
+
+        mapped = dagger_into_es(
+            self.actor_actions,
+            teacher_states,
+            roll_out,
+            init_params(service.seed(Key.JOIN, t, 0), service.layer_sizes),
+            service.layer_sizes,
+            d,
+            seed=service.seed(Key.DAGGER, t),
+            standardizer=service.standardizer(),
+        )
+        cost = {
+            "dagger/episodes": float(len(returns) + mapped.episodes),
+            "dagger/env_steps": float(len(teacher_states) + mapped.env_steps),
+            "dagger/states": float(mapped.states),
+            "dagger/seconds": time.perf_counter() - started,
+            "dagger/student_return": mapped.student_returns[-1],
+        }
+        return mapped.theta, mapped.error, cost
 
     def replay_states(self, torch_seed: int) -> np.ndarray:
         """`distill.states` observations drawn uniformly from the replay buffer."""
@@ -74,19 +127,19 @@ class ActorExchange:
     def update_actor_from_pool(self, t: int) -> dict[str, float]:
         """Algorithm 1's "SAC_Actor = theta_top" when the best pool agent beats the actor on that
         agent's environment (same starts as its evaluation). An ES agent cannot be copied into
-        the actor (other layer sizes): the actor's mean is distilled from it on replay states."""
+        the actor (other layer sizes): the actor's mean is distilled from it on replay states,
+        and the distilled actor is kept only if it then scores higher than the actor did, on the
+        same terrain and starts (Algorithm 3's rule for a crossover child; a deviation: the
+        paper's copy cannot fail, a distillation can, and a failed one would replace a walking
+        actor by a falling one). `sac/updated_from_pool`: 1 when it was kept."""
         service = self.service
         top = max(self.pool.active, key=lambda p: p.score)
-        sac_score = self.actor_score(
-            service.terrain(top.env, t),
-            service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t),
-        )
-        metrics = {
-            "sac/score": sac_score,
-            "sac/top_score": top.score,
-            "sac/updated_from_pool": float(sac_score < top.score),
-        }
+        terrain = service.terrain(top.env, t)
+        seeds = service.seeds(service.eval_episodes, Key.EVAL, top.env.index, t)
+        sac_score = self.actor_score(terrain, seeds)
+        metrics = {"sac/score": sac_score, "sac/top_score": top.score, "sac/updated_from_pool": 0.0}
         if sac_score < top.score:
+            before = copy.deepcopy(self.actor_net.state_dict())
             metrics["sac/distill_error"] = distill_into_actor(  # raw-observation agent
                 self.actor_net,
                 service.policy(top.theta),
@@ -94,17 +147,26 @@ class ActorExchange:
                 service.layer_sizes,
                 **self._distill_kwargs(service.seed(Key.SAC, t, 2)),
             )
+            metrics["sac/distilled_score"] = self.actor_score(terrain, seeds)
+            if metrics["sac/distilled_score"] > sac_score:
+                metrics["sac/updated_from_pool"] = 1.0
+            else:
+                self.actor_net.load_state_dict(before)
         return metrics
 
-    def map_actor(self, t: int, mapping: str) -> tuple[np.ndarray, float]:
-        """The SAC actor as an ES vector by `mapping`, and the distillation's action error (NaN
-        for the random mapping)."""
+    def map_actor(
+        self, t: int, mapping: str, terrain: Terrain
+    ) -> tuple[np.ndarray, float, dict[str, float]]:
+        """The SAC actor as an ES vector by `mapping` (DAgger on `terrain`), the fit's action
+        error (NaN for the random mapping) and what the mapping cost (DAgger's)."""
         service, sizes = self.service, self.service.layer_sizes
         if mapping == "random":
             rng = np.random.default_rng(service.seed(Key.JOIN, t))
-            return random_mapping(self.actor_net, sizes, rng), float("nan")
+            return random_mapping(self.actor_net, sizes, rng), float("nan"), {}
+        if mapping == "dagger":
+            return self.dagger(t, terrain)
         init = init_params(service.seed(Key.JOIN, t, 0), sizes)
-        return distill_into_es(
+        theta, error = distill_into_es(
             self.actor_net,
             self.replay_states(service.seed(Key.JOIN, t, 1)),
             sizes,
@@ -112,19 +174,20 @@ class ActorExchange:
             standardizer=service.standardizer(),
             **self._distill_kwargs(service.seed(Key.JOIN, t, 2)),
         )
+        return theta, error, {}
 
     def map_and_score(self, t: int, terrain: Terrain, mapping: str, *ids: int) -> Mapped:
         """Map the SAC actor (random draws keyed by t), then score the mapped agent and the
         actor on `terrain` from the same starts (keyed by `ids`)."""
         service = self.service
-        theta, error = self.map_actor(t, mapping)
+        theta, error, cost = self.map_actor(t, mapping, terrain)
         score = float(
             service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL, *ids)])[0][0]
         )
         sac_score = self.actor_score(
             terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL, *ids)
         )
-        return Mapped(theta, error, score, sac_score)
+        return Mapped(theta, error, score, sac_score, cost)
 
     def crossover_with(
         self, pairs: list[Pair], donor: np.ndarray, t: int

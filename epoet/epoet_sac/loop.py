@@ -40,15 +40,15 @@ from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import (
     ReplacedAgent,
 )
-from epoet.epoet_sac.collect import collect
+from epoet.epoet_sac.collect import collect, es_transitions
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.exchange import ActorExchange
 from epoet.epoet_sac.replay_mix import ReplayMix
-from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for
+from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for, warm_start_alpha
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET, annecs, best_by_lineage
 from epoet.poet.pairs import Environment, Pair
-from epoet.rl.env import OBS, episode_metrics, hexapod, make_env
+from epoet.rl.env import episode_metrics, hexapod, make_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
@@ -96,14 +96,22 @@ class EpoetSac:
         self.sac_env = sac_env
         # With the pool's observation statistics, the actor and critics standardise inside
         # (the same statistics, `sync_obs_statistics`); the replay keeps raw observations.
+        # A warm start fine-tunes (algo.warm): the actor at its own learning rate, the
+        # temperature its source finished at, the critics first fitted to this pool's terrains.
+        warm = algo.warm if algo.sac_init else None
         self.learner = SacLearner(
             algo.sac,
             sac_env,
             standardize=self.service.obs_norm is not None,
             scale_mapping=scale_mapping_for(algo.sac_init),
+            actor_lr=None if warm is None else warm.actor_lr,
+            anchor_weight=0.0 if warm is None else warm.anchor,
         )
         if warm_start is not None:  # not on resume: the checkpoint holds the learner
-            self.learner.warm_start(warm_start.actor, warm_start.critics)
+            self.learner.warm_start(
+                warm_start.actor, warm_start.critics, warm_start_alpha(warm_start, algo.warm)
+            )
+        self.critic_updates = 0 if warm is None else warm.critic_updates
         # a warm-started actor acts from the first frame; a cold one after uniform actions
         self.random_frames = 0 if algo.sac_init else algo.sac.init_random_frames
         self.actor_net = self.learner.loss.policy_net  # raw obs -> (loc, scale)
@@ -123,6 +131,7 @@ class EpoetSac:
             self.score_env,
             self.learner.buffer,
             algo.distill,
+            algo.dagger,
         )
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
 
@@ -196,6 +205,8 @@ class EpoetSac:
                     sum(source in self.join_of for source in moves.values())
                 )
                 metrics.update(self.exchange.update_actor_from_pool(t))
+                if metrics["sac/updated_from_pool"]:  # the pool's agent is the new anchor
+                    self.learner.loss.reset_anchor()
         if self.join_due(t):
             with timer("join"):
                 metrics.update(self.join(t))
@@ -241,26 +252,10 @@ class EpoetSac:
 
     def add_to_replay(self, episodes: list[Episodes]) -> None:
         """The recorded ES transitions (float32, from the workers) into SAC's replay buffer."""
-        recorded = [e.transitions for e in episodes if e.transitions is not None]
-        if not recorded:
-            return
-        t = {k: np.concatenate([r[k] for r in recorded]) for k in recorded[0]}
-        n = len(t["reward"])
-        self.learner.add(
-            TensorDict(
-                {
-                    OBS: torch.from_numpy(t["obs"]),
-                    "action": torch.from_numpy(t["action"]),
-                    "next": {
-                        OBS: torch.from_numpy(t["next_obs"]),
-                        "reward": torch.from_numpy(t["reward"])[:, None],
-                        "terminated": torch.from_numpy(t["terminated"])[:, None],
-                    },
-                },
-                batch_size=[n],
-            )
-        )
-        self.mix.add("es", n)
+        data = es_transitions(episodes)
+        if data is not None:
+            self.learner.add(data)
+            self.mix.add("es", data.numel())
 
     def sac_pair(self, t: int) -> Pair:
         """The active pair whose environment SAC uses at iteration t (paper: sampled)."""
@@ -306,7 +301,11 @@ class EpoetSac:
             spawn_seed,
             explore=self.mix.added["sac"] >= self.random_frames,
         )
-        learned = self.learner.learn(data, self.updates_per_iteration)
+        # a warm start's critics learn this pool's terrains before the actor first moves
+        first = not self.mix.added["sac"]
+        learned = self.learner.learn(
+            data, self.updates_per_iteration, self.critic_updates if first else 0
+        )
         self.mix.add("sac", data.numel())
         self.service.env_steps += data.numel()
         return {f"sac/{k}": v for k, v in {**episode_metrics(data), **learned}.items()}
@@ -346,6 +345,7 @@ class EpoetSac:
             "join/sac_score": mapped.sac_score,
             "join/mapped_score": mapped.score,
             "join/mapping_error": mapped.error,
+            **{f"join/{k}": v for k, v in mapped.cost.items()},
             "replaced": float(sum(new > old for old, new in outcome.values())),
         }
         for index, (old, new) in outcome.items():

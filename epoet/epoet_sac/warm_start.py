@@ -9,7 +9,9 @@
   `policy.pt` and `critics.pt` artifacts).
 
 A warm start loads the actor's MLP and the critics as they are (the target critics a copy; the
-temperature and the optimiser's state stay fresh), so the layer sizes and activation must be
+optimiser's state stays fresh) with the temperature the source finished at (`alpha`: the
+authors' from their log, ours from the run's checkpoint or its last `train/alpha`; the loop
+takes `algo.warm.alpha` instead when set), so the layer sizes and activation must be
 `algo.sac`'s, and the weights must act on raw observations (a SAC run with `algo.obs_norm=true`
 reads clipped normalised observations, which do not fold into a layer). The actor keeps the
 scale mapping it was trained with: TorchRL's biased softplus for ours, the authors'
@@ -33,6 +35,7 @@ import torch
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.epoet_sac.config import WarmConfig
 from epoet.rl.config import SacLearnerConfig
 from epoet.rl.nets import LOG_STD_SCALE, SOFTPLUS_SCALE
 from epoet.rl.policy_file import CRITICS_FILE, POLICY_FILE, read_critics
@@ -42,6 +45,12 @@ REFERENCE = "reference:"
 REFERENCE_FOLDER = Path(__file__).resolve().parent.parent / "reference"  # epoet/reference
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
 CRITIC_PREFIX = "critics."  # the critics' keys in a SAC checkpoint's loss state
+# The authors' SAC temperature when their shipped weights were saved: their files hold no
+# log_alpha, but their log does. model_pf_best.pth is the epoch of the best running average
+# (1370.43, epoch 154 of trained_models/sac/42/log.csv), whose Alpha_Mean is 0.00920 (0.0091-0.0094
+# from epoch 80 to the end); their twin SAC scaled rewards by 5 (twin_sac_q.py `scale_reward`),
+# as algo.sac.reward_scale does, so the value carries over unchanged.
+REFERENCE_ALPHA = {"sac/42": 0.0092}
 
 
 @dataclass(frozen=True)
@@ -53,6 +62,7 @@ class WarmStart:
     actor: dict[str, torch.Tensor]
     critics: dict[str, torch.Tensor]
     scale_mapping: str
+    alpha: float | None  # the source's final temperature (None: not recorded)
 
 
 class _Found(NamedTuple):
@@ -61,6 +71,7 @@ class _Found(NamedTuple):
     actor: dict[str, Any]  # the exported policy's plain data
     critics: dict[str, Any]  # the critics file's plain data
     scale_mapping: str
+    alpha: float | None
 
 
 def scale_mapping_for(sac_init: str | None) -> str:
@@ -85,11 +96,17 @@ def _reference(spec: str) -> _Found:
             spec, f"{what}; a warm start takes a SAC actor with its critics ({', '.join(usable)})"
         )
     actor = REFERENCE_FOLDER / entry["file"]
-    return _from_files(spec, actor, REFERENCE_FOLDER / entry["critics"], LOG_STD_SCALE)
+    name = spec.removeprefix(REFERENCE)
+    critics = REFERENCE_FOLDER / entry["critics"]
+    return _from_files(spec, actor, critics, LOG_STD_SCALE, REFERENCE_ALPHA.get(name))
 
 
 def _from_files(
-    spec: str, policy: Path, critics: Path | dict[str, Any], scale_mapping: str
+    spec: str,
+    policy: Path,
+    critics: Path | dict[str, Any],
+    scale_mapping: str,
+    alpha: float | None,
 ) -> _Found:
     try:
         actor = read_torch_policy(policy)
@@ -108,7 +125,7 @@ def _from_files(
         raise _fail(
             spec, "has no SAC actor (its output layer is not a mean and a scale per action)"
         )
-    return _Found(actor, critic_spec, scale_mapping)
+    return _Found(actor, critic_spec, scale_mapping, alpha)
 
 
 def _from_folder(spec: str, folder: Path) -> _Found:
@@ -125,9 +142,10 @@ def _from_folder(spec: str, folder: Path) -> _Found:
         raise _fail(spec, f"has no {POLICY_FILE}: the SAC run has not finished")
     critics_file = folder / CRITICS_FILE
     critics: Path | dict[str, Any] = critics_file
+    loss = state["learner"]["loss"]
+    alpha = float(torch.as_tensor(loss["log_alpha"]).exp()) if "log_alpha" in loss else None
     if not critics_file.is_file():  # a run from before SAC runs exported their critics
         config = state["config"]["algo"]
-        loss = state["learner"]["loss"]
         critics = {
             "activation": config["activation"],
             "hidden": list(config["hidden"]),
@@ -137,7 +155,7 @@ def _from_folder(spec: str, folder: Path) -> _Found:
                 if k.startswith(CRITIC_PREFIX)
             },
         }
-    return _from_files(spec, folder / POLICY_FILE, critics, SOFTPLUS_SCALE)
+    return _from_files(spec, folder / POLICY_FILE, critics, SOFTPLUS_SCALE, alpha)
 
 
 def _not_sac(spec: str, algo: str | None) -> ConfigError:
@@ -167,7 +185,8 @@ def _from_store(spec: str, tracking_uri: str | None) -> _Found:
     with tempfile.TemporaryDirectory(prefix="epoet-sac-init-") as tmp:
         policy = stored.download(POLICY_FILE, Path(tmp))
         critics = stored.download(CRITICS_FILE, Path(tmp))
-        return _from_files(spec, policy, critics, SOFTPLUS_SCALE)
+        alpha = stored.metrics.get("train/alpha")  # the last logged value
+        return _from_files(spec, policy, critics, SOFTPLUS_SCALE, alpha)
 
 
 @lru_cache(maxsize=4)
@@ -209,5 +228,23 @@ def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None =
             f"{OBS_DIM} observations and {ACT_DIM} actions",
         )
     return WarmStart(
-        spec, dict(actor["state_dict"]), dict(critics["state_dict"]), start.scale_mapping
+        spec,
+        dict(actor["state_dict"]),
+        dict(critics["state_dict"]),
+        start.scale_mapping,
+        start.alpha,
     )
+
+
+def warm_start_alpha(start: WarmStart, warm: WarmConfig) -> float:
+    """The temperature a warm-started learner resumes with: `algo.warm.alpha`, else the
+    source's final one; ConfigError when neither is known."""
+    if warm.alpha is not None:
+        return warm.alpha
+    if start.alpha is None:
+        raise _fail(
+            start.source,
+            "records no final temperature; set algo.warm.alpha (the temperature its actor was "
+            "trained with)",
+        )
+    return start.alpha

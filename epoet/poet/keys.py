@@ -39,3 +39,5 @@ class Key(IntEnum):
     CROSSOVER = 24  # (env, iteration): the coin flips of Algorithm 3
     CROSSOVER_EVAL = 25  # (env, iteration): old and new agent on the same starts
     PRETRAIN = 26  # (i, 0 | 1): the i-th pre-training Train_SAC's torch | spawn seed
+    DAGGER = 27  # (mapping, round): starts of DAgger's round (0: the actor's), (mapping,) its
+    # minibatch order; `mapping` is the join's iteration

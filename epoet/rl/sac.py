@@ -21,7 +21,9 @@ SAMPLE_CHUNK batches per call and split.
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -52,8 +54,10 @@ class SacLearner:
 
     ePOET-SAC's options: `standardize` puts an ObsStandardize in front of the actor and the
     critics (the ES pool's statistics, `set_obs_statistics`; the replay keeps raw observations),
-    `scale_mapping` is the actor's scale head (epoet.rl.nets), and `warm_start` loads trained
-    weights."""
+    `scale_mapping` is the actor's scale head (epoet.rl.nets), `actor_lr` gives the actor its own
+    learning rate (a fine-tune of loaded weights; None: `algo.lr` for every parameter),
+    `anchor_weight` regularises the actor towards the one it was given (sac_loss.py), and
+    `warm_start` loads trained weights."""
 
     def __init__(
         self,
@@ -62,6 +66,8 @@ class SacLearner:
         *,
         standardize: bool = False,
         scale_mapping: str = SOFTPLUS_SCALE,
+        actor_lr: float | None = None,
+        anchor_weight: float = 0.0,
     ) -> None:
         obs_dim, act_dim = env.observation_spec[OBS].shape[-1], env.action_spec.shape[-1]
         self.obs_dim = obs_dim
@@ -85,11 +91,18 @@ class SacLearner:
             alpha_init=algo.alpha_init,
             target_entropy=target_entropy,
             standardize=self.standardize,
+            anchor_weight=anchor_weight,
         )
         self.tau = algo.tau
-        self.optimizer = torch.optim.Adam(
-            [p for p in self.loss.parameters() if p.requires_grad], lr=algo.lr, fused=True
-        )
+        trainable = [p for p in self.loss.parameters() if p.requires_grad]
+        groups: list[dict[str, Any]] = [{"params": trainable}]
+        if actor_lr is not None:  # the actor's weights in a group of their own
+            actor = {id(p) for p in self.loss.policy_net.parameters()}
+            groups = [
+                {"params": [p for p in trainable if id(p) in actor], "lr": actor_lr},
+                {"params": [p for p in trainable if id(p) not in actor]},
+            ]
+        self.optimizer = torch.optim.Adam(groups, lr=algo.lr, fused=True)
         # LazyTensorStorage reserves all rows at the first write; memory becomes resident as
         # rows are written, and checkpoints hold the written rows only (state_dict)
         self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(algo.buffer_size))
@@ -103,11 +116,20 @@ class SacLearner:
         return next(m for m in self.actor.modules() if isinstance(m, MLP))
 
     @torch.no_grad()
-    def warm_start(self, actor: dict[str, torch.Tensor], critics: dict[str, torch.Tensor]) -> None:
+    def warm_start(
+        self,
+        actor: dict[str, torch.Tensor],
+        critics: dict[str, torch.Tensor],
+        alpha: float | None = None,
+    ) -> None:
         """Start from trained weights: the actor's MLP (the exported policy's state dict) and
         the twin critics (TwinQ's), the target critics a copy of them; weights that act on raw
         observations (they are re-expressed for the current statistics when standardising).
-        The temperature and the optimiser's state stay fresh."""
+        `alpha`: the temperature the weights were trained with (None: `algo.alpha_init`); a
+        trained actor under a far larger temperature is pulled towards entropy and loses its
+        gait (docs/results/epoet-sac-warm-start/). The optimiser's state stays fresh."""
+        if alpha is not None:
+            self.loss.log_alpha.fill_(math.log(alpha))
         self.mlp.load_state_dict(actor)
         self.loss.critics.load_state_dict(critics)
         self.loss.target_critics.load_state_dict(critics)
@@ -115,6 +137,7 @@ class SacLearner:
             mean, std = self.standardize.mean.clone(), self.standardize.std.clone()
             self.standardize.mean.zero_(), self.standardize.std.fill_(1.0)
             self.set_obs_statistics(mean, std)
+        self.loss.reset_anchor()
 
     @torch.no_grad()
     def set_obs_statistics(self, mean: torch.Tensor, std: torch.Tensor) -> None:
@@ -146,39 +169,57 @@ class SacLearner:
         data["next", "reward"] = data["next", "reward"] * self.reward_scale
         self.buffer.extend(data)
 
-    def learn(self, batch: TensorDictBase, updates: int) -> dict[str, float]:
-        """Store the batch, then `updates` updates once the buffer holds a batch."""
+    def learn(
+        self, batch: TensorDictBase, updates: int, critic_updates: int = 0
+    ) -> dict[str, float]:
+        """Store the batch, then (once the buffer holds a batch) `critic_updates` critic-only
+        updates (`warm_loss_qvalue`: their mean critic loss) and `updates` updates."""
         self.add(batch)
-        if len(self.buffer) < self.batch_size or updates == 0:
-            return {}
-        return self.gradient_steps(updates)
+        learned: dict[str, float] = {}
+        if len(self.buffer) < self.batch_size:
+            return learned
+        if critic_updates:
+            warm = self.gradient_steps(critic_updates, critics_only=True)
+            learned["warm_loss_qvalue"] = warm.get("loss_qvalue", math.nan)
+        if updates:
+            learned.update(self.gradient_steps(updates))
+        return learned
 
-    def gradient_steps(self, n: int) -> dict[str, float]:
-        """`n` updates on uniform samples from the buffer; returns the mean of `METRICS`.
-
-        Samples are drawn SAMPLE_CHUNK batches at a time and split: the same i.i.d. uniform
-        draws as one `sample()` per update, with the buffer's per-call overhead paid once per
-        chunk (worth ~8% of the update rate, see bench/sac_updates.py).
-        """
-        total = torch.zeros(len(METRICS))
-        done = stepped = 0
+    def _samples(self, n: int) -> Iterator[TensorDictBase]:
+        """`n` uniform batches from the buffer, drawn SAMPLE_CHUNK batches at a time and split:
+        the same i.i.d. uniform draws as one `sample()` per update, with the buffer's per-call
+        overhead paid once per chunk (worth ~8% of the update rate, see bench/sac_updates.py)."""
+        done = 0
         while done < n:
             chunk = min(SAMPLE_CHUNK, n - done)
-            for sample in self.buffer.sample(chunk * self.batch_size).split(self.batch_size):
-                out = self.update(sample)
-                if out is not None:
-                    stepped += 1
-                    with torch.no_grad():
-                        total += torch.stack([out[k] for k in METRICS])
+            yield from self.buffer.sample(chunk * self.batch_size).split(self.batch_size)
             done += chunk
+
+    def gradient_steps(self, n: int, critics_only: bool = False) -> dict[str, float]:
+        """`n` updates on uniform samples from the buffer; returns the mean of `METRICS`.
+        `critics_only`: the critics (and their targets) learn, the actor and the temperature
+        stay as they are (a warm start's critics meeting new terrains before the actor moves)."""
+        total = torch.zeros(len(METRICS))
+        stepped = 0
+        for sample in self._samples(n):
+            out = self.update(sample, critics_only)
+            if out is not None:
+                stepped += 1
+                with torch.no_grad():
+                    total += torch.stack([out[k] for k in METRICS])
         means = dict(zip(METRICS, (total / stepped).tolist())) if stepped else {}
         return {**means, "skipped_updates": n - stepped}
 
-    def update(self, sample: TensorDictBase) -> dict[str, torch.Tensor] | None:
-        """One gradient step of actor, critics and temperature, then the soft target update;
-        None (and no change) when the loss is not finite."""
+    def update(
+        self, sample: TensorDictBase, critics_only: bool = False
+    ) -> dict[str, torch.Tensor] | None:
+        """One gradient step of actor, critics and temperature (`critics_only`: of the critics;
+        Adam skips the parameters left without a gradient), then the soft target update; None
+        (and no change) when the loss is not finite."""
         out = self.loss(sample)
-        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+        total = out["loss_qvalue"]
+        if not critics_only:
+            total = total + out["loss_actor"] + out["loss_alpha"]
         if not step_if_finite(self.optimizer, total):
             return None
         self.loss.update_targets(self.tau)

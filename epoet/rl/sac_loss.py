@@ -15,6 +15,14 @@ temperature) with the same networks the collector's actor uses:
   networks' weights detached so this loss moves only the actor;
 - temperature: mean(-log_alpha (log pi(a~ | s) + target_entropy)), log pi detached.
 
+With `anchor_weight` > 0 (ePOET-SAC's warm start, `algo.warm.anchor`) the actor's loss adds
+anchor_weight * mean|Q| * mean ||tanh(loc(s)) - tanh(loc_0(s))||^2, loc_0 a frozen copy of the
+actor it started from (`reset_anchor`): behaviour regularisation towards that actor, scaled by
+the critics' magnitude as TD3+BC scales its Q term (Fujimoto & Gu 2021), so the weight does not
+depend on the reward scale. Why: critics loaded from another run fit this run's returns badly
+at first, and the actor that follows their action gradients loses its gait within a few hundred
+updates (docs/results/epoet-sac-warm-start/).
+
 The three losses touch disjoint parameters, so one Adam over all trainable ones equals SAC's
 three optimisers with one learning rate (Adam is per parameter).
 
@@ -83,9 +91,16 @@ class SacLoss(nn.Module):
         alpha_init: float,
         target_entropy: float,
         standardize: nn.Module | None = None,
+        anchor_weight: float = 0.0,
     ) -> None:
         super().__init__()
         self.policy_net = actor.module[0].module  # obs -> (loc, scale): the collector's net
+        # the anchor holds its own copy of any standardisation in front of the actor, so it
+        # stays one function of the raw observation while the statistics move
+        self.anchor_weight = anchor_weight
+        self.anchor = (
+            copy.deepcopy(self.policy_net).requires_grad_(False) if anchor_weight > 0 else None
+        )
         self.critic_input = nn.Identity() if standardize is None else standardize
         self.critics = critics
         self.target_critics = copy.deepcopy(critics).requires_grad_(False)
@@ -99,9 +114,16 @@ class SacLoss(nn.Module):
             ("next", "terminated"),
         ]
 
-    def _sample(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """A reparameterised tanh-Gaussian action and its log-probability (TorchRL's TanhNormal
-        on [-1, 1]: Normal log-density minus the tanh log-Jacobian, in its stable form)."""
+    @torch.no_grad()
+    def reset_anchor(self) -> None:
+        """The actor as it is now becomes the anchor (no-op without one)."""
+        if self.anchor is not None:
+            self.anchor.load_state_dict(self.policy_net.state_dict())
+
+    def _sample(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A reparameterised tanh-Gaussian action, its log-probability (TorchRL's TanhNormal
+        on [-1, 1]: Normal log-density minus the tanh log-Jacobian, in its stable form) and the
+        Gaussian's mean."""
         loc, scale = self.policy_net(obs)
         noise = torch.empty_like(loc).normal_()  # the draw torch.distributions.Normal makes
         pre_tanh = loc + scale * noise
@@ -111,7 +133,7 @@ class SacLoss(nn.Module):
             - HALF_LOG_2PI
             - 2.0 * (LOG_2 - pre_tanh - nn.functional.softplus(-2.0 * pre_tanh))
         ).sum(-1)
-        return torch.tanh(pre_tanh), log_prob
+        return torch.tanh(pre_tanh), log_prob, loc
 
     def forward(self, batch: TensorDictBase) -> dict[str, torch.Tensor]:
         return self.losses(
@@ -133,15 +155,21 @@ class SacLoss(nn.Module):
         """The three losses on plain tensors (what bench/epoet_sac_cost.py --compile compiles)."""
         alpha = self.log_alpha.exp().detach()
         with torch.no_grad():
-            next_action, next_log_prob = self._sample(next_obs)
+            next_action, next_log_prob, _ = self._sample(next_obs)
             next_q = self.target_critics(self.critic_input(next_obs), next_action).min(0).values
             not_done = 1.0 - terminated.squeeze(-1).float()
             target = reward.squeeze(-1) + self.gamma * not_done * (next_q - alpha * next_log_prob)
         q_obs = self.critic_input(obs)
         loss_qvalue = (self.critics(q_obs, action) - target).square().mean(-1).sum()
-        new_action, log_prob = self._sample(obs)
+        new_action, log_prob, loc = self._sample(obs)
         q_new = self.critics(q_obs, new_action, detach=True).min(0).values
         loss_actor = (alpha * log_prob - q_new).mean()
+        if self.anchor is not None:
+            with torch.no_grad():
+                anchored = torch.tanh(self.anchor(obs)[0])
+                weight = self.anchor_weight * q_new.abs().mean()
+            gap = (torch.tanh(loc) - anchored).square().sum(-1).mean()
+            loss_actor = loss_actor + weight * gap
         loss_alpha = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
         return {
             "loss_actor": loss_actor,
