@@ -1,5 +1,5 @@
 """`make epoet-sac-starts [SAC_RUN=<run folder | MLflow run id>] [SEEDS=1,2,3]`: ePOET-SAC at
-the workstation budget from each of its three starts (README "ePOET-SAC"), every seed,
+the workstation budget from each of its three starts (docs/algorithms/epoet-sac.md), every seed,
 evaluated on both suites, tabled, and exported as evaluation records.
 
 The starts (`algo.sac_init`): `cold` (null), `ours` (a SAC run of ours: `--sac-run`, else the

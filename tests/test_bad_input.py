@@ -1,4 +1,4 @@
-"""The README's bad-input table, row by row, through `python -m epoet` as users type it: each bad
+"""The bad-input table of docs/runs.md, row by row, through `python -m epoet` as users type it: each bad
 input ends in one line on stderr and exit 2, before any training, and destroys nothing (the good
 run's checkpoint and MLflow run stay as they were, no other run is finished or deleted).
 

@@ -505,7 +505,7 @@ def test_the_join_and_the_transfer_cross_in_the_pools_standardised_space() -> No
 
 
 def test_the_starts_command_runs_each_start_at_the_workstation_budget() -> None:
-    """`python -m pipeline.epoet_sac_starts` (README "ePOET-SAC"): each start's jobs compose to
+    """`python -m pipeline.epoet_sac_starts` (docs/algorithms/epoet-sac.md): each start's jobs compose to
     the workstation budget with normalisation on and that start, overrides last."""
     from pipeline.epoet_sac_starts import starts, train_command
 

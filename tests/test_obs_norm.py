@@ -125,7 +125,7 @@ def test_the_workstation_budget_normalises_epoet_and_epoet_sac_observations() ->
     """The screen's survivor is the workstation budget's default for ePOET and ePOET-SAC (one
     set of statistics for its pool and SAC learner, tests/test_epoet_sac.py); the paper's and
     the laptop budget keep raw observations. ePOET-SAC's default start there is the authors'
-    SAC (README "ePOET-SAC")."""
+    SAC (docs/algorithms/epoet-sac.md)."""
     for algo in ("epoet", "epoet_sac"):
         assert load(["budget=workstation", f"algo={algo}"]).algo.es.obs_norm_episodes == 1
         for budget in ("paper", "laptop", "smoke"):

@@ -336,7 +336,7 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
     _assert_same(one, two)
 
 
-# README "Budgets": what each budget runs with (thresholds x, transfer / reproduce every, S per
+# docs/configs.md: what each budget runs with (thresholds x, transfer / reproduce every, S per
 # iteration, integrator); `paper`'s are the paper's.
 SCHEDULES = {
     "smoke": (0.025, 15, 75, 0.01, "implicitfast"),
@@ -351,7 +351,7 @@ SCHEDULES = {
 )
 def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budget: str) -> None:
     """Small budgets may trade integrator, intervals and S schedule for time; `paper` may not.
-    Each budget runs with its README row (a budget's own file missing or misnamed falls back to
+    Each budget runs with its docs/configs.md row (a budget's own file missing or misnamed falls back to
     the paper's RK4 and S schedule), and every smaller one trades something."""
     cfg = load([f"budget={budget}"])
     assert cfg.agent.max_episode_steps == cfg.budget.episode_steps

@@ -46,7 +46,7 @@ class RewardConfig:
         )
 
 
-# rk4: the reference's; implicitfast: faster and stable here (README "Budgets"); epoet.envs.model
+# rk4: the reference's; implicitfast: faster and stable here (docs/configs.md); epoet.envs.model
 # maps each name to MuJoCo's integrator.
 INTEGRATORS = ("rk4", "implicitfast")
 
@@ -59,9 +59,9 @@ class AgentConfig:
 
     name: str
     timestep: float  # one physics step per control step: 50 Hz, as the reference
-    integrator: str  # rk4 (the reference) | implicitfast (faster; README: Budgets)
+    integrator: str  # rk4 (the reference) | implicitfast (faster; docs/configs.md)
     max_episode_steps: int
-    start_x: float  # spawn x; the finish line is `finish_x` (see README)
+    start_x: float  # spawn x; the finish line is `finish_x` (docs/evaluation.md)
     finish_x: float
     no_progress_steps: int  # end after this many steps without a new best x
     progress_margin: float  # metres beyond the best x that count as progress

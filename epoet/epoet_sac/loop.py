@@ -16,7 +16,7 @@ ePOET steps are the ePOET loop's, epoet/poet/loop.py, over the same pool and ser
    `crossover_with` runs against every other active agent.
 The steps that move agents between the actor and the pool are exchange.py's `ActorExchange`.
 
-Decisions the paper leaves open are README "ePOET-SAC"'s: sharing the cores by turns
+Decisions the paper leaves open are docs/algorithms/epoet-sac.md's: sharing the cores by turns
 (`time/<step>` shows the split), SAC's episodes restarting every Train_SAC (cut by its
 frames), the mappings between the two policy shapes (`mapping`: distill | random), the joined
 pair's environment (a copy, not novel), keyed randomness (a resumed run equals an

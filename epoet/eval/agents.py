@@ -95,7 +95,7 @@ class TrainedRun:
 
     @property
     def score_scale(self) -> float:
-        """The run's budget scales the paper's score thresholds (README, Budgets)."""
+        """The run's budget scales the paper's score thresholds (docs/configs.md)."""
         if self.config is None:
             return 1.0
         return float(self.config["budget"]["score_scale"])

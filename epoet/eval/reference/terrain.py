@@ -15,7 +15,7 @@ draws it from its own seed, so the suite is a fixed set of heightmaps.
 
 S: the reference's hfield elevation starts at 1 m and grows 0.001 per reset; its heights, in
 [0, S], were then scaled by S again (defect 2), so their relief was S^2. At the S = 1 m used
-here the two agree: heights in [0, 1], 1 standing for 1 m (README "Fidelity").
+here the two agree: heights in [0, 1], 1 standing for 1 m (docs/fidelity.md).
 """
 
 from __future__ import annotations
