@@ -153,12 +153,19 @@ def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Pa
             if rows.empty:
                 continue
             label = algo if reading == "best" else f"{algo} ({READINGS[reading]})"
-            ax.plot(rows.cpu_hours, 100 * rows.iqm, style, color=color, label=label)
-            ax.fill_between(
-                rows.cpu_hours, 100 * rows.ci_low, 100 * rows.ci_high, color=color, alpha=0.12
+            ax.errorbar(
+                rows.cpu_hours,
+                100 * rows.iqm,
+                yerr=[100 * (rows.iqm - rows.ci_low), 100 * (rows.ci_high - rows.iqm)],
+                fmt=style,
+                color=color,
+                capsize=3,
+                label=label,
             )
         if algo in references:
             ax.axhline(100 * references[algo], color=color, ls="--", lw=1)
+    ax.set_xlim(0, max(1.0, 1.1 * frame.cpu_hours.max()))
+    ax.set_xlabel("CPU hours of training (one core)")
     for algo, value in references.items():
         if algo not in algos:
             continue
@@ -169,7 +176,6 @@ def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Pa
             ha="right",
             va="bottom",
         )
-    ax.set_xlabel("CPU hours of training (one core)")
     ax.set_ylabel(f"success on suite {suite} (%), IQM, 95 % CI")
     ax.set_ylim(0, 100)
     ax.legend(fontsize=7, loc="upper left")
