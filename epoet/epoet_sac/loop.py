@@ -1,27 +1,12 @@
 """ePOET-SAC (paper Section 3): the ePOET loop with a SAC learner beside the pool.
 
-`EpoetSac.run_iteration` is one iteration, Algorithm 1 with its red steps, in this order (the
-ePOET steps are the ePOET loop's, epoet/poet/loop.py, over the same pool and service):
-0. before iteration 0, `pretrain` (`pretrain_iterations` Train_SAC iterations; 0 by default);
-1. `reproduce` (every `reproduce_interval` iterations), as ePOET;
-2. `es_step` of every pair, the first `es_episodes_per_pair` episodes of each recorded in the
-   worker processes, then `evaluate_pairs`;
-3. `train_sac` (Algorithm 2): those ES transitions enter SAC's replay buffer (the shared replay),
-   SAC collects `frames_per_iteration` frames on an environment sampled from the active pool
-   and takes `updates_per_frame` gradient updates per frame;
-4. `transfer` (every `transfer_interval` iterations), as ePOET, then `update_actor_from_pool`:
-   if the best pool agent beats the SAC actor on its environment, the actor learns from it;
-5. `join` (t mod (k N_transfer) = k N_transfer - 2, k = `join_every_transfers`): the SAC
-   actor, mapped to the ES shape, joins the pool as a new pair, and Algorithm 3's
-   `crossover_with` runs against every other active agent.
-The steps that move agents between the actor and the pool are exchange.py's `ActorExchange`.
-
-Decisions the paper leaves open are docs/algorithms/epoet-sac.md's: sharing the cores by turns
-(`time/<step>` shows the split), SAC's episodes restarting every Train_SAC (cut by its
-frames), the mappings between the two policy shapes (`mapping`: distill | random), the joined
-pair's environment (a copy, not novel), keyed randomness (a resumed run equals an
-uninterrupted one), one set of observation statistics for the pool and the learner
-(`sync_obs_statistics`) and where SAC starts (`sac_init`, warm_start.py).
+`EpoetSac.run_iteration` is one iteration, Algorithm 1 with its red steps: `pretrain` (before
+iteration 0), ePOET's `reproduce`, `es_step` (its first episodes recorded for SAC's replay) and
+`evaluate_pairs`, `train_sac` (Algorithm 2), ePOET's `transfer` then `update_actor_from_pool`,
+and at t mod (k N_transfer) = k N_transfer - 2 the `join` with Algorithm 3's crossover. The ePOET
+steps are epoet/poet/loop.py's over the same pool and service; the steps between the actor and
+the pool are exchange.py's. docs/algorithms/epoet-sac.md writes the steps out and gives every
+decision the paper leaves open.
 """
 
 from __future__ import annotations
