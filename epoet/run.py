@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, cast
@@ -86,19 +87,23 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     return {**saved, "budget": budget, "algo": algo}
 
 
-def config_changes(saved: dict[str, Any], current: dict[str, Any]) -> list[str]:
-    """`key (old -> new)` for every setting that differs, except the RESUMABLE ones (`saved`:
-    a checkpoint's config, in any layout `saved_config` reads). A setting the checkpoint
-    predates counts as null (its run had none of it), so such a run resumes with that setting
-    at null, where it would otherwise show as changed whatever the user sets."""
+def config_changes(
+    saved: dict[str, Any], current: dict[str, Any], unused: Sequence[str] = ()
+) -> list[str]:
+    """`key (old -> new)` for every setting that differs, except the RESUMABLE ones and those
+    the resumed run never reads (`unused`: Config.unused_keys; `saved`: a checkpoint's config,
+    in any layout `saved_config` reads). A setting the checkpoint predates counts as null (its
+    run had none of it), so such a run resumes with that setting at null, where it would
+    otherwise show as changed whatever the user sets."""
     from epoet.tracking import flatten
 
     old, new = flatten(saved_config(saved)), flatten(current)
+    skipped = (*RESUMABLE, *unused)
     keys = sorted(
         k
         for k in old.keys() | new.keys()
         if old.get(k, "None") != new.get(k, "None")
-        and not any(k == r or k.startswith(f"{r}.") for r in RESUMABLE)
+        and not any(k == r or k.startswith(f"{r}.") for r in skipped)
     )
     return [f"{k} ({old.get(k, 'None')} -> {new.get(k, 'None')})" for k in keys]
 
@@ -170,7 +175,7 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
                 f"checkpoint {path} is from algo={resume.get('algo')}, so it "
                 f"cannot resume algo={cfg.algo.name}."
             )
-        changed = config_changes(resume["config"], dataclasses.asdict(cfg))
+        changed = config_changes(resume["config"], dataclasses.asdict(cfg), cfg.unused_keys())
         if changed:
             raise CheckpointError(
                 f"checkpoint {path} was made with a different config ({', '.join(changed)}); "

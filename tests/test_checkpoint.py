@@ -120,7 +120,8 @@ def test_state_must_be_a_dict(tmp_path):
 
 # Configs as checkpoints stored them before the budgets owned their integrator and S schedule and
 # the algorithm x budget values lived in conf/algo_budget/ (written by that code, commit 28f1848),
-# each with today's overrides for the same run (ePOET-SAC then had no SAC warm start; the smoke
+# each with today's overrides for the same run (ePOET-SAC then had no SAC warm start and mapped by
+# distillation; the smoke
 # and laptop budgets' S then started at 0.1 m).
 BEFORE_ALGO_BUDGET = Path(__file__).with_name("configs_before_algo_budget.json")
 OLD_START = "budget.max_height=0.1"
@@ -136,6 +137,7 @@ TODAY = {
         "algo=epoet_sac",
         "budget=laptop",
         "algo.sac_init=null",
+        "algo.mapping=distill",
         OLD_START,
     ],
 }
@@ -147,5 +149,8 @@ def test_a_checkpoint_from_before_the_algo_budget_files_resumes(overrides: str) 
     the baselines' paper frames), so `resume` does not refuse it; another setting still shows."""
     saved = json.loads(BEFORE_ALGO_BUDGET.read_text())[overrides]
     today = TODAY.get(overrides, overrides.split())
-    assert config_changes(saved, dataclasses.asdict(load(today))) == []
-    assert config_changes(saved, dataclasses.asdict(load(today + ["seed=7"]))) == ["seed (0 -> 7)"]
+    cfg = load(today)
+    assert config_changes(saved, dataclasses.asdict(cfg), cfg.unused_keys()) == []
+    seven = load(today + ["seed=7"])
+    changed = config_changes(saved, dataclasses.asdict(seven), seven.unused_keys())
+    assert changed == ["seed (0 -> 7)"]

@@ -109,3 +109,8 @@ class EpoetSacConfig(PoetConfig):
             "algo.sac_init must be null (a cold start), a SAC run folder or MLflow run id, or "
             "reference:sac/42.",
         )
+
+    def unused_keys(self) -> list[str]:
+        """The mappings' settings other than the join's, and a cold start's warm-start ones."""
+        unused = [f"algo.{m}" for m in ("distill", "dagger") if m != self.mapping]
+        return unused + (["algo.warm"] if self.sac_init is None else [])

@@ -1,5 +1,6 @@
 """The hexapod task as the baselines' TorchRL env: its construction, the run's seeds, the running
-observation normaliser and the statistics of the episodes a batch ended.
+observation normaliser, the statistics of the episodes a batch ended and the deterministic
+policy's evaluation.
 
     HexapodEnv --GymWrapper--> TransformedEnv(DoubleToFloat, [ObservationNorm, Clip], RewardSum,
     StepCounter)
@@ -34,6 +35,7 @@ from torchrl.envs import (
     Compose,
     DoubleToFloat,
     EnvBase,
+    ExplorationType,
     GymWrapper,
     ObservationNorm,
     RewardSum,
@@ -41,6 +43,8 @@ from torchrl.envs import (
     TransformedEnv,
 )
 from torchrl.envs.gym_like import BaseInfoDictReader
+from torchrl.envs.utils import set_exploration_type
+from torchrl.modules import ProbabilisticActor
 
 from epoet.config import Config
 from epoet.envs.hexapod_env import HexapodEnv
@@ -192,4 +196,38 @@ def episode_metrics(batch: TensorDictBase) -> dict[str, float]:
         "episode_return": float(batch["next", "episode_reward"][done].mean()),
         "episode_length": float(batch["next", "step_count"][done].float().mean()),
         "finish_rate": float(batch["next", "finished"][done].float().mean()),
+    }
+
+
+def evaluate(
+    env: EnvBase,
+    actor: ProbabilisticActor,
+    episodes: int,
+    seed: int,
+    episode_index: int,
+    max_steps: int,
+) -> dict[str, float]:
+    """Mean return, length and finish rate of `episodes` deterministic-policy episodes.
+
+    Terrains come from `seed` at height-schedule position `episode_index`, so evaluations at the
+    same schedule point see the same terrains.
+    """
+    returns, lengths, finished = [], [], []
+    with (
+        torch.random.fork_rng(devices=[]),
+        torch.no_grad(),
+        set_exploration_type(ExplorationType.DETERMINISTIC),
+    ):
+        env.set_seed(seed)
+        hexapod(env).episodes = episode_index
+        for _ in range(episodes):
+            td = env.rollout(max_steps, policy=actor)
+            returns.append(float(td["next", "reward"].sum()))
+            lengths.append(td.shape[0])
+            finished.append(bool(td["next", "finished"].any()))
+    return {
+        "return_mean": float(np.mean(returns)),
+        "return_std": float(np.std(returns)),
+        "length_mean": float(np.mean(lengths)),
+        "finish_rate": float(np.mean(finished)),
     }

@@ -40,7 +40,6 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.envs import EnvBase, ExplorationType
-from torchrl.envs.utils import set_exploration_type
 from torchrl.modules import ProbabilisticActor
 from tqdm import tqdm
 
@@ -48,7 +47,15 @@ from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.clock import CpuMeter
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import stop_requested
-from epoet.rl.env import RunningObsNorm, Seeds, episode_metrics, hexapod, make_env, obs_norm_of
+from epoet.rl.env import (
+    RunningObsNorm,
+    Seeds,
+    episode_metrics,
+    evaluate,
+    hexapod,
+    make_env,
+    obs_norm_of,
+)
 from epoet.rl.policy_file import POLICY_FILE, export_policy
 from epoet.run_state import report_stop, save_run_state, take_snapshots
 from epoet.terrain import max_height_at
@@ -111,40 +118,6 @@ def make_collector(
         exploration_type=ExplorationType.RANDOM,
         auto_register_policy_transforms=False,
     )  # the policy is not recurrent
-
-
-def evaluate(
-    env: EnvBase,
-    actor: ProbabilisticActor,
-    episodes: int,
-    seed: int,
-    episode_index: int,
-    max_steps: int,
-) -> dict[str, float]:
-    """Mean return, length and finish rate of `episodes` deterministic-policy episodes.
-
-    Terrains come from `seed` at height-schedule position `episode_index`, so evaluations at the
-    same schedule point see the same terrains.
-    """
-    returns, lengths, finished = [], [], []
-    with (
-        torch.random.fork_rng(devices=[]),
-        torch.no_grad(),
-        set_exploration_type(ExplorationType.DETERMINISTIC),
-    ):
-        env.set_seed(seed)
-        hexapod(env).episodes = episode_index
-        for _ in range(episodes):
-            td = env.rollout(max_steps, policy=actor)
-            returns.append(float(td["next", "reward"].sum()))
-            lengths.append(td.shape[0])
-            finished.append(bool(td["next", "finished"].any()))
-    return {
-        "return_mean": float(np.mean(returns)),
-        "return_std": float(np.std(returns)),
-        "length_mean": float(np.mean(lengths)),
-        "finish_rate": float(np.mean(finished)),
-    }
 
 
 # --- the run's state ------------------------------------------------------------------------------
