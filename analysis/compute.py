@@ -213,9 +213,10 @@ def curves_from_records(records: Path) -> pd.DataFrame:
 
 
 def write(records: Path, suite: str, out: Path) -> list[Path]:
-    out.mkdir(parents=True, exist_ok=True)
-    frame = summary(compute_table(records, suite))
+    frame = summary(compute_table(records, suite))  # a bad records folder writes nothing
+    curves = curves_from_records(records)
     references = reference_lines(suite)
+    out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "success_vs_compute.csv", index=False)
     shown = frame.assign(
         iqm=[
@@ -234,9 +235,7 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
     )
     paths = [out / "success_vs_compute.csv", out / "success_vs_compute.md"]
     paths.append(plot(frame, references, suite, out / "success_vs_compute.png"))
-    paths += plot_learning_curves(
-        curves_from_records(records), out, ("cpu_time", "CPU time of training (s)")
-    )
+    paths += plot_learning_curves(curves, out, ("cpu_time", "CPU time of training (s)"))
     return paths
 
 

@@ -170,6 +170,13 @@ def curves_of(client: MlflowClient, run_id: str) -> pd.DataFrame:
     return table
 
 
+def checkpoint_of(run_dir: Path) -> dict[str, Any]:
+    try:
+        return load_checkpoint(run_dir)
+    except CheckpointError as err:
+        raise AnalysisError(f"{run_dir} is not a run folder with a checkpoint: {err}") from None
+
+
 def export_run(
     run_dir: Path,
     out: Path,
@@ -180,10 +187,7 @@ def export_run(
 ) -> Path:
     """The run's record, its new snapshots evaluated; run.json written last. The run's MLflow
     store: `tracking_uri`, else the one its config names, else epoet's default."""
-    try:
-        state = load_checkpoint(run_dir)
-    except CheckpointError as err:
-        raise AnalysisError(f"{run_dir} is not a run folder with a checkpoint: {err}") from None
+    state = checkpoint_of(run_dir)
     config = state["config"]
     uri = tracking_uri or config["tracking"]["uri"]
     trained = resolve_run(str(run_dir), uri)
@@ -288,6 +292,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def export() -> None:
+        for run_dir in args.runs:  # every folder checked before any evaluation
+            checkpoint_of(run_dir)
         from epoet.config import compose, validate
 
         suites = [load_suite(name) for name in args.suites.split(",")]

@@ -157,9 +157,9 @@ class EpoetSac:
     def cpu_time(self) -> float:
         return self.poet.cpu_time
 
-    def save_agents(self, folder: Path, choice: str = "best", pictures: bool = False) -> Path:
+    def save_agents(self, folder: Path, choice: str = "best") -> Path:
         """The pool's agents (EPOET.save_agents); the SAC actor is exported at the end."""
-        return self.poet.save_agents(folder, choice, pictures)
+        return self.poet.save_agents(folder, choice)
 
     # --- one iteration: Algorithm 1 ------------------------------------------------------------
     def run_iteration(self) -> dict[str, float]:

@@ -266,23 +266,16 @@ class EPOET:
         return metrics
 
     # --- artifacts and checkpoints ----------------------------------------------------------
-    def save_agents(self, folder: Path, choice: str = "best", pictures: bool = False) -> Path:
+    def save_agents(self, folder: Path, choice: str = "best") -> Path:
         """Every pair's agent into `folder`/policies/env<N>.npz (`theta` and `score` are the
-        `choice`, its best evaluated or its final; both are kept) and its environment's last
-        terrain into `folder`/terrains/ (PNG pictures too when `pictures`), each file written
+        `choice`, its best evaluated or its final; both are kept), each file written
         atomically: the run's agents at a checkpoint, a CPU-time snapshot or the end."""
-        terrains, policies = folder / "terrains", folder / ES_POLICIES
         for status, pairs in (("active", self.pool.active), ("archived", self.pool.archived)):
             for pair in pairs:
-                name = f"env{pair.env.index}"
-                terrain = self.service.terrain(pair.env, max(self.iteration - 1, 0))
-                terrain.save(terrains / f"{name}.npz")
-                if pictures:
-                    terrain.to_png(terrains / f"{name}.png")
                 final = self.service.policy(pair.theta)
                 best = pair.best_theta if pair.best_theta is not None else final
                 chosen = (best, pair.best_score) if choice == "best" else (final, pair.score)
-                with atomic_write(policies / f"{name}.npz") as file:
+                with atomic_write(folder / ES_POLICIES / f"env{pair.env.index}.npz") as file:
                     savez(
                         file,
                         {
@@ -302,9 +295,16 @@ class EPOET:
         return folder
 
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
-        """The run's final agents and terrains (`save_agents`, with pictures), logged."""
-        self.save_agents(run_dir, choice, pictures=True)
-        tracker.log_artifact(run_dir / "terrains", "terrains")
+        """The run's final agents (`save_agents`) and each environment's last terrain (npz and
+        PNG), logged."""
+        terrains = run_dir / "terrains"
+        terrains.mkdir(exist_ok=True)
+        for pair in self.pool.pairs:
+            terrain = self.service.terrain(pair.env, self.iteration - 1)  # the last trained on
+            terrain.save(terrains / f"env{pair.env.index}.npz")
+            terrain.to_png(terrains / f"env{pair.env.index}.png")
+        self.save_agents(run_dir, choice)
+        tracker.log_artifact(terrains, "terrains")
         tracker.log_artifact(run_dir / ES_POLICIES, ES_POLICIES)
 
     def state_dict(self) -> dict[str, Any]:

@@ -350,7 +350,6 @@ class Harness:
     def checkpoint(self, learner: Learner) -> None:
         """Save the counters, `learner`, the normaliser and every random stream, and the policy
         beside them, so the run's agent evaluates mid-training."""
-        self.export_policy(self.run_dir)
         save_run_state(
             self.run_dir,
             self.tracker,
@@ -363,6 +362,7 @@ class Harness:
                 "seeds": dataclasses.asdict(self.seeds),
             },
         )
+        self.export_policy(self.run_dir)
 
     def finish(self, learner: Learner) -> TrainResult:
         """Log the last evaluation as `final/*`, checkpoint, export the policy, say why the run
