@@ -13,9 +13,9 @@ uses, so the run is the one `python -m epoet` would make with the same overrides
 Each line of `--out`: iteration, environment, score, the iteration's `sac/alpha`,
 `sac/updated_from_pool` and `sac/score` where it has them, wall seconds and the load average.
 
-    .venv/bin/python bench/warm_start_curve.py --table old=a.jsonl,b.jsonl new=c.jsonl,...
+    .venv/bin/python bench/warm_start_curve.py --table old_s1.jsonl new_s1.jsonl ...
 
-prints the curves side by side as a markdown table (one column per file, the scored rows).
+prints the curves side by side as a markdown table (a column per file, the scored rows).
 """
 
 from __future__ import annotations
@@ -56,15 +56,12 @@ def score(loop: EpoetSac, t: int) -> tuple[int, float]:
     return pair.env.index, loop.exchange.actor_score(service.terrain(pair.env, t), seeds)
 
 
-def table(groups: list[str]) -> str:
-    """The scored rows of `name=file,file,...` groups as one markdown table."""
+def table(paths: list[str]) -> str:
+    """The scored rows of curve files as one markdown table, a column per file (its stem)."""
     columns: dict[str, dict[int, float]] = {}
-    for group in groups:
-        name, files = group.split("=", 1)
-        for path in files.split(","):
-            rows = [json.loads(line) for line in open(path)]
-            label = f"{name} {Path(path).stem}"
-            columns[label] = {r["iteration"]: r["score"] for r in rows if "score" in r}
+    for path in paths:
+        rows = [json.loads(line) for line in open(path)]
+        columns[Path(path).stem] = {r["iteration"]: r["score"] for r in rows if "score" in r}
     iterations = sorted({t for c in columns.values() for t in c})
     lines = ["| iteration | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
     for t in iterations:
@@ -75,7 +72,7 @@ def table(groups: list[str]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--table", nargs="+", help="name=file,file ... : print the curves")
+    parser.add_argument("--table", nargs="+", help="curve files: print them side by side")
     parser.add_argument("--out")
     parser.add_argument("--every", type=int, default=2)
     parser.add_argument("overrides", nargs="*")
