@@ -170,6 +170,11 @@ def curves_of(client: MlflowClient, run_id: str) -> pd.DataFrame:
     return table
 
 
+def suites_on_disk(record: Path) -> set[str]:
+    """The record's top-level evaluation folders (<suite>/summary.json)."""
+    return {p.parent.name for p in record.glob(f"*/{SUMMARY}")}
+
+
 def checkpoint_of(run_dir: Path) -> dict[str, Any]:
     try:
         return load_checkpoint(run_dir)
@@ -196,6 +201,11 @@ def export_run(
         f"{minutes:g}": evaluate_snapshot(folder, record, trained, suites, cfg, pool)
         for minutes, folder in snapshots_of(run_dir)
     }
+    if (record / RUN_FILE).is_file():  # suites evaluated by an earlier call stay listed
+        earlier = json.loads((record / RUN_FILE).read_text()).get("snapshots", {})
+        for minutes, entry in snapshots.items():
+            kept = earlier.get(minutes, {}).get("evaluations", {})
+            entry["evaluations"] = {**kept, **entry["evaluations"]}
     client, uri = connect(uri)
     run = client.get_run(state["run_id"])
     with atomic_write(record / CURVES) as file:
@@ -220,6 +230,8 @@ def export_run(
                 "commit": entry["commit"],
                 "snapshot": f"cpu{last['cpu_minutes']:g}",
             }
+    for stale in suites_on_disk(record) - evaluations.keys():  # an earlier snapshot's
+        shutil.rmtree(record / stale)
     overrides = run_dir / ".hydra" / "overrides.yaml"
     command = (
         {
