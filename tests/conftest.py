@@ -47,6 +47,19 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 # The ES policy's layer sizes with the default config's hidden layers (algo.es.hidden).
 ES_SIZES = policy_sizes(load([]).algo.es.hidden)
 
+# ePOET's tiny run (small network and grid, one worker), and the settings that make every step
+# of its loop happen within a few iterations: transfers every iteration, reproduction every 2,
+# every child passing.
+TINY_EPOET = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
+BUSY_LOOP = [
+    "algo.iterations_before_transfer=1",
+    "algo.adjust_interval=2",
+    "algo.num_children=2",
+    "algo.repro_threshold=-100000",
+    "algo.mc_lower=-100000",
+    "algo.mc_upper=100000",
+]
+
 # A baseline's tiny run: 30-step episodes, 60-frame batches, 4 batches, evaluations every 2
 # batches, with each algorithm's own small sizes (tiny_baseline); tests/golden.json pins it.
 TINY_BASELINE = [

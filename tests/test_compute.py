@@ -10,25 +10,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from conftest import subset_suite
+from conftest import BUSY_LOOP, TINY_EPOET, subset_suite
 from epoet.eval.agents import resolve_run
 from epoet.run import run
 from pipeline.compute import main
 
-EPOET = [
-    "budget=smoke",
-    "workers.num=1",
-    "algo.es.hidden=[8]",
-    "terrain.grid=40",
-    "budget.iterations=4",
-    "algo.iterations_before_transfer=1",
-    "algo.adjust_interval=2",
-    "algo.num_children=2",
-    "algo.repro_threshold=-100000",
-    "algo.mc_lower=-100000",
-    "algo.mc_upper=100000",
-    "snapshot_cpu_minutes=[1e-6,1e-5,1000]",
-]
+EPOET = [*TINY_EPOET, "budget.iterations=4", *BUSY_LOOP, "snapshot_cpu_minutes=[1e-6,1e-5,1000]"]
 
 
 def test_a_runs_snapshots_become_a_record_with_curves_and_agents(

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import tiny_baseline
+from conftest import BUSY_LOOP, tiny_baseline
 from epoet.config import compose
 from epoet.core.checkpoint import load_checkpoint
 from epoet.run import run
@@ -35,12 +35,7 @@ OVERRIDES = {
         "workers.num=2",
         "algo.es.hidden=[8]",
         "terrain.grid=40",
-        "algo.iterations_before_transfer=1",
-        "algo.adjust_interval=2",
-        "algo.num_children=2",
-        "algo.repro_threshold=-100000",
-        "algo.mc_lower=-100000",
-        "algo.mc_upper=100000",
+        *BUSY_LOOP,
         "budget.iterations=5",
     ],
     **{algo: [*tiny_baseline(algo), FIXTURE_RELIEF] for algo in ("ppo", "vmpo", "sac")},

@@ -12,7 +12,7 @@ import mlflow
 import numpy as np
 import pytest
 
-from conftest import without_evaluation
+from conftest import BUSY_LOOP, TINY_EPOET, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.poet.keys import Key
@@ -28,7 +28,7 @@ from pool_state import assert_same_state
 ROOT = Path(__file__).resolve().parent.parent
 SIZES = (53, 8, 18)
 PAPER = load(["budget=paper"])  # the paper's agent (RK4) and ePOET settings
-SMOKE = ["budget=smoke", "workers.num=1", "algo.es.hidden=[8]", "terrain.grid=40"]
+SMOKE = TINY_EPOET
 
 
 def make_poet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> EPOET:
@@ -176,16 +176,7 @@ def _assert_same(a: dict, b: dict) -> None:
 def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str, tmp_path: Path) -> None:
     # Small intervals so reproduction (t=2, 4) and transfers happen on both sides of the cut
     # (seed 1: a transfer at t=2, 3 and 4).
-    algo = [
-        "algo.iterations_before_transfer=1",
-        "algo.adjust_interval=2",
-        "algo.num_children=2",
-        "algo.repro_threshold=-100000",
-        "algo.mc_lower=-100000",
-        "algo.mc_upper=100000",
-        "checkpoint_every=1",
-        "seed=1",
-    ]
+    algo = [*BUSY_LOOP, "checkpoint_every=1", "seed=1"]
     run(compose(SMOKE + algo + ["budget.iterations=5"]), tmp_path / "straight")
     run(compose(SMOKE + algo + ["budget.iterations=3"]), tmp_path / "killed")
     run(

@@ -12,7 +12,7 @@ import mlflow
 import numpy as np
 import pytest
 
-from conftest import tiny_baseline
+from conftest import TINY_EPOET, tiny_baseline
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
@@ -20,13 +20,7 @@ from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = "budget.hours=1e-9"  # used up by the first iteration or batch
-EPOET = [
-    "budget=smoke",
-    "workers.num=1",
-    "algo.es.hidden=[8]",
-    "terrain.grid=40",
-    "budget.iterations=4",
-]
+EPOET = [*TINY_EPOET, "budget.iterations=4"]
 # the baselines' tiny run, checkpointing less often than its every 2 batches
 PPO = [a for a in tiny_baseline("ppo") if not a.startswith("checkpoint_every=")]
 PPO.append("checkpoint_every=10")
