@@ -40,14 +40,15 @@ def test_every_page_in_the_nav_exists() -> None:
 
 def test_every_page_under_docs_is_in_the_nav() -> None:
     """A page left out of the nav is unreachable from the site's menu; the records under
-    docs/results/ are data, excluded from the build, except their README."""
+    docs/results/ and the figures' tables under docs/figures/ are data, excluded from the
+    build (mkdocs.yml exclude_docs), except the records' README."""
     config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
     docs = ROOT / config.get("docs_dir", "docs")
     pages = set(nav_pages(config["nav"]))
     on_disk = {
         path.relative_to(docs).as_posix()
         for path in docs.rglob("*.md")
-        if not path.relative_to(docs).as_posix().startswith("results/")
+        if not path.relative_to(docs).as_posix().startswith(("results/", "figures/"))
     }
     assert on_disk <= pages, f"pages not in mkdocs.yml's nav: {sorted(on_disk - pages)}"
     assert "results/README.md" in pages
