@@ -271,26 +271,25 @@ def es_steps_ratio(cfg: Config, rounds: int, cores: int) -> float:
         epoet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                       eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
                       layer_sizes=policy_sizes(cfg.algo.es.hidden))
-        steps = {"epoet": 0, "sac": 0}
-        for name, service in (("epoet", epoet.service), ("sac", sac.service)):
-            run = service.run
+        steps: dict[Any, int] = {epoet: 0, sac: 0}  # worker steps per loop
+        for loop in steps:
+            run = loop.service.run
 
-            def counted(requests: Any, run: Any = run, name: str = name) -> Any:
+            def counted(requests: Any, run: Any = run, loop: Any = loop) -> Any:
                 episodes = run(requests)
-                steps[name] += sum(int(e.lengths.sum()) for e in episodes)
+                steps[loop] += sum(int(e.lengths.sum()) for e in episodes)
                 return episodes
-            service.run = counted
+            loop.service.run = counted
 
-        def per_step(name: str, run_iteration: Callable[[], Any]) -> Callable[[], float]:
+        def per_step(loop: Any) -> Callable[[], float]:
             def run() -> float:  # seconds per worker step (the inverse rate)
-                before = steps[name]
-                wall = seconds(run_iteration)
-                return wall / (steps[name] - before)
+                before = steps[loop]
+                wall = seconds(loop.run_iteration)
+                return wall / (steps[loop] - before)
             return run
 
         ratio = alternate("ES steps/s: ePOET-SAC over ePOET (whole iterations)",
-                          per_step("epoet", epoet.run_iteration),
-                          per_step("sac", sac.run_iteration), rounds, ("es", "es in epoet_sac"))
+                          per_step(epoet), per_step(sac), rounds, ("es", "es in epoet_sac"))
         sac.close()
     return 1.0 / ratio
 

@@ -16,8 +16,15 @@ from pathlib import Path
 
 import pytest
 
+from epoet.registry import algorithms
+
 ROOT = Path(__file__).resolve().parent.parent
 MAX_LINES = 400
+
+# The packages of the algorithms, from their records (an algorithm's runner lives in its
+# package, epoet.<package>.<module>.train): a new algorithm's folder joins the algorithms wing,
+# and its config.py the schemas wing, without an edit here.
+ALGORITHM_PACKAGES = tuple(sorted({".".join(r.runner.split(".")[:2]) for r in algorithms()}))
 
 # Lowest first; a module may import its own wing and the wings before it.
 WINGS: list[tuple[str, tuple[str, ...]]] = [
@@ -28,20 +35,18 @@ WINGS: list[tuple[str, tuple[str, ...]]] = [
             "epoet.envs.config",
             "epoet.terrain.config",
             "epoet.es.config",
-            "epoet.poet.config",
-            "epoet.epoet_sac.config",
-            "epoet.rl.config",
+            *(f"{package}.config" for package in ALGORITHM_PACKAGES),
             "epoet.tracking.config",
             "epoet.eval.config",
         ),
     ),
-    ("config", ("epoet.config", "epoet.cli")),
+    ("config", ("epoet.config", "epoet.registry", "epoet.cli")),
     ("tracking", ("epoet.tracking",)),
     ("run state", ("epoet.run_state",)),
     ("terrain", ("epoet.terrain",)),
     ("envs", ("epoet.envs",)),
     ("rollout", ("epoet.rollout",)),
-    ("algorithms", ("epoet.es", "epoet.poet", "epoet.epoet_sac", "epoet.rl")),
+    ("algorithms", ("epoet.es", *ALGORITHM_PACKAGES)),
     ("eval", ("epoet.eval",)),
     ("commands", ("epoet.run", "epoet.sweep", "epoet.__main__", "epoet")),
     ("analysis", ("analysis",)),

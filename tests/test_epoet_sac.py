@@ -96,7 +96,7 @@ def test_the_join_follows_algorithm_1() -> None:
 
 
 def test_the_laptop_budget_holds_two_joins() -> None:
-    """conf/algo_budget/epoet_sac_laptop.yaml shortens ePOET-SAC's laptop run (without it the
+    """conf/algo_budget/epoet_sac/laptop.yaml shortens ePOET-SAC's laptop run (without it the
     budget's iterations would hold a third join) and leaves ePOET's laptop budget alone."""
     cfg = load(["algo=epoet_sac"])
     assert cfg.budget.iterations < load([]).budget.iterations

@@ -128,12 +128,13 @@ class EpoetSac:
         workers; they take turns), SAC's own env (`close` closes it), the budget's population,
         evaluations and scale."""
         set_threads(cfg)
-        if cfg.algo.sac_threads is not None:
-            torch.set_num_threads(cfg.algo.sac_threads)
+        algo = EpoetSacConfig.of(cfg)
+        if algo.sac_threads is not None:
+            torch.set_num_threads(algo.sac_threads)
         sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
-        budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET-SAC's YAML picks the ePOET family's
+        budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET-SAC's record: the pool family's
         return cls(
-            cfg.algo,
+            algo,
             cfg.terrain,
             evaluator,
             sac_env,
@@ -141,7 +142,7 @@ class EpoetSac:
             n_pairs=budget.n_pairs,
             eval_episodes=budget.eval_episodes,
             score_scale=budget.score_scale,
-            layer_sizes=policy_sizes(cfg.algo.es.hidden),
+            layer_sizes=policy_sizes(algo.es.hidden),
             warm_start=warm_start,
         )
 

@@ -3,21 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
+from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
 
 
 @dataclass
-class PoetConfig:
+class PoetConfig(AlgoSettings):
     """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig).
     Its compute (iterations, ES pairs) is the budget's (`PoetBudgetConfig`)."""
 
-    KEY: ClassVar[str] = "algo"
-
-    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
-    name: str
     es: EsConfig
     iterations_before_transfer: int  # the transfer interval
     adjust_interval: int  # reproduction every adjust_interval transfer intervals
@@ -61,6 +58,12 @@ class PoetConfig:
             f"(got terrain={cfg.terrain.kind}).",
         )
 
-    def unused_keys(self) -> list[str]:
-        """Settings of the run an ES run never reads: none."""
-        return []
+
+EPOET = Algorithm(
+    name="epoet",
+    family=Family.POOL,
+    schema=PoetConfig,
+    runner="epoet.poet.runner.train",
+    label="ePOET",
+    colour="tab:red",
+)

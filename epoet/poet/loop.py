@@ -105,16 +105,17 @@ class EPOET:
     @classmethod
     def from_config(cls, cfg: Config, evaluator: Evaluator) -> EPOET:
         """The `algo=epoet` loop of a run: the budget's population, evaluations and scale."""
-        budget = cast("PoetBudgetConfig", cfg.budget)  # ePOET's YAML picks the ePOET family's
+        budget = cast("PoetBudgetConfig", cfg.budget)  # ePOET's record: the pool family's
+        algo = PoetConfig.of(cfg)
         return cls(
-            cfg.algo,
+            algo,
             cfg.terrain,
             evaluator,
             seed=cfg.seed,
             n_pairs=budget.n_pairs,
             eval_episodes=budget.eval_episodes,
             score_scale=budget.score_scale,
-            layer_sizes=policy_sizes(cfg.algo.es.hidden),
+            layer_sizes=policy_sizes(algo.es.hidden),
         )
 
     # --- one iteration ----------------------------------------------------------------------

@@ -9,6 +9,7 @@ from typing import Any, Protocol, cast
 
 from epoet.config import Config, PoetBudgetConfig
 from epoet.core.lifecycle import raise_if_stopped, stop_requested
+from epoet.poet.config import PoetConfig
 from epoet.poet.loop import EPOET
 from epoet.poet.service import Service
 from epoet.rollout.evaluators import evaluator_for
@@ -18,7 +19,7 @@ from epoet.tracking import Tracker
 
 
 def layer_sizes(cfg: Config) -> tuple[int, ...]:
-    return policy_sizes(cfg.algo.es.hidden)
+    return policy_sizes(PoetConfig.of(cfg).es.hidden)
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
@@ -117,7 +118,7 @@ def _progress(cfg: Config, iteration: int, metrics: dict[str, float], elapsed: f
         extra += f" sac_score={metrics['sac/score']:.1f}"
     if "join/mapped_score" in metrics:  # ePOET-SAC's join
         extra += (
-            f" join: {cfg.algo.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
+            f" join: {getattr(cfg.algo, 'mapping')} mapping scored {metrics['join/mapped_score']:.1f}"
             f" vs the SAC actor's {metrics['join/sac_score']:.1f}"
         )
     iterations = cast(PoetBudgetConfig, cfg.budget).iterations
