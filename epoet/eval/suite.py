@@ -57,8 +57,7 @@ from epoet.envs.model import patch_variance
 from epoet.envs.spawn import FOOTPRINT
 from epoet.eval.config import SuiteConfig
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
-from epoet.terrain.config import TerrainConfig
-from epoet.terrain.cppn import CppnMutationError
+from epoet.terrain.config import MutationError, TerrainConfig
 
 # 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
 SUITE_FORMAT = "epoet-suite/2"
@@ -311,7 +310,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             f"wrote {len(terrains)} terrains to {folder}/: "
             + ", ".join(f"{n} {level}" for level, n in counts.items())
         )
-    except (ConfigError, CppnMutationError, SuiteError, OSError) as err:
+    except (ConfigError, MutationError, SuiteError, OSError) as err:
         fail(err)
 
 

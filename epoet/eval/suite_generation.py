@@ -24,8 +24,7 @@ from epoet.eval.suite import (
     load_suite,
     quantize,
 )
-from epoet.terrain.config import TerrainConfig
-from epoet.terrain.cppn import CppnMutationError
+from epoet.terrain.config import MutationError, TerrainConfig
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain
 
@@ -101,7 +100,7 @@ def _search(
     for seed in seeds:
         try:
             child = mutate_terrain(current, cfg, seed)
-        except CppnMutationError:
+        except MutationError:
             continue
         child = dataclasses.replace(child, heightmap=dequantize(quantize(child.heightmap)))
         rough = course.roughness(child.heightmap, child.max_height, child.size)
@@ -112,7 +111,7 @@ def _search(
         if miss == 0.0:
             break
     if best is None:
-        raise CppnMutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} tries.")
+        raise MutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} tries.")
     return best[1], best[2]
 
 

@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
+from epoet.terrain.config import evolving_kinds, generator_for
 
 
 @dataclass
@@ -55,10 +56,12 @@ class PoetConfig:
 
     def check_run(self, cfg: Any) -> None:
         """What ePOET needs of the run's other settings (`cfg`: the root Config)."""
+        kind = cfg.terrain.kind
         check(
-            cfg.terrain.kind == "cppn",
-            f"algo={self.name} evolves CPPN terrains, so it needs terrain=cppn "
-            f"(got terrain={cfg.terrain.kind}).",
+            generator_for(kind).evolves,
+            f"algo={self.name} evolves its environments, so it needs "
+            f"{' or '.join(f'terrain={k}' for k in evolving_kinds())} "
+            f"(got terrain={kind}, whose terrains do not mutate).",
         )
 
     def unused_keys(self) -> list[str]:

@@ -36,7 +36,7 @@ from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import init_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
-from epoet.terrain import max_height_at, new_genome
+from epoet.terrain import max_height_at
 from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
@@ -92,7 +92,7 @@ class EPOET:
         service = self.service
         root = Environment(
             index=0,
-            genome=new_genome(terrain.cppn, service.seed(Key.ROOT_GENOME, 0)),
+            genome=service.root_genome(service.seed(Key.ROOT_GENOME, 0)),
             generation=0,
             parent=None,
             created_at=0,

@@ -17,14 +17,15 @@ if TYPE_CHECKING:
 
 @dataclass
 class Environment:
-    """An environment of the pool: a CPPN genome (or none for bowl-only) plus provenance.
+    """An environment of the pool: its encoding (the terrain generator's genome: a CPPN's neat
+    genome) plus provenance.
 
     The concrete heightmap changes every iteration (the bowl part is redrawn and the maximum
     height grows, paper appendix "Generated Environments"), so the pool stores what is fixed.
     """
 
     index: int  # admission order: 0 is the root environment
-    genome: Any  # neat-python genome of the CPPN part
+    genome: Any  # the encoding the generator renders and mutates
     generation: int
     parent: int | None  # index of the parent environment
     created_at: int  # iteration of admission

@@ -10,7 +10,7 @@ waits at a per-pair barrier.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import Standardizer
 from epoet.rollout.populations import Agents, Mirrored, Request
-from epoet.terrain import Terrain, make_terrain
+from epoet.terrain import Terrain, generator_for, make_terrain
 from epoet.terrain.config import TerrainConfig
 
 
@@ -53,6 +53,7 @@ class Service:
     ) -> None:
         self.evaluator = evaluator
         self.terrain_cfg = terrain
+        self.generator = generator_for(terrain.kind)  # encodes and mutates the environments
         self.es_cfg = es
         self.run_seed = seed
         self.n_pairs = n_pairs
@@ -76,9 +77,18 @@ class Service:
     def seed(self, key: Key, *ids: int) -> int:
         return int(self.seeds(1, key, *ids)[0])
 
-    # --- terrains ---------------------------------------------------------------------------
+    # --- environments and terrains ------------------------------------------------------------
+    def root_genome(self, seed: int) -> Any:
+        """The encoding of a new lineage (the terrain generator's)."""
+        return self.generator.encode(self.terrain_cfg, seed)
+
+    def child_genome(self, parent: Environment, seed: int) -> Any:
+        """A valid mutation of `parent`'s encoding; MutationError when there is none."""
+        return self.generator.mutate(self.terrain_cfg, parent.genome, seed)
+
     def terrain(self, env: Environment, t: int) -> Terrain:
-        """The environment's heightmap at iteration t: its CPPN, a fresh bowl, S(t)."""
+        """The environment's heightmap at iteration t: its encoding rendered with a fresh bowl
+        at S(t)."""
         terrains = self._iteration_terrains(t)
         if env.index not in terrains:
             terrains[env.index] = self.make_terrain(env, self.seed(Key.BOWL, env.index, t), t)
