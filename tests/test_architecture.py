@@ -155,3 +155,18 @@ def test_the_rules_see_what_they_check() -> None:
     assert _wing("epoet.core.schema") == 0 < _wing("epoet.poet.config")
     assert _wing("epoet.run") > _wing("epoet.poet.loop") > _wing("epoet.rollout.engine")
     assert _wing("epoet.rollout.engine") > _wing("epoet.envs.model") > _wing("epoet.config")
+
+
+def test_epoet_knows_nothing_of_the_loop_that_extends_it() -> None:
+    """ePOET-SAC's loop extends ePOET's (a subclass with its own steps, keys and metrics): no
+    module of epoet/poet/ imports ePOET-SAC's or names it."""
+    leaning = [
+        f"{m}: {sorted(i for i in _imports(p, deferred=True) if i.startswith('epoet.epoet_sac'))}"
+        for m, p in MODULES.items()
+        if m.startswith("epoet.poet")
+        and (
+            any(i.startswith("epoet.epoet_sac") for i in _imports(p, deferred=True))
+            or "sac" in p.read_text().lower()
+        )
+    ]
+    assert not leaning, "\n".join(leaning)
