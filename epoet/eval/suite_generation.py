@@ -14,14 +14,13 @@ import numpy as np
 
 from epoet.core.files import atomic_write, savez
 from epoet.eval.config import SuiteConfig
-from epoet.eval.suite import (
+from epoet.eval.suite_format import (
     LEVEL_BOUNDS,
     LEVELS,
     SUITE_FORMAT,
     Course,
     dequantize,
     level_of,
-    load_suite,
     quantize,
 )
 from epoet.terrain.config import MutationError, TerrainConfig
@@ -142,9 +141,9 @@ def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict], cour
 
 
 def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> list[str]:
-    """What differs between generated terrains and the first ones in `folder` (empty: bit for
-    bit; a suite made with fewer rounds is compared with the folder's first rounds)."""
-    load_suite(folder)  # a malformed folder fails here, with its own message
+    """What differs between generated terrains and the first ones in `folder`, a suite
+    `load_suite` has read (empty: bit for bit; a suite made with fewer rounds is compared with
+    the folder's first rounds)."""
     index = json.loads((folder / "suite.json").read_text())
     stored = index["terrains"][: len(entries)]
     if [e["name"] for e in stored] != [e["name"] for e in entries]:
