@@ -67,12 +67,11 @@ def iteration_split(cfg: Config, iterations: int) -> None:
     with make_evaluator(cfg.agent, cfg.terrain, cfg.workers.num or default_workers(),
                         cfg.workers.batch, layer_sizes(cfg)) as evaluator:
         loop = EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg))
-        poet = loop.poet
-        poet.es_step = timed(totals, "ES rollouts", poet.es_step)
-        poet.evaluate_pairs = timed(totals, "ES rollouts", poet.evaluate_pairs)
+        loop.es_step = timed(totals, "ES rollouts", loop.es_step)
+        loop.evaluate_pairs = timed(totals, "ES rollouts", loop.evaluate_pairs)
         loop.collect = timed(totals, "SAC env steps", loop.collect)
         loop.learner.learn = timed(totals, "SAC updates", loop.learner.learn)
-        poet.transfer_moves = timed(totals, "transfers", poet.transfer_moves)
+        loop.transfer_moves = timed(totals, "transfers", loop.transfer_moves)
         exchange = loop.exchange
         exchange.update_actor_from_pool = timed(totals, "transfers", exchange.update_actor_from_pool)
         loop.join = timed(totals, "joins", loop.join)
@@ -147,7 +146,7 @@ def rollout_before(loop: EpoetSac, frames: int) -> Any:
 def prepared_loop(cfg: Config, evaluator: Any) -> EpoetSac:
     """A loop whose replay holds a batch and whose SAC env has a terrain."""
     loop = EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg))
-    _, episodes = loop.poet.es_step(0, record=cfg.algo.es_episodes_per_pair)
+    _, episodes = loop.es_step(0, record=cfg.algo.es_episodes_per_pair)
     loop.sync_obs_statistics()
     loop.add_to_replay(episodes)
     hexapod(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))

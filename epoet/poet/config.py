@@ -8,6 +8,7 @@ from typing import Any
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
+from epoet.terrain.config import evolving_kinds, generator_for
 
 
 @dataclass
@@ -52,10 +53,12 @@ class PoetConfig(AlgoSettings):
 
     def check_run(self, cfg: Any) -> None:
         """What ePOET needs of the run's other settings (`cfg`: the root Config)."""
+        kind = cfg.terrain.kind
         check(
-            cfg.terrain.kind == "cppn",
-            f"algo={self.name} evolves CPPN terrains, so it needs terrain=cppn "
-            f"(got terrain={cfg.terrain.kind}).",
+            generator_for(kind).evolves,
+            f"algo={self.name} evolves its environments, so it needs "
+            f"{' or '.join(f'terrain={k}' for k in evolving_kinds())} "
+            f"(got terrain={kind}, whose terrains do not mutate).",
         )
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from epoet.eval.agents import TrainedRun
+    from epoet.eval.trained_run import TrainedRun
     from epoet.tracking import StoredRun
 
 FOLDER = Path(__file__).resolve().parent.parent.parent / "reference"
@@ -41,7 +41,8 @@ def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
     """`reference:<run>/<agent>` as a TrainedRun; AgentError naming the shipped agents if
     there is no such agent."""
     from epoet.config import load
-    from epoet.eval.agents import AgentError, AgentSource, TrainedRun
+    from epoet.eval.trained_run import AgentSource, TrainedRun
+    from epoet.rollout.agent_files import AgentError
 
     name = spec.removeprefix(PREFIX)
     entry = manifest()["agents"].get(name)
