@@ -12,8 +12,9 @@ The authors' agents are the horizontal references: the mean success of each algo
 published agents in the reference records (docs/results/reference).
 
 Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
-success_vs_compute.{md,csv,png} and learning_curves.{png,csv} (score against environment
-steps and against CPU hours).
+success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment
+steps and against CPU hours) and, where the records hold ePOET-SAC runs, joins.md (what their
+joins did to the pool: analysis.joins).
 
 Examples:
 
@@ -36,6 +37,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from analysis.figures import plot_learning_curves  # noqa: E402
+from analysis.joins import joins_table  # noqa: E402
 from analysis.records import EPISODES, read_records  # noqa: E402
 from analysis.stats import CONFIDENCE, REPS, SEED, iqm, rliable, seeded  # noqa: E402
 from analysis.store import (  # noqa: E402
@@ -235,6 +237,12 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
         f"stratified-bootstrap interval)\n\n{to_markdown(shown)}\n\n" + "\n".join(notes) + "\n"
     )
     paths = [out / "success_vs_compute.csv", out / "success_vs_compute.md"]
+    joins = joins_table(records, suite)
+    if not joins.empty:
+        (out / "joins.md").write_text(
+            f"What ePOET-SAC's joins did (analysis.joins), suite {suite}\n\n{to_markdown(joins)}\n"
+        )
+        paths.append(out / "joins.md")
     paths.append(plot(frame, references, suite, out / "success_vs_compute.png"))
     paths += plot_learning_curves(curves, out, ("cpu_time", "CPU time of training (s)"))
     return paths

@@ -41,6 +41,7 @@ import yaml
 from mlflow import MlflowClient
 from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT
 
+from analysis.joins import JOIN_KEYS
 from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
 from analysis.store import AnalysisError, connect, run_command
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
@@ -58,7 +59,8 @@ from pipeline.records import command_of, iso, load_of, write_json
 
 CURVES = "curves.csv"
 # What a learning curve holds: the score (ePOET: its best active pair's evaluation; baselines:
-# the deterministic evaluation return), the best so far, the pool, S and the three axes.
+# the deterministic evaluation return), the best so far, the pool, S and the three axes, and
+# what ePOET-SAC's joins did (analysis.joins).
 CURVE_KEYS = (
     "score",
     "best_score",
@@ -68,6 +70,7 @@ CURVE_KEYS = (
     "env_steps",
     "cpu_time",
     "elapsed",
+    *JOIN_KEYS,
 )
 
 

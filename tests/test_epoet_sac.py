@@ -12,6 +12,8 @@ import pytest
 import torch
 from tensordict import TensorDictBase
 
+from analysis.joins import descendants, joins_table
+from conftest import subset_suite
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
@@ -599,3 +601,45 @@ def test_the_starts_table_reports_what_each_runs_joins_did(
         assert cells[-1].strip(" |") == "-"  # not evaluated on the suite
     (cold,) = client.search_runs([client.get_experiment_by_name(f"{NAME}-cold").experiment_id])
     assert table[-1].startswith("The SAC run of ours") and cold.info.run_id in table[-1]
+
+
+def test_founded_niches_are_a_joined_environments_descendants() -> None:
+    parent_of = {0: None, 1: 0, 2: 1, 3: 2, 4: 0, 5: 4}
+    assert descendants({1}, parent_of) == {2, 3}
+    assert descendants({1, 4}, parent_of) == {2, 3, 5} and descendants(set(), parent_of) == set()
+
+
+def test_what_the_joins_did_is_read_from_the_record_alone(
+    compose, mlflow_uri: str, tmp_path: Path
+) -> None:
+    """analysis.joins from pipeline.compute's record (run folder and store gone): each join's
+    actor and mapped scores as the run logged them, the replacements summed, and the joined
+    pairs found in the latest snapshot's pool (a snapshot taken on resume, after both joins)."""
+    import shutil
+
+    from pipeline.compute import main as export
+
+    folder, out = tmp_path / "run", tmp_path / "records"
+    run(compose([*SMOKE, "budget.iterations=7", "snapshot_cpu_minutes=[1000]"]), folder)
+    resumed = [*SMOKE, "budget.iterations=8", "snapshot_cpu_minutes=[1e-6]", f"resume={folder}"]
+    run(compose(resumed), folder)
+    client = mlflow.MlflowClient(mlflow_uri)
+    (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
+    actor, mapped = (
+        _metric(client, r.info.run_id, f"join/{k}") for k in ("sac_score", "mapped_score")
+    )
+    replaced = sum(_metric(client, r.info.run_id, "replaced").values())
+    suite = subset_suite(tmp_path / "suite", [("easy", 0)])
+    args = ["--runs", str(folder), "--out", str(out), "--episodes", "1", "--suites", str(suite)]
+    assert export(args) == 0
+    shutil.rmtree(folder)
+    Path(mlflow_uri.removeprefix("sqlite:///")).unlink()
+
+    (row,) = joins_table(out, suite.name).to_dict("records")
+    assert row["joins: actor -> mapped"] == "; ".join(
+        f"it {t}: {actor[t]:.0f} -> {mapped[t]:.0f} (env{e})" for t, e in ((2, 1), (6, 2))
+    )
+    assert row["crossover replaced"] == replaced and row["pairs"] == 3
+    assert row["niches founded"] == 0  # no reproduction before iteration 75
+    best = row["best by own score (a join's?)"]
+    assert best.endswith("(no)") == best.startswith("env0 ")
