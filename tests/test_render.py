@@ -16,16 +16,20 @@ import numpy as np
 import pytest
 from mlflow import MlflowClient
 
-from conftest import ES_SIZES, one_terrain_suite
+from conftest import ES_SIZES, TINY_EPOET, one_terrain_suite
 from epoet.config import load
 from epoet.eval.render import NO_GL
 from epoet.rollout.policy import init_params
+from epoet.run import run
 from epoet.terrain import make_terrain
 from epoet.tracking import MlflowTracker
 
 
 def render_cli(*args: str, cwd: Path, uri: str | None = None) -> subprocess.CompletedProcess:
-    env = {**os.environ, "MLFLOW_TRACKING_URI": uri} if uri else None
+    """The command with this environment, but MUJOCO_GL unset (the command chooses it)."""
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    if uri:
+        env["MLFLOW_TRACKING_URI"] = uri
     return subprocess.run(
         [sys.executable, "-m", "epoet.eval.render", *args],
         cwd=cwd,
@@ -84,6 +88,19 @@ def test_an_es_policy_on_a_terrain_file_becomes_an_mp4_of_the_episode(policy, tm
     assert frames[0].std() > 0  # a picture, not a blank buffer
     assert [p.name for p in video.parent.iterdir()] == [video.name]  # no temporary file left
     assert "11 frames" in proc.stdout and str(Path("videos") / video.name) in proc.stdout
+
+
+def test_an_epoet_run_folder_renders(policy, compose, mlflow_uri, tmp_path):
+    """Its checkpoint is read before the video (the pickled pool imports MuJoCo): the backend
+    is chosen before that read, or MuJoCo starts without one where a policy file renders."""
+    run(compose([*TINY_EPOET, "budget.iterations=1"]), tmp_path / "run")
+    terrain = make_terrain(load(["algo=epoet"]).terrain, seed=0).save(tmp_path / "cppn0.npz")
+    small = [f"terrain={terrain}", "steps=3", "width=96", "height=64"]
+    skip_without_gl(render_cli(f"run={policy}", *small, cwd=tmp_path))
+    proc = render_cli(f"run={tmp_path / 'run'}", *small, cwd=tmp_path, uri=mlflow_uri)
+    assert proc.returncode == 0, proc.stderr
+    (video,) = (tmp_path / "videos").glob("epoet*.mp4")
+    assert len(decoded(video)) == 4
 
 
 def test_a_suite_terrain_of_an_mlflow_run_is_logged_to_the_run(policy, suite, tmp_path, mlflow_uri):

@@ -97,15 +97,20 @@ def require_imageio() -> ModuleType:
     return imageio
 
 
-def open_gl() -> str:
-    """Choose MuJoCo's OpenGL backend and prove it renders offscreen; its name.
-
-    MuJoCo reads MUJOCO_GL once, when first imported, and a backend whose libraries are
-    missing can fail in that import already: so this runs before anything imports mujoco
-    (the env and the suite modules are imported after it, inside functions). The proof is a
-    tiny Renderer, as the env makes: a GL context alone can "succeed" without a display (glfw).
-    """
+def choose_gl() -> str:
+    """MuJoCo's OpenGL backend: the user's MUJOCO_GL, else egl. MuJoCo reads MUJOCO_GL once,
+    when first imported, so this runs before anything may import it (reading a run folder's
+    checkpoint does: its pickled pool imports the rollout engine)."""
     backend = os.environ["MUJOCO_GL"] = os.environ.get("MUJOCO_GL") or "egl"
+    return backend
+
+
+def open_gl() -> str:
+    """Prove the chosen backend (choose_gl) renders offscreen; its name. A backend whose
+    libraries are missing can fail in mujoco's import already, so the env and the suite modules
+    are imported after this, inside functions. The proof is a tiny Renderer, as the env makes:
+    a GL context alone can "succeed" without a display (glfw)."""
+    backend = choose_gl()
     try:
         import mujoco
 
@@ -233,10 +238,11 @@ def record(
 def main(argv: list[str] | None = None) -> None:
     """CLI: bad input ends in one line and exit code 2; Ctrl-C leaves no partial video."""
     try:
+        choose_gl()
         cfg = parse_args(sys.argv[1:] if argv is None else argv)
         imageio = require_imageio()
         assert cfg.run is not None and cfg.terrain is not None  # required: RenderConfig checks
-        run = resolve_run(cfg.run, cfg.tracking.uri)  # needs no mujoco: checked before GL
+        run = resolve_run(cfg.run, cfg.tracking.uri)  # checked before GL is proven
         open_gl()
     except (
         ConfigError,
