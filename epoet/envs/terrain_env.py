@@ -1,4 +1,4 @@
-"""`epoet/Hexapod-v0`: the hexapod terrain-walking task as a gymnasium.Env."""
+"""A robot's terrain-walking task as a gymnasium.Env (`epoet/Hexapod-v0`, `epoet/Ant-v0`)."""
 
 from __future__ import annotations
 
@@ -10,16 +10,17 @@ import numpy as np
 
 from epoet.config import task_configs
 from epoet.envs.config import AgentConfig
-from epoet.envs.model import Ground, action_to_targets, build_model, layout, stepper
+from epoet.envs.model import Ground, action_to_ctrl, build_model, layout, stepper
 from epoet.envs.spawn import spawn
-from epoet.envs.task import ACT_DIM, OBS_DIM, REWARD_TERMS, EpisodeState, HexapodTask
+from epoet.envs.task import REWARD_TERMS, EpisodeState, Task
 from epoet.terrain import make_terrain
 from epoet.terrain.config import TerrainConfig
 from epoet.terrain.terrain import TerrainLike
 
 
-class HexapodEnv(gym.Env):
-    """An 18-DoF hexapod walking towards the +x finish line of a heightfield terrain.
+class TerrainEnv(gym.Env):
+    """A robot (the agent config's: the 18-DoF hexapod, the ant) walking towards the +x finish
+    line of a heightfield terrain.
 
     Terrain swaps between episodes without recompiling: pass `options={"terrain": Terrain}` to
     `reset`, or call `set_terrain`. With no terrain given, the env makes one from its terrain
@@ -43,16 +44,18 @@ class HexapodEnv(gym.Env):
         self.data = mujoco.MjData(self.model)
         self._step = stepper(self.model)
         self.ground = Ground(self.model)
-        self.task = HexapodTask(self.agent_cfg, layout(self.model), self.ground.half_x)
+        self.layout = layout(self.model)
+        self.task = Task(self.agent_cfg, self.layout, self.ground.half_x)
         self.resample_terrain = resample_terrain
         self.render_mode = render_mode
         self.render_size = (height, width)  # pixels of `render()`'s frames
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float64)
-        self.action_space: gym.spaces.Box = gym.spaces.Box(-1.0, 1.0, (ACT_DIM,), np.float32)
+        obs_dim, act_dim = self.task.obs_dim, self.task.act_dim
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float64)
+        self.action_space: gym.spaces.Box = gym.spaces.Box(-1.0, 1.0, (act_dim,), np.float32)
         self.terrain: TerrainLike | None = None
         self.episodes = 0
         self._state = EpisodeState.zeros(1)
-        self._obs = np.zeros((1, OBS_DIM))
+        self._obs = np.zeros((1, obs_dim))
         self._renderer: mujoco.Renderer | None = None
 
     def set_terrain(self, terrain: TerrainLike) -> None:
@@ -74,7 +77,7 @@ class HexapodEnv(gym.Env):
                 make_terrain(self.terrain_cfg, seed=terrain_seed, iteration=self.episodes)
             )
         self.episodes += 1
-        spawn(self.model, self.data, self.ground, self.agent_cfg, self.np_random)
+        spawn(self.model, self.data, self.ground, self.agent_cfg, self.layout, self.np_random)
         qpos, qvel, sensordata = self._gather()
         self.task.begin(qpos, self._state, slice(None))
         self.task.observe(qpos, qvel, sensordata, self._obs)
@@ -86,7 +89,7 @@ class HexapodEnv(gym.Env):
             # MuJoCo would silently reset the simulation on a NaN control; a diverged policy
             # must be visible instead.
             raise ValueError(f"action contains NaN or inf: {action}")
-        action_to_targets(action, out=self.data.ctrl)
+        action_to_ctrl(self.layout, action, out=self.data.ctrl)
         self._step(self.model, self.data)
         qpos, qvel, sensordata = self._gather()
         reward, terminated, truncated, terms = self.task.step(
@@ -134,7 +137,10 @@ class HexapodEnv(gym.Env):
             self._renderer = None
 
 
-def make_hexapod(agent: Any = None, terrain: Any = None, **kwargs: Any) -> HexapodEnv:
-    """`gym.make("epoet/Hexapod-v0", agent=..., terrain=...)`: configs as dataclasses, or as
-    dicts of overrides of the YAML defaults (epoet.config.task_configs); `kwargs` go to the env."""
-    return HexapodEnv(*task_configs(agent, terrain), **kwargs)
+def make_terrain_env(
+    agent: Any = None, terrain: Any = None, robot: str = "hexapod", **kwargs: Any
+) -> TerrainEnv:
+    """`gym.make("epoet/Hexapod-v0", agent=..., terrain=...)` (`epoet/Ant-v0`: robot="ant"):
+    configs as dataclasses, or as dicts of overrides of the YAML defaults of `robot`
+    (epoet.config.task_configs); `kwargs` go to the env."""
+    return TerrainEnv(*task_configs(agent, terrain, robot), **kwargs)

@@ -23,7 +23,9 @@ def warm_start_of(cfg: Config) -> WarmStart | None:
     """The SAC weights `algo.sac_init` names (None: a cold start); ConfigError in one sentence
     if they cannot start this learner."""
     spec = cfg.algo.sac_init
-    return None if spec is None else load_warm_start(spec, cfg.algo.sac, cfg.tracking.uri)
+    return (
+        None if spec is None else load_warm_start(spec, cfg.algo.sac, cfg.agent, cfg.tracking.uri)
+    )
 
 
 def check_inputs(cfg: Config) -> None:

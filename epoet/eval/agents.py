@@ -6,6 +6,8 @@ scale) and, when there is one, the MLflow run to log results to. Two policy form
 - ES parameters (`.npz` with `theta` and `layer_sizes`): ePOET's and ePOET-SAC's pool agents,
   `policies/env<N>.npz` (with their `score`); a run's agent is the pool's best by score;
 - exported torch policies (`policy.pt`, `epoet.rl.policy_file`): PPO, SAC and VMPO.
+Each records the robot it was trained on (epoet.rollout.agent_files), which must be the robot
+it runs with: the run's, or for a bare policy file `agent=<robot>`.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from epoet.rollout.agent_files import (
     TORCH_POLICY,
     AgentError,
     bad_agent,
+    check_robot,
     read_es_policy,
     read_torch_policy,
 )
@@ -53,8 +56,8 @@ class AgentSource:
     path: Path
 
     def check(self) -> None:
-        """AgentError unless the file is a usable policy for the task; cheap, and imports no
-        MuJoCo, so commands check it before any other work."""
+        """AgentError unless the file is a usable policy; cheap, and imports no MuJoCo, so
+        commands check it before any other work."""
         if self.kind == "es":
             read_es_policy(self.path)
         else:
@@ -87,11 +90,19 @@ class TrainedRun:
         return None if self.stored is None else self.stored.run_id
 
     def agent_config(self, default: AgentConfig) -> AgentConfig:
-        """The episode rules the agent was trained with (a bare policy file: `default`)."""
+        """The robot and episode rules the agent was trained with (a bare policy file:
+        `default`); AgentError unless its file was trained on that robot (cheap, no MuJoCo)."""
         if self.config is None:
-            return default
-        merged = OmegaConf.merge(OmegaConf.structured(AgentConfig), self.config["agent"])
-        return cast(AgentConfig, OmegaConf.to_object(merged))  # the structured schema's type
+            agent = default
+        else:
+            from epoet.config import saved_agent  # Hydra: not for the MLflow model's loader
+
+            merged = OmegaConf.merge(
+                OmegaConf.structured(AgentConfig), saved_agent(self.config["agent"])
+            )
+            agent = cast(AgentConfig, OmegaConf.to_object(merged))  # the schema's type
+        check_robot(self.agent.path, self.agent.kind, agent)
+        return agent
 
     @property
     def score_scale(self) -> float:

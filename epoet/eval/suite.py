@@ -54,7 +54,6 @@ from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import patch_variance
-from epoet.envs.spawn import FOOTPRINT
 from epoet.eval.config import SuiteConfig
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.terrain.config import TerrainConfig
@@ -88,7 +87,13 @@ class Course:
 
     @classmethod
     def of(cls, agent: AgentConfig, episode_ratio: float) -> Course:
-        return cls(agent.start_x, agent.finish_x, FOOTPRINT, agent.max_episode_steps, episode_ratio)
+        return cls(
+            agent.start_x,
+            agent.finish_x,
+            agent.spawn_footprint,
+            agent.max_episode_steps,
+            episode_ratio,
+        )
 
     def scale(self, agent: AgentConfig) -> float:
         """The course's share an agent trained on shorter episodes walks (1 at full length)."""

@@ -31,10 +31,10 @@ from epoet.poet.pairs import Environment, Pair, Pool, Thresholds
 from epoet.poet.reproduction import reproduce
 from epoet.poet.service import Service
 from epoet.poet.transfer import transfer
-from epoet.rollout.agent_files import ES_POLICIES
+from epoet.rollout.agent_files import ES_POLICIES, LAYOUT, layout_array
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
-from epoet.rollout.policy import init_params, policy_sizes
+from epoet.rollout.policy import init_params
 from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import max_height_at, new_genome
 from epoet.terrain.config import TerrainConfig
@@ -114,7 +114,7 @@ class EPOET:
             n_pairs=budget.n_pairs,
             eval_episodes=budget.eval_episodes,
             score_scale=budget.score_scale,
-            layer_sizes=policy_sizes(cfg.algo.es.hidden),
+            layer_sizes=evaluator.layer_sizes,
         )
 
     # --- one iteration ----------------------------------------------------------------------
@@ -297,6 +297,7 @@ class EPOET:
                             "final_theta": final,
                             "final_score": pair.score,
                             "layer_sizes": np.array(self.layer_sizes),
+                            LAYOUT: layout_array(self.service.evaluator.layout),
                             "status": status,
                             "generation": pair.env.generation,
                             "parent": -1 if pair.env.parent is None else pair.env.parent,
