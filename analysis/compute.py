@@ -39,15 +39,16 @@ from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.records import EPISODES, read_records  # noqa: E402
 from analysis.stats import CONFIDENCE, REPS, SEED, iqm, rliable, seeded  # noqa: E402
 from analysis.store import (  # noqa: E402
-    ALGO_COLOURS,
     AnalysisError,
     in_order,
     output_folder,
     run_command,
 )
 from analysis.tables import to_markdown  # noqa: E402
+from epoet.core.algorithm import Family  # noqa: E402
 from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import PAPER_NAME  # noqa: E402
+from epoet.registry import algorithm  # noqa: E402
 
 REFERENCE = Path(__file__).resolve().parent.parent / "docs" / "results" / "reference"
 READINGS = {"best": "the run's best agent", "niches": "mean over its niche agents"}
@@ -108,7 +109,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     its interval (ePOET's niche reading only where the pool held more than one agent)."""
     out = []
     for (algo, minutes, reading), rows in table.groupby(["algo", "minutes", "reading"]):
-        if reading == "niches" and algo not in ("epoet", "epoet_sac"):
+        if reading == "niches" and algorithm(algo).family is not Family.POOL:
             continue
         matrix = np.stack([t.to_numpy() for t in rows.terrains])
         point, low, high = iqm_interval(matrix)
@@ -147,12 +148,12 @@ def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Pa
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     algos = in_order(frame.algo)
     for algo in algos:
-        color = ALGO_COLOURS[algo]
+        color, name = algorithm(algo).colour, algorithm(algo).label
         for reading, style in (("best", "-o"), ("niches", ":s")):
             rows = frame[(frame.algo == algo) & (frame.reading == reading)]
             if rows.empty:
                 continue
-            label = algo if reading == "best" else f"{algo} ({READINGS[reading]})"
+            label = name if reading == "best" else f"{name} ({READINGS[reading]})"
             ax.errorbar(
                 rows.cpu_hours,
                 100 * rows.iqm,
@@ -170,7 +171,7 @@ def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Pa
         if algo not in algos:
             continue
         ax.annotate(
-            f"authors' {algo} {value:.1%}",
+            f"authors' {algorithm(algo).label} {value:.1%}",
             (ax.get_xlim()[1], 100 * value),
             fontsize=7,
             ha="right",

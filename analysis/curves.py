@@ -1,11 +1,12 @@
 """Learning curves in the style of the paper's Figure 2, read from the MLflow store.
 
 Writes to `--out`:
-- `epoet_curves.png` / `.csv`: each ePOET run's mean ES training return per iteration, one curve
+- `epoet_curves.png` / `.csv`: each run of the pool family's (ePOET, ePOET-SAC: an algorithm's
+  record says its family, epoet/registry.py) mean ES training return per iteration, one curve
   per environment-agent pair (metric `pair<N>/return_mean`, step = iteration), one panel per run.
   The paper labels pairs "ePOET_gen<generation>"; the generation is not logged per pair, so
   curves are labelled `pair<N>`.
-- `baseline_curves.png` / `.csv`: each PPO/SAC/VMPO run's evaluation return
+- `baseline_curves.png` / `.csv`: each baseline run's (PPO, SAC, VMPO) evaluation return
   (`eval/return_mean`, step = frames), one panel per algorithm.
 
 By default the runs are the FINISHED runs of the experiment that carry an `algo` tag (a sweep's
@@ -39,19 +40,19 @@ from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
 
 from analysis.store import (  # noqa: E402
-    ALGO_COLOURS,
-    BASELINE_ALGOS,
     AnalysisError,
     connect,
     default_experiment,
     history,
+    in_order,
     run_command,
     select_runs,
 )
 from analysis.store import seed_of as _seed  # noqa: E402
-from epoet.core.help import HelpParser
+from epoet.core.algorithm import Family  # noqa: E402
+from epoet.core.help import HelpParser  # noqa: E402
+from epoet.registry import algorithm, algorithms, names  # noqa: E402
 
-EPOET_ALGOS = ("epoet",)
 PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
 EVAL_KEY = "eval/return_mean"
 EPOET_COLUMNS = ["run_id", "algo", "seed", "pair", "iteration", "return_mean"]
@@ -112,7 +113,7 @@ def plot_epoet(table: pd.DataFrame, runs: Sequence[Run], path: Path) -> None:
 
 def plot_baselines(table: pd.DataFrame, path: Path) -> None:
     """One panel per algorithm, one curve per run (labelled by seed), coloured by algorithm."""
-    algos = [a for a in BASELINE_ALGOS if a in set(table.algo)]
+    algos = in_order(table.algo, Family.BASELINE)
     fig, axes = _grid(len(algos))
     for ax, algo in zip(axes, algos):
         rows = table[table.algo == algo]
@@ -120,12 +121,12 @@ def plot_baselines(table: pd.DataFrame, path: Path) -> None:
             ax.plot(
                 curve.frames,
                 curve.return_mean,
-                color=ALGO_COLOURS[algo],
+                color=algorithm(algo).colour,
                 alpha=0.8,
                 marker="." if len(curve) < 20 else None,
                 label=f"seed {curve.seed.iloc[0]} ({run_id[:8]})",
             )
-        ax.set_title(algo.upper(), fontsize=10)
+        ax.set_title(algorithm(algo).label, fontsize=10)
         ax.set_xlabel("frames")
         ax.set_ylabel("evaluation return")
         ax.grid(alpha=0.3)
@@ -135,31 +136,36 @@ def plot_baselines(table: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
+def _labels(family: Family) -> str:
+    """The family's algorithms as figures name them, e.g. PPO/SAC/VMPO."""
+    return "/".join(r.label for r in algorithms(family))
+
+
 def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path, source: str) -> list[Path]:
     """Write both figures and their CSV files; skip (and say so) a figure without runs.
 
     Raises AnalysisError when neither figure has anything to plot.
     """
-    epoet_runs = [r for r in runs if r.data.tags.get("algo") in EPOET_ALGOS]
-    baseline_runs = [r for r in runs if r.data.tags.get("algo") in BASELINE_ALGOS]
+    epoet_runs = [r for r in runs if r.data.tags.get("algo") in names(Family.POOL)]
+    baseline_runs = [r for r in runs if r.data.tags.get("algo") in names(Family.BASELINE)]
     tables = {
         "epoet_curves": (
             epoet_table(client, epoet_runs),
             epoet_runs,
-            "ePOET",
+            _labels(Family.POOL),
             "pair<N>/return_mean",
         ),
         "baseline_curves": (
             baseline_table(client, baseline_runs),
             baseline_runs,
-            "PPO/SAC/VMPO",
+            _labels(Family.BASELINE),
             EVAL_KEY,
         ),
     }
     if all(table.empty for table, *_ in tables.values()):
         raise AnalysisError(
-            f"{source} has no ePOET runs with pair<N>/return_mean and no "
-            f"PPO/SAC/VMPO runs with {EVAL_KEY} to plot."
+            f"{source} has no {_labels(Family.POOL)} runs with pair<N>/return_mean and no "
+            f"{_labels(Family.BASELINE)} runs with {EVAL_KEY} to plot."
         )
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -211,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     def curves() -> None:
         client, uri = connect()
-        runs = select_runs(client, uri, args.experiment, args.run, EPOET_ALGOS + BASELINE_ALGOS)
+        runs = select_runs(client, uri, args.experiment, args.run)
         source = (
             f"the selected runs in {uri}"
             if args.run

@@ -44,8 +44,6 @@ from mlflow.entities import Run  # noqa: E402
 from sklearn.manifold import TSNE  # noqa: E402
 
 from analysis.store import (  # noqa: E402
-    ALGO_COLOURS,
-    POET_ALGOS,
     add_store_arguments,
     connect,
     evaluation_of,
@@ -58,9 +56,11 @@ from analysis.store import (  # noqa: E402
     seed_of,
     select_runs,
 )
+from epoet.core.algorithm import Family  # noqa: E402
 from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import suite_argument  # noqa: E402
 from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
+from epoet.registry import algorithm, names  # noqa: E402
 from epoet.terrain import Terrain, plot_terrain  # noqa: E402
 from epoet.tracking import StoredRun  # noqa: E402
 
@@ -140,8 +140,11 @@ def plot_learning_curves(
         tables.append(table.assign(axis=x).rename(columns={x: "x"}))
         for algo in in_order(table.algo):
             t = table[table.algo == algo]
-            colour = ALGO_COLOURS[algo]
-            ax.plot(t[x], t["mean"], color=colour, label=f"{algo} ({t.seeds.iloc[0]} seeds)")
+            record = algorithm(algo)
+            colour = record.colour
+            ax.plot(
+                t[x], t["mean"], color=colour, label=f"{record.label} ({t.seeds.iloc[0]} seeds)"
+            )
             ax.fill_between(
                 t[x],
                 t["mean"] - t["std"],
@@ -180,14 +183,14 @@ def generation_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
 
 
 def plot_generations(table: pd.DataFrame, out: Path) -> list[Path]:
-    algos = in_order(table.algo, POET_ALGOS)
+    algos = in_order(table.algo, Family.POOL)
     fig, axes = plt.subplots(1, len(algos), figsize=(6 * len(algos), 4.2), squeeze=False)
     for ax, algo in zip(axes[0], algos):
         rows = table[table.algo == algo]
         for gen, g in rows.groupby("generation"):
             mean = g.groupby("iteration").score.mean()
-            ax.plot(mean.index, mean.values, label=f"{algo}_gen{gen}")
-        ax.set_title(f"{algo} ({rows.run_id.nunique()} runs, mean over seeds)")
+            ax.plot(mean.index, mean.values, label=f"{algorithm(algo).label}_gen{gen}")
+        ax.set_title(f"{algorithm(algo).label} ({rows.run_id.nunique()} runs, mean over seeds)")
         ax.set_xlabel("iteration")
         ax.set_ylabel("score")
         ax.grid(alpha=0.3)
@@ -227,9 +230,9 @@ def plot_environments(table: pd.DataFrame, out: Path) -> list[Path]:
                 rows.iteration,
                 rows[key],
                 where="post",
-                color=ALGO_COLOURS[algo],
+                color=algorithm(algo).colour,
                 alpha=0.8,
-                label=f"{algo} s{rows.seed.iloc[0]}",
+                label=f"{algorithm(algo).label} s{rows.seed.iloc[0]}",
             )
         ax.set_title(key.replace("_", " "))
         ax.set_xlabel("iteration")
@@ -286,7 +289,7 @@ def plot_tsne(table: pd.DataFrame, terrains: Sequence[str], out: Path) -> list[P
         for terrain, colour in zip(terrains, ("tab:green", "tab:orange", "tab:red")):
             t = rows[rows.terrain == terrain]
             ax.scatter(t.x, t.y, s=6, color=colour, label=terrain, alpha=0.7)
-        ax.set_title(algo)
+        ax.set_title(algorithm(algo).label)
         ax.set_xticks([])
         ax.set_yticks([])
     axes[0][0].legend(fontsize="x-small", markerscale=2)
@@ -347,7 +350,7 @@ def write_figures(
         print("skipped learning_curves.png: no run logged score with env_steps and elapsed")
     else:
         written += plot_learning_curves(curves, out)
-    poet = [r for r in runs if r.data.tags["algo"] in POET_ALGOS]
+    poet = [r for r in runs if r.data.tags["algo"] in names(Family.POOL)]
     if poet:  # runs without a training history (the authors' agents) have no curves to draw
         generations, environments = generation_table(client, poet), environments_table(client, poet)
         written += plot_generations(generations, out) if not generations.empty else []

@@ -16,7 +16,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from analysis.stats import LABELS, METRICS, REPS, SEED, iqm_table, poi_table  # noqa: E402
-from analysis.store import ALGO_COLOURS, in_order  # noqa: E402
+from analysis.store import in_order  # noqa: E402
+from epoet.registry import algorithm  # noqa: E402
 
 
 def _interval(value: float, low: float, high: float, scale: float, digits: int) -> str:
@@ -108,9 +109,9 @@ def plot_iqm(table: pd.DataFrame, title: str, path: Path) -> Path:
         algos = list(rows.algo)
         _plot(
             rows,
-            [f"{a} ({r})" for a, r in zip(algos, rows.runs)],
+            [f"{algorithm(a).label} ({r})" for a, r in zip(algos, rows.runs)],
             "iqm",
-            [ALGO_COLOURS.get(a, "black") for a in algos],
+            [algorithm(a).colour for a in algos],
             ax,
             100 if score == "success" else 1,
         )
@@ -130,9 +131,9 @@ def plot_poi(table: pd.DataFrame, title: str, path: Path) -> Path:
         rows = table[table.score == score]
         _plot(
             rows,
-            [f"{x} > {y}" for x, y in zip(rows.x, rows.y)],
+            [f"{algorithm(x).label} > {algorithm(y).label}" for x, y in zip(rows.x, rows.y)],
             "poi",
-            [ALGO_COLOURS.get(x, "black") for x in rows.x],
+            [algorithm(x).colour for x in rows.x],
             ax,
             1,
             reference=0.5,

@@ -18,23 +18,14 @@ from mlflow.exceptions import MlflowException
 from omegaconf import OmegaConf
 
 from epoet.config import CONF_DIR
+from epoet.core.algorithm import Family
 from epoet.core.errors import first_line
 from epoet.envs.config import HEXAPOD
 from epoet.eval.agents import AgentError
 from epoet.eval.keys import SHIPPED_NAME, Logged, logged_evaluation
 from epoet.eval.suite import Suite, SuiteError, load_suite
+from epoet.registry import names
 from epoet.tracking import TrackingError, open_store, resolve_tracking_uri, sqlite_path
-
-ALGOS = ("ppo", "sac", "vmpo", "epoet", "epoet_sac")  # table and legend order
-POET_ALGOS = ("epoet", "epoet_sac")
-BASELINE_ALGOS = ("ppo", "sac", "vmpo")
-ALGO_COLOURS = {
-    "ppo": "tab:blue",
-    "sac": "tab:orange",
-    "vmpo": "tab:green",
-    "epoet": "tab:red",
-    "epoet_sac": "tab:purple",
-}
 
 
 def default_experiment() -> str:
@@ -87,10 +78,10 @@ def output_folder(
     return out / source / load_suite(suite).name
 
 
-def in_order(present: Iterable[str], order: Sequence[str] = ALGOS) -> list[str]:
-    """The algorithms among `present`, in table and legend order."""
+def in_order(present: Iterable[str], family: Family | None = None) -> list[str]:
+    """The registered algorithms (of `family`) among `present`, in table and legend order."""
     present = set(present)
-    return [algo for algo in order if algo in present]
+    return [algo for algo in names(family) if algo in present]
 
 
 class AnalysisError(ValueError):
@@ -117,12 +108,14 @@ def select_runs(
     uri: str,
     experiment: str,
     run_ids: Sequence[str] = (),
-    algos: Sequence[str] = ALGOS,
+    algos: Sequence[str] | None = None,
 ) -> list[Run]:
-    """The given runs, else the experiment's FINISHED runs of `algos`, oldest first.
+    """The given runs, else the experiment's FINISHED runs of `algos` (None: every registered
+    algorithm), oldest first.
 
     A sweep's parent run has no algo tag and is never selected.
     """
+    algos = names() if algos is None else algos
     if run_ids:
         runs = []
         for run_id in run_ids:

@@ -24,7 +24,7 @@ def steps_per_second(step, n: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=5000)
-    parser.add_argument("--terrain", default="cppn", choices=["bowl", "cppn"])
+    parser.add_argument("--terrain", default="cppn", help="a conf/terrain/ kind")
     args = parser.parse_args()
 
     env = make_hexapod(terrain=args.terrain)

@@ -67,12 +67,11 @@ def iteration_split(cfg: Config, iterations: int) -> None:
     with make_evaluator(cfg.agent, cfg.terrain, cfg.workers.num or default_workers(),
                         cfg.workers.batch, layer_sizes(cfg)) as evaluator:
         loop = EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg))
-        poet = loop.poet
-        poet.es_step = timed(totals, "ES rollouts", poet.es_step)
-        poet.evaluate_pairs = timed(totals, "ES rollouts", poet.evaluate_pairs)
+        loop.es_step = timed(totals, "ES rollouts", loop.es_step)
+        loop.evaluate_pairs = timed(totals, "ES rollouts", loop.evaluate_pairs)
         loop.collect = timed(totals, "SAC env steps", loop.collect)
         loop.learner.learn = timed(totals, "SAC updates", loop.learner.learn)
-        poet.transfer_moves = timed(totals, "transfers", poet.transfer_moves)
+        loop.transfer_moves = timed(totals, "transfers", loop.transfer_moves)
         exchange = loop.exchange
         exchange.update_actor_from_pool = timed(totals, "transfers", exchange.update_actor_from_pool)
         loop.join = timed(totals, "joins", loop.join)
@@ -147,7 +146,7 @@ def rollout_before(loop: EpoetSac, frames: int) -> Any:
 def prepared_loop(cfg: Config, evaluator: Any) -> EpoetSac:
     """A loop whose replay holds a batch and whose SAC env has a terrain."""
     loop = EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg))
-    _, episodes = loop.poet.es_step(0, record=cfg.algo.es_episodes_per_pair)
+    _, episodes = loop.es_step(0, record=cfg.algo.es_episodes_per_pair)
     loop.sync_obs_statistics()
     loop.add_to_replay(episodes)
     terrain_env(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))
@@ -271,26 +270,25 @@ def es_steps_ratio(cfg: Config, rounds: int, cores: int) -> float:
         epoet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                       eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
                       layer_sizes=policy_sizes(cfg.agent, cfg.algo.es.hidden))
-        steps = {"epoet": 0, "sac": 0}
-        for name, service in (("epoet", epoet.service), ("sac", sac.service)):
-            run = service.run
+        steps: dict[Any, int] = {epoet: 0, sac: 0}  # worker steps per loop
+        for loop in steps:
+            run = loop.service.run
 
-            def counted(requests: Any, run: Any = run, name: str = name) -> Any:
+            def counted(requests: Any, run: Any = run, loop: Any = loop) -> Any:
                 episodes = run(requests)
-                steps[name] += sum(int(e.lengths.sum()) for e in episodes)
+                steps[loop] += sum(int(e.lengths.sum()) for e in episodes)
                 return episodes
-            service.run = counted
+            loop.service.run = counted
 
-        def per_step(name: str, run_iteration: Callable[[], Any]) -> Callable[[], float]:
+        def per_step(loop: Any) -> Callable[[], float]:
             def run() -> float:  # seconds per worker step (the inverse rate)
-                before = steps[name]
-                wall = seconds(run_iteration)
-                return wall / (steps[name] - before)
+                before = steps[loop]
+                wall = seconds(loop.run_iteration)
+                return wall / (steps[loop] - before)
             return run
 
         ratio = alternate("ES steps/s: ePOET-SAC over ePOET (whole iterations)",
-                          per_step("epoet", epoet.run_iteration),
-                          per_step("sac", sac.run_iteration), rounds, ("es", "es in epoet_sac"))
+                          per_step(epoet), per_step(sac), rounds, ("es", "es in epoet_sac"))
         sac.close()
     return 1.0 / ratio
 

@@ -6,7 +6,7 @@ least one, so the pool's observation statistics exist and the mapping works in t
 standardised space, as at a join), then on the terrain Train_SAC used at the last of them maps
 the actor into the ES network with each of `--mappings` (the join's own code,
 `ActorExchange.map_and_score`, keyed by the iteration) and scores the mapped agent and the actor
-from the same starts (Key.JOIN_EVAL). For actors that walk (score >= 1000), it reports mapped /
+from the same starts (SacKey.JOIN_EVAL). For actors that walk (score >= 1000), it reports mapped /
 actor; the last line is the smallest ratio per mapping over the seeds.
 
     .venv/bin/python bench/join_mapping.py [--seeds 1,2,3] [--iterations 1]

@@ -56,7 +56,7 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=None,
                         help="robots stepped together (default: workers.batch)")
     parser.add_argument("--max-steps", type=int, default=400)
-    parser.add_argument("--terrain", default="cppn", choices=["bowl", "cppn"])
+    parser.add_argument("--terrain", default="cppn", help="a conf/terrain/ kind")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("overrides", nargs="*", help="config overrides on the paper budget, "
                                                       "e.g. agent.integrator=implicitfast")

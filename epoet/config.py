@@ -25,9 +25,9 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
+from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import ConfigError, check, positive
 from epoet.envs.config import BODY_KEYS, HEXAPOD, AgentConfig
-from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.eval.config import (
     EvaluateConfig,
     GalleryConfig,
@@ -35,8 +35,7 @@ from epoet.eval.config import (
     RenderConfig,
     SuiteConfig,
 )
-from epoet.poet.config import PoetConfig
-from epoet.rl.config import PpoConfig, SacConfig, VmpoConfig
+from epoet.registry import algorithms
 from epoet.terrain.config import TerrainConfig
 from epoet.tracking.config import TrackingConfig
 
@@ -50,8 +49,7 @@ class BudgetConfig:
     and multiplied by `score_scale` (the paper budget: 1). The integrator and the height
     schedule are the budget's too; conf/config.yaml hands them to the agent and the terrain, as
     it does the episode length. What an algorithm counts its compute in is its family's
-    (`PoetBudgetConfig`, `BaselineBudgetConfig`): the algorithm's YAML picks that schema, and
-    conf/algo_budget/<algo>_<budget>.yaml sets its values.
+    (`FAMILY_BUDGETS`), and conf/algo_budget/ sets its values (`register_configs`).
     """
 
     KEY: ClassVar[str] = "budget"
@@ -144,7 +142,7 @@ class Config:
     KEY: ClassVar[str] = ""
 
     # Each field's comment is its line in `python -m epoet --help` (conf/hydra/help/epoet.yaml).
-    algo: Any  # the algorithm trained (its YAML names its schema and its runner)
+    algo: AlgoSettings  # the algorithm trained (its record: epoet/registry.py)
     agent: AgentConfig  # the robot and its task: reward, episode rules, physics
     terrain: TerrainConfig  # the ground; each algorithm picks its own (ePOET: cppn)
     budget: BudgetConfig  # how much compute: episode length, iterations or frames, hours
@@ -187,13 +185,10 @@ class Config:
 
 # --- composition and validation -------------------------------------------------------------------
 
-# conf/algo/<name>.yaml -> its schema
-ALGO_SCHEMAS: dict[str, type] = {
-    "epoet": PoetConfig,
-    "epoet_sac": EpoetSacConfig,
-    "ppo": PpoConfig,
-    "sac": SacConfig,
-    "vmpo": VmpoConfig,
+# What a family's budget counts, as the schema of `budget`.
+FAMILY_BUDGETS: dict[Family, type[BudgetConfig]] = {
+    Family.POOL: PoetBudgetConfig,
+    Family.BASELINE: BaselineBudgetConfig,
 }
 
 # conf/<name>.yaml -> the schema of `python -m epoet.eval.<name>` (epoet.cli.KeyValueCommand)
@@ -207,7 +202,8 @@ COMMAND_SCHEMAS: dict[str, type] = {
 
 
 def register_configs() -> None:
-    """Make each dataclass the schema of its YAML file (type checks at composition)."""
+    """Make each dataclass the schema of its YAML file (type checks at composition), and give
+    every algorithm (its record) the two nodes composition reads it from."""
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
     for name, schema in COMMAND_SCHEMAS.items():
@@ -215,12 +211,30 @@ def register_configs() -> None:
     cs.store(group="agent", name="agent_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
-    cs.store(group="budget", name="poet_budget_schema", node=PoetBudgetConfig)
-    cs.store(group="budget", name="baseline_budget_schema", node=BaselineBudgetConfig)
+    for family, budget in FAMILY_BUDGETS.items():
+        cs.store(group="budget", name=f"{family.value}_budget_schema", node=budget)
     cs.store(group="workers", name="workers_schema", node=WorkersConfig)
     cs.store(group="tracking", name="tracking_schema", node=TrackingConfig)
-    for name, schema in ALGO_SCHEMAS.items():
-        cs.store(group="algo", name=f"{name}_schema", node=schema)
+    for record in algorithms():
+        register_algorithm(cs, record)
+
+
+def register_algorithm(cs: ConfigStore, record: Algorithm) -> None:
+    """An algorithm's two nodes. `algo/<name>_schema`, the first default of its YAML: its
+    schema with the record's runner and name. `algo_budget/<name>`, which conf/config.yaml's
+    `algo_budget: ${algo}` picks: its family's budget schema, the family's values on the budget
+    (conf/algo_budget/<family>/<budget>.yaml, required) and then its own, where it has any
+    (conf/algo_budget/<name>/<budget>.yaml)."""
+    settings = OmegaConf.structured(record.schema)
+    settings._target_, settings.name = record.runner, record.name
+    cs.store(group="algo", name=f"{record.name}_schema", node=settings)
+    family = record.family.value
+    defaults = [
+        f"/budget/{family}_budget_schema@budget",
+        {f"/algo_budget/{family}": "${budget}"},
+        {f"optional /algo_budget/{record.name}": "${budget}"},
+    ]
+    cs.store(group="algo_budget", name=record.name, node={"defaults": defaults}, package="_global_")
 
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"

@@ -129,8 +129,8 @@ def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict
 
 
 def runner_for(cfg: Config) -> Runner:
-    """The algorithm's runner, named by its YAML's `_target_`:
-    train(cfg, tracker, run_dir, resume) -> its final state."""
+    """The algorithm's runner, its record's (epoet/registry.py), which registration writes into
+    `algo._target_`: train(cfg, tracker, run_dir, resume) -> its final state."""
     return get_method(cfg.algo._target_)
 
 

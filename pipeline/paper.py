@@ -1,9 +1,9 @@
 """`make paper BUDGET=<budget> SEEDS=1,2,3`: every algorithm x seed, evaluated, tabled, plotted.
 
-1. trains ppo, sac, vmpo, epoet and epoet_sac for every seed as one Hydra multirun into the
-   MLflow experiment `paper-<budget>`, with fixed job folders
-   (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again after an
-   interruption skips the finished jobs and continues the interrupted ones from their
+1. trains every algorithm (`--algos`; default: every registered one, epoet/registry.py) for
+   every seed as one Hydra multirun into the MLflow experiment `paper-<budget>`, with fixed job
+   folders (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again
+   after an interruption skips the finished jobs and continues the interrupted ones from their
    checkpoints;
 2. evaluates every finished run that has no evaluation yet on each suite of `--suites` (names
    or folders, default `shipped,paper`; a run's `eval_suite/<name>` tag) (`evaluate_missing`,
@@ -35,7 +35,7 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
 from analysis.figures import write_figures
-from analysis.store import ALGOS, connect, require_runs, run_command, select_runs, unevaluated
+from analysis.store import connect, require_runs, run_command, select_runs, unevaluated
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
 from epoet.core.cli import fail
@@ -45,6 +45,7 @@ from epoet.core.schema import ConfigError
 from epoet.eval.evaluate import evaluate_run, evaluation_pool
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import SuiteError, load_suite
+from epoet.registry import names
 from pipeline.records import COMMIT_TAG, export
 
 SUITES = f"{SHIPPED_NAME},{PAPER_NAME}"
@@ -175,7 +176,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = HelpParser("python -m pipeline.paper", __doc__)
     parser.add_argument("--budget", default="laptop", help="the budget every job trains at")
     parser.add_argument("--seeds", default="1,2,3", help="comma-separated seeds")
-    parser.add_argument("--algos", default=",".join(ALGOS), help="comma-separated algorithms")
+    parser.add_argument(
+        "--algos", default=",".join(names()), help="comma-separated algorithms (default: all)"
+    )
     parser.add_argument(
         "--suites",
         "--suite",
@@ -219,7 +222,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         else []
     )
     problems += [
-        f"unknown algorithm {a!r} (available: {', '.join(ALGOS)})" for a in algos if a not in ALGOS
+        f"unknown algorithm {a!r} (available: {', '.join(names())})"
+        for a in algos
+        if a not in names()
     ]
     suites = [s for s in args.suites.split(",") if s]
     if not suites:

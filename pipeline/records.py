@@ -50,7 +50,6 @@ from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_PARENT_RUN_ID
 
 from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
 from analysis.store import (
-    POET_ALGOS,
     AnalysisError,
     connect,
     history,
@@ -72,6 +71,7 @@ from epoet.eval.keys import (
     logged_evaluation,
     metric,
 )
+from epoet.registry import algorithm
 from epoet.tracking import StoredRun
 from epoet.tracking.writer import LOAD_METRIC
 
@@ -226,8 +226,8 @@ def last_step(client: MlflowClient, run: Run, key: str) -> int | None:
 
 
 def training_of(client: MlflowClient, run: Run) -> dict[str, Any]:
-    """Wall time (`elapsed`: training seconds summed over resumes), iterations (ePOET family:
-    the last logged iteration + 1) or frames (baselines), environment steps, workers."""
+    """Wall time (`elapsed`: training seconds summed over resumes), the family's budget unit
+    (iterations: the last logged iteration + 1; or frames), environment steps, workers."""
     m = run.data.metrics
     training: dict[str, Any] = {
         "wall_time_s": m.get("elapsed"),
@@ -235,7 +235,7 @@ def training_of(client: MlflowClient, run: Run) -> dict[str, Any]:
         "workers": run.data.params.get("workers.num"),
         "stop_reason": run.data.tags.get("stop_reason"),
     }
-    if run.data.tags.get("algo") in POET_ALGOS:
+    if algorithm(run.data.tags["algo"]).family.counts == "iterations":
         step = last_step(client, run, "elapsed")
         training["iterations"] = None if step is None else step + 1
     else:

@@ -143,7 +143,7 @@ def test_store_without_usable_runs_exits_2_in_one_line(
     )
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and "no ePOET runs" in lines[0], out.stderr
+    assert len(lines) == 1 and "no ePOET/ePOET-SAC runs" in lines[0], out.stderr
     assert not (tmp_path / "f").exists()
 
 

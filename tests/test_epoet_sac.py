@@ -16,9 +16,11 @@ from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.epoet_sac.bridge import distill_into_actor
+from epoet.epoet_sac.keys import SacKey
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.runner import warm_start_of
+from epoet.poet.keys import Key
 from epoet.poet.runner import layer_sizes
 from epoet.rl.env import episode_metrics, terrain_env
 from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
@@ -71,7 +73,7 @@ def _loop(overrides: list[str], workers: int = 1) -> tuple[EpoetSac, object]:
 def test_es_transitions_from_the_worker_processes_reach_the_replay_buffer() -> None:
     loop, evaluator = _loop(["algo.es_episodes_per_pair=3"], workers=2)
     with evaluator:
-        _, episodes = loop.poet.es_step(0, record=loop.cfg.es_episodes_per_pair)
+        _, episodes = loop.es_step(0, record=loop.cfg.es_episodes_per_pair)
         loop.add_to_replay(episodes)
     recorded = sum(int(e.lengths[:3].sum()) for e in episodes)
     buffer = loop.learner.buffer
@@ -96,7 +98,7 @@ def test_the_join_follows_algorithm_1() -> None:
 
 
 def test_the_laptop_budget_holds_two_joins() -> None:
-    """conf/algo_budget/epoet_sac_laptop.yaml shortens ePOET-SAC's laptop run (without it the
+    """conf/algo_budget/epoet_sac/laptop.yaml shortens ePOET-SAC's laptop run (without it the
     budget's iterations would hold a third join) and leaves ePOET's laptop budget alone."""
     cfg = load(["algo=epoet_sac"])
     assert cfg.budget.iterations < load([]).budget.iterations
@@ -105,6 +107,12 @@ def test_the_laptop_budget_holds_two_joins() -> None:
     with evaluator:
         assert [t for t in range(cfg.budget.iterations) if laptop.join_due(t)] == [38, 78]
     laptop.close()
+
+
+def test_the_keys_of_sacs_steps_are_numbered_after_epoets() -> None:
+    """Its keyed streams are none of ePOET's (epoet_sac/keys.py continues poet/keys.py)."""
+    assert min(SacKey) == max(Key) + 1
+    assert len({*map(int, Key), *map(int, SacKey)}) == len(Key) + len(SacKey)
 
 
 def test_replay_mix_counts_what_the_buffer_still_holds() -> None:
@@ -119,7 +127,7 @@ def test_replay_mix_counts_what_the_buffer_still_holds() -> None:
 def test_crossover_with_itself_replaces_nothing() -> None:
     loop, evaluator = _loop([])
     with evaluator:
-        loop.poet.evaluate_pairs(0)
+        loop.evaluate_pairs(0)
         theta = loop.pool.active[0].theta.copy()
         outcome = loop.exchange.crossover_with(loop.pool.active, theta, 0)
     ((old, new),) = outcome.values()
@@ -252,7 +260,7 @@ def test_distill_maps_the_sac_actor_closer_than_random_selection() -> None:
     gaps = {"distill": [], "random": []}
     root = loop.pool.active[0]
     with evaluator:
-        _, episodes = loop.poet.es_step(0, record=16)
+        _, episodes = loop.es_step(0, record=16)
         loop.add_to_replay(episodes)
         rng = np.random.default_rng(0)
         teacher = rng.normal(0.0, 0.5, root.theta.shape)
@@ -333,7 +341,7 @@ def test_dagger_maps_a_walking_actor_into_an_es_agent_that_walks() -> None:
     root = loop.pool.active[0]
     terrain = loop.service.terrain(root.env, 0)
     with evaluator:
-        _, episodes = loop.poet.es_step(0, record=4)
+        _, episodes = loop.es_step(0, record=4)
         loop.sync_obs_statistics()
         loop.add_to_replay(episodes)
         loop.train_sac(0)  # SAC's own frames in the replay, as at a join
@@ -383,7 +391,7 @@ def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(tmp_
     policy = load_policy(REFERENCE_SAC / "42.pt")
     critics = read_critics(REFERENCE_SAC / "42.critics.pt")["state_dict"]
     with evaluator:
-        _, episodes = loop.poet.es_step(0, record=2)  # updates the statistics
+        _, episodes = loop.es_step(0, record=2)  # updates the statistics
     obs = np.concatenate([e.transitions["obs"] for e in episodes])[::7]
     assert len(obs) >= 8
     np.testing.assert_allclose(_actions(loop, obs), policy(obs), atol=1e-6)
@@ -485,7 +493,7 @@ def test_the_join_and_the_transfer_cross_in_the_pools_standardised_space() -> No
     )
     service, root = loop.service, loop.pool.active[0]
     with evaluator:
-        _, episodes = loop.poet.es_step(0, record=4)
+        _, episodes = loop.es_step(0, record=4)
         loop.sync_obs_statistics()
         loop.add_to_replay(episodes)
         theta, error, _ = loop.exchange.map_actor(0, "distill", service.terrain(root.env, 0))

@@ -22,9 +22,9 @@ import pandas as pd
 import pytest
 from mlflow.types import DataType
 
-from analysis.store import ALGOS
 from analysis.tables import formatted, table1, table2
 from conftest import ACT_DIM, ES_SIZES, OBS_DIM, one_terrain_suite
+from epoet import registry
 from epoet.core.compute import default_workers
 from epoet.eval.agents import resolve_run
 from epoet.eval.suite import LEVELS, SHIPPED, load_suite
@@ -88,7 +88,7 @@ def finished_runs(uri: str) -> dict[str, mlflow.entities.Run]:
 def test_every_algorithm_is_trained_evaluated_and_logged(paper):
     uri, _, stdout, suite = paper
     runs = finished_runs(uri)
-    assert sorted(runs) == sorted(ALGOS)
+    assert sorted(runs) == sorted(registry.names())
     assert "evaluating 5 run(s) that have no evaluation" in stdout
     client = mlflow.MlflowClient(uri)
     name = load_suite(suite).name
@@ -191,9 +191,12 @@ def test_figures_are_drawn_from_the_store(paper):
     for name in ("learning_curves", "generations", "annecs", "tsne"):
         assert (figures / f"{name}.png").stat().st_size > 10_000, name
     curves = pd.read_csv(figures / "learning_curves.csv")
-    assert set(curves.algo) == set(ALGOS) and set(curves.axis) == {"env_steps", "elapsed"}
+    assert set(curves.algo) == set(registry.names()) and set(curves.axis) == {
+        "env_steps",
+        "elapsed",
+    }
     assert set(pd.read_csv(figures / "generations.csv").algo) == {"epoet", "epoet_sac"}
-    assert set(pd.read_csv(figures / "tsne.csv").algo) == set(ALGOS)
+    assert set(pd.read_csv(figures / "tsne.csv").algo) == set(registry.names())
     assert (figures / "suite_gallery.png").is_file()
     assert len(list(figures.glob("admitted_*.png"))) == 2
 
@@ -526,10 +529,15 @@ def test_the_sweep_parent_reads_as_the_sweep(paper) -> None:
         if "mlflow.parentRunId" not in r.data.tags
     ]
     runs = finished_runs(uri)
-    assert parent.data.tags["algos"] == ",".join(ALGOS) and parent.data.tags["seeds"] == "1"
+    assert (
+        parent.data.tags["algos"] == ",".join(registry.names()) and parent.data.tags["seeds"] == "1"
+    )
     assert parent.data.tags["budget"] == "smoke"
     assert len(parent.data.tags["mlflow.source.git.commit"]) == 40
-    assert parent.data.params["algo"] == ",".join(ALGOS) and parent.data.params["seed"] == "1"
+    assert (
+        parent.data.params["algo"] == ",".join(registry.names())
+        and parent.data.params["seed"] == "1"
+    )
     for algo, run in runs.items():
         assert parent.data.metrics[f"sweep/{algo}/finished"] == 1
         assert parent.data.metrics[f"sweep/{algo}/score_mean"] == run.data.metrics["score"]
@@ -547,7 +555,10 @@ def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(pa
         for ext in ("csv", "md", "tex", "png"):
             assert (results / f"{stem}.{ext}").stat().st_size > 0, (stem, ext)
     iqm = pd.read_csv(results / "iqm_suite.csv")
-    assert sorted(iqm.algo.unique()) == sorted(ALGOS) and set(iqm.score) == {"success", "return"}
+    assert sorted(iqm.algo.unique()) == sorted(registry.names()) and set(iqm.score) == {
+        "success",
+        "return",
+    }
     assert (iqm.ci_low <= iqm.iqm).all() and (iqm.iqm <= iqm.ci_high).all()
     assert set(iqm.resampled) == {"terrains only (1 run)"}  # one seed: said in the output
     assert "intervals come from the terrains only" in (results / "iqm_suite.md").read_text()
@@ -557,7 +568,7 @@ def test_make_paper_writes_the_statistics_and_records_that_rebuild_its_tables(pa
 
     records = results.parent / "records"
     runs = finished_runs(uri)
-    assert sorted(p.name for p in records.iterdir()) == sorted(f"{a}_s1" for a in ALGOS)
+    assert sorted(p.name for p in records.iterdir()) == sorted(f"{a}_s1" for a in registry.names())
     for algo, run in runs.items():
         info = json.loads((records / f"{algo}_s1" / "run.json").read_text())
         assert info["run_id"] == run.info.run_id and info["experiment"] == "paper-smoke"

@@ -16,16 +16,8 @@ from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
 from epoet.eval import suite as suite_module
-from epoet.eval.suite import (
-    LEVELS,
-    SHIPPED,
-    Course,
-    SuiteError,
-    example_terrain,
-    level_of,
-    load_suite,
-    quantize,
-)
+from epoet.eval.suite import SHIPPED, SuiteError, example_terrain, load_suite
+from epoet.eval.suite_format import LEVELS, Course, level_of, quantize
 from epoet.eval.suite_generation import differences, generate, write_suite
 
 ROOT = Path(__file__).resolve().parents[1]

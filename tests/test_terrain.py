@@ -203,7 +203,7 @@ def test_mutation_without_a_valid_child_raises_a_clear_error(cfg):
 
 def test_bowl_terrains_do_not_mutate(cfg):
     bowl = make_terrain(replace(BOWL, grid=40), 1)
-    with pytest.raises(ValueError, match="only CPPN terrains mutate"):
+    with pytest.raises(ValueError, match="only 'cppn' terrains mutate"):
         mutate_terrain(bowl, cfg, 2)
 
 
@@ -342,7 +342,7 @@ def test_non_positive_sizes_fail_validation_naming_the_field(field, value):
 
 
 def test_a_genome_on_a_bowl_terrain_and_negative_seeds_are_rejected(cfg):
-    with pytest.raises(ValueError, match="takes no CPPN genome"):
+    with pytest.raises(ValueError, match="takes no genome"):
         make_terrain(replace(BOWL, grid=40), 0, genome=new_genome(cfg.cppn, 0))
     with pytest.raises(ValueError, match="seed must be an integer >= 0"):
         make_terrain(cfg, -1)

@@ -1,7 +1,8 @@
-"""Moving agents between the ES pool and the SAC learner of ePOET-SAC (paper Section 3).
+"""Mappings between an ES agent's vector and the SAC actor's network, and Algorithm 3's crossover:
+functions of weights and states alone (exchange.py's steps call them on the pool).
 
-ES agents are small tanh networks stored as one flat float64 vector (epoet/rollout/policy.py); the
-SAC actor is a larger ReLU tanh-Gaussian network (`algo.sac.hidden`). Neither can be copied
+ES agents are small tanh networks stored as one flat float64 vector (epoet/rollout/policy.py);
+the SAC actor is a larger ReLU tanh-Gaussian network (`algo.sac.hidden`). Neither can be copied
 into the other, so every crossing is a mapping:
 
 - `random_mapping` (the paper's "random parameter selection"; the reference samples each ES

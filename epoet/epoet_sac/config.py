@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Optional
 
+from epoet.core.algorithm import Algorithm, Family
 from epoet.core.schema import check, non_negative, positive
 from epoet.poet.config import PoetConfig
 from epoet.rl.config import SacLearnerConfig
@@ -77,7 +78,7 @@ class EpoetSacConfig(PoetConfig):
     distill: DistillConfig
     dagger: DaggerConfig
     frames_per_iteration: int  # SAC's own environment steps per ePOET iteration (Train_SAC;
-    # a budget's: conf/algo_budget/epoet_sac_<budget>.yaml)
+    # a budget's: conf/algo_budget/epoet_sac/<budget>.yaml)
     updates_per_frame: float  # gradient updates per SAC frame (paper: 1)
     es_episodes_per_pair: int  # ES-step episodes per active pair recorded into the replay
     sac_terrain: str  # pool: a sampled active environment; bowl: the reference's
@@ -114,3 +115,13 @@ class EpoetSacConfig(PoetConfig):
         """The mappings' settings other than the join's, and a cold start's warm-start ones."""
         unused = [f"algo.{m}" for m in ("distill", "dagger") if m != self.mapping]
         return unused + (["algo.warm"] if self.sac_init is None else [])
+
+
+EPOET_SAC = Algorithm(
+    name="epoet_sac",
+    family=Family.POOL,
+    schema=EpoetSacConfig,
+    runner="epoet.epoet_sac.runner.train",
+    label="ePOET-SAC",
+    colour="tab:purple",
+)

@@ -1,7 +1,8 @@
-"""What moves between the SAC actor and the ES pool (paper Algorithms 1 and 3): the actor's
-deterministic score on a pool environment, the mappings between the two policy shapes,
-Algorithm 1's update of the actor from the best pool agent, and Algorithm 3's crossover of a
-donor with pool agents. `EpoetSac` (loop.py) calls these from its transfer and join steps."""
+"""ePOET-SAC's steps between the SAC actor and the pool, over the pool's service (paper Algorithms
+1 and 3): the actor's deterministic score on a pool environment, the mapping of the actor into
+an ES agent (by bridge.py's functions or DAgger), Algorithm 1's update of the actor from the
+best pool agent, and Algorithm 3's crossover of a donor with pool agents. `EpoetSac` (loop.py)
+calls these from its transfer and join steps."""
 
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ from epoet.epoet_sac.bridge import (
 )
 from epoet.epoet_sac.config import DaggerConfig, DistillConfig
 from epoet.epoet_sac.dagger import dagger_into_es
+from epoet.epoet_sac.keys import SacKey
 from epoet.poet.keys import Key
 from epoet.poet.pairs import Pair, Pool
 from epoet.poet.service import Service
@@ -64,7 +66,7 @@ class ActorExchange:
                     obs, reward, terminated, truncated, info = env.step(torch.tanh(loc).numpy())
                     total += reward
                     done = terminated or truncated
-                self.service.env_steps += info["steps"]
+                self.service.count_steps(info["steps"])
                 returns.append(total)
         return returns, np.asarray(states)
 
@@ -86,11 +88,11 @@ class ActorExchange:
         service, d = self.service, self.dagger_cfg
         started = time.perf_counter()
         returns, teacher_states = self.actor_episodes(
-            terrain, service.seeds(d.episodes, Key.DAGGER, t, 0)
+            terrain, service.seeds(d.episodes, SacKey.DAGGER, t, 0)
         )
 
         def roll_out(theta: np.ndarray, round_: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            seeds = service.seeds(d.episodes, Key.DAGGER, t, round_)
+            seeds = service.seeds(d.episodes, SacKey.DAGGER, t, round_)
             agents = Agents.of(service.policy(theta[None]), seeds)
             episodes = service.run([Request(terrain, agents, record=d.episodes)])[0]
             assert episodes.transitions is not None  # every episode was recorded
@@ -100,10 +102,10 @@ class ActorExchange:
             self.actor_actions,
             teacher_states,
             roll_out,
-            init_params(service.seed(Key.JOIN, t, 0), service.layer_sizes),
+            init_params(service.seed(SacKey.JOIN, t, 0), service.layer_sizes),
             service.layer_sizes,
             d,
-            seed=service.seed(Key.DAGGER, t),
+            seed=service.seed(SacKey.DAGGER, t),
             standardizer=service.standardizer(),
         )
         cost = {
@@ -143,9 +145,9 @@ class ActorExchange:
             metrics["sac/distill_error"] = distill_into_actor(  # raw-observation agent
                 self.actor_net,
                 service.policy(top.theta),
-                self.replay_states(service.seed(Key.SAC, t, 1)),
+                self.replay_states(service.seed(SacKey.SAC, t, 1)),
                 service.layer_sizes,
-                **self._distill_kwargs(service.seed(Key.SAC, t, 2)),
+                **self._distill_kwargs(service.seed(SacKey.SAC, t, 2)),
             )
             metrics["sac/distilled_score"] = self.actor_score(terrain, seeds)
             if metrics["sac/distilled_score"] > sac_score:
@@ -161,18 +163,18 @@ class ActorExchange:
         error (NaN for the random mapping) and what the mapping cost (DAgger's)."""
         service, sizes = self.service, self.service.layer_sizes
         if mapping == "random":
-            rng = np.random.default_rng(service.seed(Key.JOIN, t))
+            rng = np.random.default_rng(service.seed(SacKey.JOIN, t))
             return random_mapping(self.actor_net, sizes, rng), float("nan"), {}
         if mapping == "dagger":
             return self.dagger(t, terrain)
-        init = init_params(service.seed(Key.JOIN, t, 0), sizes)
+        init = init_params(service.seed(SacKey.JOIN, t, 0), sizes)
         theta, error = distill_into_es(
             self.actor_net,
-            self.replay_states(service.seed(Key.JOIN, t, 1)),
+            self.replay_states(service.seed(SacKey.JOIN, t, 1)),
             sizes,
             init,
             standardizer=service.standardizer(),
-            **self._distill_kwargs(service.seed(Key.JOIN, t, 2)),
+            **self._distill_kwargs(service.seed(SacKey.JOIN, t, 2)),
         )
         return theta, error, {}
 
@@ -182,10 +184,12 @@ class ActorExchange:
         service = self.service
         theta, error, cost = self.map_actor(t, mapping, terrain)
         score = float(
-            service.scores([service.eval_request(terrain, theta[None], Key.JOIN_EVAL, *ids)])[0][0]
+            service.scores([service.eval_request(terrain, theta[None], SacKey.JOIN_EVAL, *ids)])[0][
+                0
+            ]
         )
         sac_score = self.actor_score(
-            terrain, service.seeds(service.eval_episodes, Key.JOIN_EVAL, *ids)
+            terrain, service.seeds(service.eval_episodes, SacKey.JOIN_EVAL, *ids)
         )
         return Mapped(theta, error, score, sac_score, cost)
 
@@ -198,7 +202,9 @@ class ActorExchange:
         service = self.service
         children = [
             crossover(
-                p.theta, donor, np.random.default_rng(service.seed(Key.CROSSOVER, p.env.index, t))
+                p.theta,
+                donor,
+                np.random.default_rng(service.seed(SacKey.CROSSOVER, p.env.index, t)),
             )
             for p in pairs
         ]
@@ -207,7 +213,7 @@ class ActorExchange:
                 service.eval_request(
                     service.terrain(p.env, t),
                     np.stack([p.theta, child]),
-                    Key.CROSSOVER_EVAL,
+                    SacKey.CROSSOVER_EVAL,
                     p.env.index,
                     t,
                 )

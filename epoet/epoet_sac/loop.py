@@ -1,38 +1,36 @@
 """ePOET-SAC (paper Section 3): the ePOET loop with a SAC learner beside the pool.
 
-`EpoetSac.run_iteration` is one iteration, Algorithm 1 with its red steps: `pretrain` (before
-iteration 0), ePOET's `reproduce`, `es_step` (its first episodes recorded for SAC's replay) and
-`evaluate_pairs`, `train_sac` (Algorithm 2), ePOET's `transfer` then `update_actor_from_pool`,
-and at t mod (k N_transfer) = k N_transfer - 2 the `join` with Algorithm 3's crossover. The ePOET
-steps are epoet/poet/loop.py's over the same pool and service; the steps between the actor and
-the pool are exchange.py's. docs/algorithms/epoet-sac.md writes the steps out and gives every
-decision the paper leaves open.
+`EpoetSac` extends ePOET's loop (epoet/poet/loop.py) with Algorithm 1's red steps: `pretrain`
+(before iteration 0), ePOET's `reproduce`, its `optimize` with the first episodes of every ES
+step recorded for SAC's replay, `sac` (Algorithm 2), ePOET's `transfer` then
+`update_actor_from_pool`, and at t mod (k N_transfer) = k N_transfer - 2 the `join` with
+Algorithm 3's crossover. The steps between the actor and the pool are exchange.py's.
+docs/algorithms/epoet-sac.md writes the steps out and gives every decision the paper leaves
+open.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
-from epoet.config import Config, PoetBudgetConfig
+from epoet.config import Config
 from epoet.core.files import savez
 from epoet.core.timing import PhaseTimer
-from epoet.epoet_sac.bridge import (
-    ReplacedAgent,
-)
+from epoet.epoet_sac.bridge import ReplacedAgent
 from epoet.epoet_sac.collect import collect, es_transitions
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.exchange import ActorExchange
+from epoet.epoet_sac.keys import SacKey
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for, warm_start_alpha
-from epoet.poet.keys import Key
-from epoet.poet.loop import EPOET, annecs, best_by_lineage
+from epoet.poet.loop import EPOET, Step, every_iteration, loop_settings
 from epoet.poet.pairs import Environment, Pair
 from epoet.rl.env import episode_metrics, make_env, terrain_env
 from epoet.rl.harness import set_threads
@@ -48,9 +46,12 @@ if TYPE_CHECKING:  # the tracking module imports mlflow
     from epoet.tracking import Tracker
 
 
-class EpoetSac:
+class EpoetSac(EPOET):
     """The ePOET loop (its pool, service and steps), a SAC learner and the steps that move agents
     between them."""
+
+    cfg: EpoetSacConfig
+    EVENTS = (*EPOET.EVENTS, "joined", "replaced")
 
     def __init__(
         self,
@@ -66,8 +67,7 @@ class EpoetSac:
         layer_sizes: tuple[int, ...],
         warm_start: WarmStart | None = None,
     ) -> None:
-        self.cfg = algo
-        self.poet = EPOET(
+        super().__init__(
             algo,
             terrain,
             evaluator,
@@ -77,8 +77,7 @@ class EpoetSac:
             score_scale=score_scale,
             layer_sizes=layer_sizes,
         )
-        self.service, self.pool = self.poet.service, self.poet.pool
-        torch.manual_seed(self.service.seed(Key.SAC))  # the networks' initial weights
+        torch.manual_seed(self.service.seed(SacKey.SAC))  # the networks' initial weights
         self.sac_env = sac_env
         # With the pool's observation statistics, the actor and critics standardise inside
         # (the same statistics, `sync_obs_statistics`); the replay keeps raw observations.
@@ -120,6 +119,7 @@ class EpoetSac:
             algo.dagger,
         )
         self.join_of: dict[int, int] = {}  # env index -> k, for the k-th join's pair
+        self.recorded: list[Episodes] = []  # this iteration's ES episodes, for the replay
 
     @classmethod
     def from_config(
@@ -129,73 +129,64 @@ class EpoetSac:
         workers; they take turns), SAC's own env (`close` closes it), the budget's population,
         evaluations and scale."""
         set_threads(cfg)
-        if cfg.algo.sac_threads is not None:
-            torch.set_num_threads(cfg.algo.sac_threads)
+        algo = EpoetSacConfig.of(cfg)
+        if algo.sac_threads is not None:
+            torch.set_num_threads(algo.sac_threads)
         sac_env = make_env(cfg, obs_norm=False, seed=cfg.seed, resample_terrain=False)
-        budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET-SAC's YAML picks the ePOET family's
         return cls(
-            cfg.algo,
-            cfg.terrain,
-            evaluator,
-            sac_env,
-            seed=cfg.seed,
-            n_pairs=budget.n_pairs,
-            eval_episodes=budget.eval_episodes,
-            score_scale=budget.score_scale,
-            layer_sizes=evaluator.layer_sizes,
-            warm_start=warm_start,
+            algo, cfg.terrain, evaluator, sac_env, **loop_settings(cfg), warm_start=warm_start
         )
 
-    @property
-    def iteration(self) -> int:
-        return self.poet.iteration
-
-    @property
-    def elapsed(self) -> float:
-        return self.poet.elapsed
-
-    @property
-    def cpu_time(self) -> float:
-        return self.poet.cpu_time
-
-    def save_agents(self, folder: Path, choice: str = "best") -> Path:
-        """The pool's agents (EPOET.save_agents); the SAC actor is exported at the end."""
-        return self.poet.save_agents(folder, choice)
-
     # --- one iteration: Algorithm 1 ------------------------------------------------------------
-    def run_iteration(self) -> dict[str, float]:
-        """Run iteration `self.iteration` and return its metrics (`time/<step>`: where its wall
-        time went)."""
-        poet, t, timer = self.poet, self.iteration, PhaseTimer()
-        start = poet.start_iteration()
-        metrics: dict[str, float] = {}
-        if t == 0 and self.cfg.pretrain_iterations:
-            with timer("pretrain"):
-                metrics.update(self.pretrain())
-        if poet.reproduce_due(t):
-            with timer("reproduce"):
-                metrics["admitted"] = float(poet.reproduce(t))
-        with timer("optimize"):
-            es_metrics, episodes = poet.es_step(t, record=self.cfg.es_episodes_per_pair)
-            metrics.update(es_metrics)
-            metrics.update(poet.evaluate_pairs(t))
-        with timer("sac"):
-            self.sync_obs_statistics()
-            self.add_to_replay(episodes)
-            metrics.update(self.train_sac(t))
-        if poet.transfer_due(t):
-            with timer("transfer"):
-                moves = poet.transfer_moves(t)  # {target env: source env}
-                metrics["transfers"] = float(len(moves))
-                metrics["transfers/from_joined"] = float(
-                    sum(source in self.join_of for source in moves.values())
-                )
-                metrics.update(self.exchange.update_actor_from_pool(t))
-                if metrics["sac/updated_from_pool"]:  # the pool's agent is the new anchor
-                    self.learner.loss.reset_anchor()
-        if self.join_due(t):
-            with timer("join"):
-                metrics.update(self.join(t))
+    def steps(self) -> list[Step]:
+        """ePOET's steps (reproduce, optimize, transfer) with SAC's around them."""
+        reproduce, optimize, transfer = super().steps()
+        return [
+            Step("pretrain", self.pretrain_due, lambda t: self.pretrain()),
+            reproduce,
+            optimize,
+            Step("sac", every_iteration, self.sac_step),
+            transfer,
+            Step("join", self.join_due, self.join),
+        ]
+
+    def pretrain_due(self, t: int) -> bool:
+        """Before iteration 0, when the run pre-trains (the reference; Algorithm 1 does not)."""
+        return t == 0 and self.cfg.pretrain_iterations > 0
+
+    def optimize(self, t: int) -> dict[str, float]:
+        """ePOET's, the first `es_episodes_per_pair` episodes of every pair's ES step recorded
+        (in the workers) for the replay."""
+        metrics, self.recorded = self.es_step(t, record=self.cfg.es_episodes_per_pair)
+        metrics.update(self.evaluate_pairs(t))
+        return metrics
+
+    def sac_step(self, t: int) -> dict[str, float]:
+        """The learner takes the pool's statistics and the recorded ES transitions, then
+        Train_SAC (Algorithm 2)."""
+        self.sync_obs_statistics()
+        self.add_to_replay(self.recorded)
+        self.recorded = []
+        return self.train_sac(t)
+
+    def transfer_step(self, t: int) -> dict[str, float]:
+        """ePOET's transfer, then Algorithm 1's update of the actor from the pool."""
+        moves = self.transfer_moves(t)  # {target env: source env}
+        metrics = {
+            "transfers": float(len(moves)),
+            "transfers/from_joined": float(
+                sum(source in self.join_of for source in moves.values())
+            ),
+        }
+        metrics.update(self.exchange.update_actor_from_pool(t))
+        if metrics["sac/updated_from_pool"]:  # the pool's agent is the new anchor
+            self.learner.loss.reset_anchor()
+        return metrics
+
+    def end_iteration(
+        self, metrics: dict[str, float], timer: PhaseTimer, start: tuple[float, int]
+    ) -> dict[str, float]:
+        """ePOET's metrics and what the replay holds."""
         metrics.update(
             {
                 "sac/buffer_size": float(len(self.learner.buffer)),
@@ -204,17 +195,28 @@ class EpoetSac:
                 "sac/es_share": self.mix.share("es"),
             }
         )
-        # The environment copies the joins pair with are not novel (not in ANNECS); the k-th
-        # join's pair is lineage k (0: the ES lineage), the paper's ePOET-SAC_gen<k> curves.
-        novel = [p for p in self.pool.pairs if p.env.index not in self.join_of]
-        return poet.end_iteration(
-            metrics, timer, start, annecs(novel), best_by_lineage(self.pool.active, self.lineage)
-        )
+        return super().end_iteration(metrics, timer, start)
+
+    def novel_pairs(self) -> list[Pair]:
+        """The environment copies the joins pair with are not novel (not in ANNECS)."""
+        return [p for p in self.pool.pairs if p.env.index not in self.join_of]
+
+    def progress(self, metrics: dict[str, float]) -> str:
+        """ePOET's events, the actor's score and the join's mapped score against the actor's."""
+        line = super().progress(metrics)
+        if "sac/score" in metrics:
+            line += f" sac_score={metrics['sac/score']:.1f}"
+        if "join/mapped_score" in metrics:
+            line += (
+                f" join: {self.cfg.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
+                f" vs the SAC actor's {metrics['join/sac_score']:.1f}"
+            )
+        return line
 
     def join_due(self, t: int) -> bool:
         """Algorithm 1: t > 0 and t mod (k N_transfer) = k N_transfer - 2, with
         k = `join_every_transfers` and N_transfer the transfer interval."""
-        period = self.cfg.join_every_transfers * self.poet.transfer_interval
+        period = self.cfg.join_every_transfers * self.transfer_interval
         return t > 0 and t % period == period - 2
 
     @property
@@ -223,7 +225,8 @@ class EpoetSac:
         return len(self.join_of)
 
     def lineage(self, pair: Pair) -> int:
-        """The k-th join made the pair (0: the ES lineage)."""
+        """The k-th join made the pair (0: the ES lineage): the paper's ePOET-SAC_gen<k>
+        curves."""
         return self.join_of.get(pair.env.index, 0)
 
     # --- the shared replay and Train_SAC (Algorithm 2) ---------------------------------------
@@ -245,7 +248,7 @@ class EpoetSac:
 
     def sac_pair(self, t: int) -> Pair:
         """The active pair whose environment SAC uses at iteration t (paper: sampled)."""
-        rng = np.random.default_rng(self.service.seed(Key.SAC_ENV, t))
+        rng = np.random.default_rng(self.service.seed(SacKey.SAC_ENV, t))
         return self.pool.active[int(rng.integers(len(self.pool.active)))]
 
     def train_sac(self, t: int) -> dict[str, float]:
@@ -254,13 +257,13 @@ class EpoetSac:
         if self.cfg.sac_terrain == "bowl":
             terrain = make_terrain(
                 dataclasses.replace(self.service.terrain_cfg, kind="bowl"),
-                seed=self.service.seed(Key.SAC_BOWL, t),
+                seed=self.service.seed(SacKey.SAC_BOWL, t),
                 iteration=t,
             )
         else:
             terrain = self.service.terrain(pair.env, t)
         metrics = self._train_sac(
-            terrain, self.service.seed(Key.SAC, t), self.service.seed(Key.SAC_SPAWN, t)
+            terrain, self.service.seed(SacKey.SAC, t), self.service.seed(SacKey.SAC_SPAWN, t)
         )
         metrics["sac/env"] = float(pair.env.index)
         return metrics
@@ -272,8 +275,8 @@ class EpoetSac:
         for i in range(self.cfg.pretrain_iterations):
             metrics = self._train_sac(
                 self.service.terrain(self.pool.active[0].env, 0),
-                self.service.seed(Key.PRETRAIN, i, 0),
-                self.service.seed(Key.PRETRAIN, i, 1),
+                self.service.seed(SacKey.PRETRAIN, i, 0),
+                self.service.seed(SacKey.PRETRAIN, i, 1),
             )
         return metrics
 
@@ -293,7 +296,7 @@ class EpoetSac:
             data, self.updates_per_iteration, self.critic_updates if first else 0
         )
         self.mix.add("sac", data.numel())
-        self.service.env_steps += data.numel()
+        self.service.count_steps(data.numel())
         return {f"sac/{k}": v for k, v in {**episode_metrics(data), **learned}.items()}
 
     def collect(self, frames: int, spawn_seed: int, explore: bool) -> TensorDict:
@@ -343,7 +346,7 @@ class EpoetSac:
     # --- artifacts, checkpoints -----------------------------------------------------------------
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
-        self.poet.log_artifacts(run_dir, tracker, choice)
+        super().log_artifacts(run_dir, tracker, choice)
         sac = self.cfg.sac
         tracker.log_artifact(
             export_policy(
@@ -374,7 +377,7 @@ class EpoetSac:
 
     def state_dict(self) -> dict[str, Any]:
         return {
-            **self.poet.state_dict(),
+            **super().state_dict(),
             "sac": self.learner.state_dict(),
             "mix": self.mix.state_dict(),
             "replaced": [dataclasses.asdict(a) for a in self.exchange.replaced],
@@ -382,7 +385,7 @@ class EpoetSac:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.poet.load_state_dict(state)
+        super().load_state_dict(state)
         self.learner.load_state_dict(state["sac"])
         self.mix.load_state_dict(state["mix"])
         self.exchange.replaced[:] = [ReplacedAgent(**a) for a in state["replaced"]]

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from epoet.config import Config
+from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.warm_start import WarmStart, load_warm_start
 from epoet.poet.runner import layer_sizes, train_loop
@@ -22,9 +23,11 @@ from epoet.tracking import Tracker
 def warm_start_of(cfg: Config) -> WarmStart | None:
     """The SAC weights `algo.sac_init` names (None: a cold start); ConfigError in one sentence
     if they cannot start this learner."""
-    spec = cfg.algo.sac_init
+    algo = EpoetSacConfig.of(cfg)
     return (
-        None if spec is None else load_warm_start(spec, cfg.algo.sac, cfg.agent, cfg.tracking.uri)
+        None
+        if algo.sac_init is None
+        else load_warm_start(algo.sac_init, algo.sac, cfg.agent, cfg.tracking.uri)
     )
 
 

@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from epoet.eval.agents import Policy, file_source
+from epoet.eval.agents import file_source
+from epoet.eval.trained_run import Policy
 
 
 class PolicyModel:

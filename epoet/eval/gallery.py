@@ -1,8 +1,9 @@
 """`python -m epoet.eval.gallery terrain=cppn n=8 out=DIR`: a root terrain and its descendants as a PNG.
 
 Writes DIR/gallery.png (a chain: each panel is a mutated child of the previous one, at
-iterations 0, 25, 50, ... so S grows by the schedule) and each terrain's npz in DIR. With
-terrain=bowl there is nothing to mutate: the panels are fresh bowls along the same schedule.
+iterations 0, 25, 50, ... so S grows by the schedule) and each terrain's npz in DIR. A kind that
+does not evolve (terrain=bowl) has nothing to mutate: the panels are fresh terrains of it along
+the same schedule.
 Bad values end with one line on stderr and exit status 2.
 
 Examples:
@@ -24,7 +25,7 @@ from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
 from epoet.eval.config import GalleryConfig
-from epoet.terrain.cppn import CppnMutationError
+from epoet.terrain.config import MutationError, generator_for
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain, plot_terrain
 
@@ -37,7 +38,7 @@ def chain(cfg: GalleryConfig) -> list[Terrain]:
     seeds = [int(s) for s in np.random.SeedSequence(cfg.seed).generate_state(cfg.n)]
     terrains = [make_terrain(cfg.terrain, seeds[0], iteration=0)]
     for k in range(1, cfg.n):
-        if cfg.terrain.kind == "cppn":
+        if generator_for(cfg.terrain.kind).evolves:
             terrains.append(
                 mutate_terrain(terrains[-1], cfg.terrain, seeds[k], iteration=k * ITERATION_STEP)
             )
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> None:
             terrain.save(out / f"{terrain.id}.npz")
         png = write_gallery(terrains, out)
         print(f"wrote {png} and {len(terrains)} terrain files to {out}/")
-    except (ConfigError, CppnMutationError, OSError) as err:
+    except (ConfigError, MutationError, OSError) as err:
         fail(err)
 
 

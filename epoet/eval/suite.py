@@ -30,8 +30,9 @@ Suite folder format (any folder in this format can be evaluated, `suite=<folder>
 A suite's NAME keys its evaluations in a run (`epoet.eval.keys`): "shipped" (epoet/suite/),
 "paper" (epoet/reference/suite/), the two `SUITES`, or another folder's (`suite_name`).
 
-This module is the format and its loader; the procedure above and the writer live in
-epoet/eval/suite_generation.py, which `python -m epoet.eval.suite` runs.
+This module is the format, its loader and the command `python -m epoet.eval.suite`; the
+procedure above and the writer live in epoet/eval/suite_generation.py, and what the two share
+(the course, the levels, the stored heights) in epoet/eval/suite_format.py.
 """
 
 from __future__ import annotations
@@ -52,74 +53,25 @@ from epoet.cli import KeyValueCommand
 from epoet.config import load
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError
-from epoet.envs.config import AgentConfig
-from epoet.envs.model import patch_variance
 from epoet.eval.config import SuiteConfig
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
-from epoet.terrain.config import TerrainConfig
-from epoet.terrain.cppn import CppnMutationError
+from epoet.eval.suite_format import (
+    LEVELS,
+    SUITE_FORMAT,
+    Course,
+    dequantize,
+    level_of,
+)
+from epoet.eval.suite_generation import differences, generate, write_suite
+from epoet.terrain.config import MutationError, TerrainConfig
 
-# 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
-SUITE_FORMAT = "epoet-suite/2"
 SHIPPED = Path(__file__).resolve().parent.parent / "suite"
 PAPER = Path(__file__).resolve().parent.parent / "reference" / "suite"
 SUITES = {SHIPPED_NAME: SHIPPED, PAPER_NAME: PAPER}  # the named suites
-LEVELS = ("easy", "medium", "hard", "extreme")
-LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)  # m^2 of patch variance between consecutive levels
-_QUANT = 65535
 
 
 class SuiteError(ValueError):
     """A suite folder that cannot be used; the message names the folder and the problem."""
-
-
-@dataclass(frozen=True)
-class Course:
-    """The strip the robot walks: x from start_x to finish_x, |y| <= half_width (metres), made
-    for agents trained on `episode_steps`-step episodes; an evaluation episode may last
-    episode_ratio x the agent's training episodes."""
-
-    start_x: float
-    finish_x: float
-    half_width: float
-    episode_steps: int
-    episode_ratio: float
-
-    @classmethod
-    def of(cls, agent: AgentConfig, episode_ratio: float) -> Course:
-        return cls(
-            agent.start_x,
-            agent.finish_x,
-            agent.spawn_footprint,
-            agent.max_episode_steps,
-            episode_ratio,
-        )
-
-    def scale(self, agent: AgentConfig) -> float:
-        """The course's share an agent trained on shorter episodes walks (1 at full length)."""
-        return min(1.0, agent.max_episode_steps / self.episode_steps)
-
-    def rules(self, agent: AgentConfig) -> AgentConfig:
-        """`agent`'s episode rules on this course: its start, a finish line as far as the
-        agent's episodes allow at the course's pace (the full course for episodes of
-        `episode_steps` or more), and episodes `episode_ratio` x the agent's. So "solved"
-        asks the same speed and return per step at every budget: a budget with a fifth of
-        the episode walks a fifth of the course in a fifth of the time."""
-        length = (self.finish_x - self.start_x) * self.scale(agent)
-        return dataclasses.replace(
-            agent,
-            start_x=self.start_x,
-            finish_x=self.start_x + length,
-            max_episode_steps=max(1, round(self.episode_ratio * agent.max_episode_steps)),
-        )
-
-    def roughness(self, heightmap: np.ndarray, max_height: float, size: float) -> float:
-        """Mean 5 x 5 patch variance of the heights (metres) over the course's cells."""
-        n = heightmap.shape[0]
-        axis = np.linspace(-size / 2, size / 2, n)
-        rows = np.abs(axis) <= self.half_width
-        cols = (axis >= self.start_x) & (axis <= self.finish_x)
-        return float(patch_variance(heightmap * max_height)[np.ix_(rows, cols)].mean())
 
 
 def terrain_config_for(terrains: Sequence[Any]) -> TerrainConfig:
@@ -132,10 +84,6 @@ def terrain_config_for(terrains: Sequence[Any]) -> TerrainConfig:
         size=terrains[0].size,
         max_height_limit=max(base.max_height_limit, *(t.max_height for t in terrains)),
     )
-
-
-def level_of(roughness: float) -> str:
-    return LEVELS[int(np.searchsorted(LEVEL_BOUNDS, roughness, side="right"))]
 
 
 @dataclass(frozen=True)
@@ -192,14 +140,6 @@ class Suite:
 
     def level_counts(self) -> dict[str, int]:
         return {level: sum(t.level == level for t in self.terrains) for level in LEVELS}
-
-
-def quantize(heightmap: np.ndarray) -> np.ndarray:
-    return np.rint(np.clip(heightmap, 0.0, 1.0) * _QUANT).astype(np.uint16)
-
-
-def dequantize(q: np.ndarray) -> np.ndarray:
-    return q.astype(np.float64) / _QUANT if q.dtype == np.uint16 else q.astype(np.float64)
 
 
 # --- loading --------------------------------------------------------------------------------
@@ -289,9 +229,6 @@ def main(argv: Sequence[str] | None = None) -> None:
         python -m epoet.eval.suite out=suites/hard 'max_heights=[1.5,2.2]' children=16
     """
     cfg: SuiteConfig = COMMAND.parse(argv)
-    # generation reads this module's format and loader, so it is imported here
-    from epoet.eval.suite_generation import differences, generate, write_suite
-
     try:
         folder = SHIPPED if cfg.out is None else Path(cfg.out)
         stored = len(load_suite(folder).terrains) if cfg.check else 0  # before a minute's work
@@ -316,7 +253,7 @@ def main(argv: Sequence[str] | None = None) -> None:
             f"wrote {len(terrains)} terrains to {folder}/: "
             + ", ".join(f"{n} {level}" for level, n in counts.items())
         )
-    except (ConfigError, CppnMutationError, SuiteError, OSError) as err:
+    except (ConfigError, MutationError, SuiteError, OSError) as err:
         fail(err)
 
 

@@ -14,18 +14,16 @@ import numpy as np
 
 from epoet.core.files import atomic_write, savez
 from epoet.eval.config import SuiteConfig
-from epoet.eval.suite import (
+from epoet.eval.suite_format import (
     LEVEL_BOUNDS,
     LEVELS,
     SUITE_FORMAT,
     Course,
     dequantize,
     level_of,
-    load_suite,
     quantize,
 )
-from epoet.terrain.config import TerrainConfig
-from epoet.terrain.cppn import CppnMutationError
+from epoet.terrain.config import MutationError, TerrainConfig
 from epoet.terrain.generate import make_terrain, mutate_terrain
 from epoet.terrain.terrain import Terrain
 
@@ -101,7 +99,7 @@ def _search(
     for seed in seeds:
         try:
             child = mutate_terrain(current, cfg, seed)
-        except CppnMutationError:
+        except MutationError:
             continue
         child = dataclasses.replace(child, heightmap=dequantize(quantize(child.heightmap)))
         rough = course.roughness(child.heightmap, child.max_height, child.size)
@@ -112,7 +110,7 @@ def _search(
         if miss == 0.0:
             break
     if best is None:
-        raise CppnMutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} tries.")
+        raise MutationError(f"no valid mutation of terrain {parent.id} in {len(seeds)} tries.")
     return best[1], best[2]
 
 
@@ -143,9 +141,9 @@ def write_suite(folder: Path, terrains: list[Terrain], entries: list[dict], cour
 
 
 def differences(folder: Path, terrains: list[Terrain], entries: list[dict]) -> list[str]:
-    """What differs between generated terrains and the first ones in `folder` (empty: bit for
-    bit; a suite made with fewer rounds is compared with the folder's first rounds)."""
-    load_suite(folder)  # a malformed folder fails here, with its own message
+    """What differs between generated terrains and the first ones in `folder`, a suite
+    `load_suite` has read (empty: bit for bit; a suite made with fewer rounds is compared with
+    the folder's first rounds)."""
     index = json.loads((folder / "suite.json").read_text())
     stored = index["terrains"][: len(entries)]
     if [e["name"] for e in stored] != [e["name"] for e in entries]:

@@ -3,21 +3,19 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
+from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
+from epoet.terrain.config import evolving_kinds, generator_for
 
 
 @dataclass
-class PoetConfig:
+class PoetConfig(AlgoSettings):
     """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig).
     Its compute (iterations, ES pairs) is the budget's (`PoetBudgetConfig`)."""
 
-    KEY: ClassVar[str] = "algo"
-
-    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
-    name: str
     es: EsConfig
     iterations_before_transfer: int  # the transfer interval
     adjust_interval: int  # reproduction every adjust_interval transfer intervals
@@ -55,12 +53,20 @@ class PoetConfig:
 
     def check_run(self, cfg: Any) -> None:
         """What ePOET needs of the run's other settings (`cfg`: the root Config)."""
+        kind = cfg.terrain.kind
         check(
-            cfg.terrain.kind == "cppn",
-            f"algo={self.name} evolves CPPN terrains, so it needs terrain=cppn "
-            f"(got terrain={cfg.terrain.kind}).",
+            generator_for(kind).evolves,
+            f"algo={self.name} evolves its environments, so it needs "
+            f"{' or '.join(f'terrain={k}' for k in evolving_kinds())} "
+            f"(got terrain={kind}, whose terrains do not mutate).",
         )
 
-    def unused_keys(self) -> list[str]:
-        """Settings of the run an ES run never reads: none."""
-        return []
+
+EPOET = Algorithm(
+    name="epoet",
+    family=Family.POOL,
+    schema=PoetConfig,
+    runner="epoet.poet.runner.train",
+    label="ePOET",
+    colour="tab:red",
+)

@@ -27,17 +27,3 @@ class Key(IntEnum):
     ADMIT = 15  # (iteration, slot, candidate + 1 or 0 for direct transfers)
     ADMIT_NOISE = 16  # (iteration, slot, candidate)
     ADMIT_SPAWN = 17  # (iteration, slot, candidate)
-    # ePOET-SAC (epoet_sac/loop.py)
-    SAC_ENV = 18  # (iteration,): which active environment Train_SAC uses
-    SAC = 19  # torch's stream: () initial weights, (iteration,) Train_SAC,
-    # (iteration, 1 | 2) the transfer step's replay states | distillation
-    SAC_SPAWN = 20  # (iteration,): starts of SAC's own episodes
-    SAC_BOWL = 21  # (iteration,): the bowl of `sac_terrain=bowl`
-    JOIN = 22  # (iteration,) random mapping, (iteration, 0 | 1 | 2) distillation's
-    # initial ES vector | replay states | shuffling
-    JOIN_EVAL = 23  # (iteration,): the mapped agent and the SAC actor on one terrain
-    CROSSOVER = 24  # (env, iteration): the coin flips of Algorithm 3
-    CROSSOVER_EVAL = 25  # (env, iteration): old and new agent on the same starts
-    PRETRAIN = 26  # (i, 0 | 1): the i-th pre-training Train_SAC's torch | spawn seed
-    DAGGER = 27  # (mapping, round): starts of DAgger's round (0: the actor's), (mapping,) its
-    # minibatch order; `mapping` is the join's iteration

@@ -1,13 +1,16 @@
-"""The ePOET loop (paper Algorithm 1 without the SAC steps; docs/reference.md).
+"""The ePOET loop (paper Algorithm 1; docs/reference.md).
 
 `EPOET.run_iteration` is one iteration, as Enhanced POET's `optimize()` runs each of its own:
-1. every `reproduce_interval` iterations, `reproduce` (reproduction.py): eligible parents
+its `steps`, each run when it is due and timed under its name:
+1. `reproduce`, every `reproduce_interval` iterations (reproduction.py): eligible parents
    propose mutated children, the minimal criterion filters them, and the most novel are
    admitted with the best agent;
 2. `optimize`: every active pair takes one ES step on its environment (`es_step`) and is
    evaluated (`evaluate_pairs`);
-3. every `transfer_interval` iterations, `transfer` (transfer.py): agents move between
+3. `transfer`, every `transfer_interval` iterations (transfer.py): agents move between
    environments.
+A loop that extends ePOET's (a subclass) adds steps to that list and overrides a step, the
+lineage its pairs are counted in, or what its iterations report.
 
 The pool (pairs.py) holds the pairs; the service (service.py) gives every step its keyed seeds,
 terrains and episodes, one call to the workers per step. A run of iterations, with checkpoints
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable, cast
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, cast
 
 import numpy as np
 
@@ -27,16 +30,16 @@ from epoet.core.files import atomic_write, savez
 from epoet.core.timing import PhaseTimer
 from epoet.poet.config import PoetConfig
 from epoet.poet.keys import Key
-from epoet.poet.pairs import Environment, Pair, Pool, Thresholds
+from epoet.poet.pairs import Environment, Pair, Pool, Thresholds, annecs, best_by_lineage
 from epoet.poet.reproduction import reproduce
 from epoet.poet.service import Service
 from epoet.poet.transfer import transfer
 from epoet.rollout.agent_files import ES_POLICIES, LAYOUT, layout_array
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
-from epoet.rollout.policy import init_params
+from epoet.rollout.policy import init_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
-from epoet.terrain import max_height_at, new_genome
+from epoet.terrain import max_height_at
 from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
@@ -44,8 +47,26 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports t
     from epoet.tracking import Tracker
 
 
+class Step(NamedTuple):
+    """A step of an iteration: its name (its time is `time/<name>`), whether it is due at
+    iteration t, and what it does at t (returning its metrics)."""
+
+    name: str
+    due: Callable[[int], bool]
+    run: Callable[[int], dict[str, float]]
+
+
+def every_iteration(t: int) -> bool:
+    return True
+
+
 class EPOET:
     """The pool of environment-agent pairs and the three steps that change it."""
+
+    EVENTS: tuple[str, ...] = (
+        "admitted",
+        "transfers",
+    )  # counts the progress line shows when an iteration has them
 
     def __init__(
         self,
@@ -92,7 +113,7 @@ class EPOET:
         service = self.service
         root = Environment(
             index=0,
-            genome=new_genome(terrain.cppn, service.seed(Key.ROOT_GENOME, 0)),
+            genome=service.root_genome(service.seed(Key.ROOT_GENOME, 0)),
             generation=0,
             parent=None,
             created_at=0,
@@ -104,18 +125,8 @@ class EPOET:
 
     @classmethod
     def from_config(cls, cfg: Config, evaluator: Evaluator) -> EPOET:
-        """The `algo=epoet` loop of a run: the budget's population, evaluations and scale."""
-        budget = cast("PoetBudgetConfig", cfg.budget)  # ePOET's YAML picks the ePOET family's
-        return cls(
-            cfg.algo,
-            cfg.terrain,
-            evaluator,
-            seed=cfg.seed,
-            n_pairs=budget.n_pairs,
-            eval_episodes=budget.eval_episodes,
-            score_scale=budget.score_scale,
-            layer_sizes=evaluator.layer_sizes,
-        )
+        """The `algo=epoet` loop of a run."""
+        return cls(PoetConfig.of(cfg), cfg.terrain, evaluator, **loop_settings(cfg))
 
     # --- one iteration ----------------------------------------------------------------------
     def run_iteration(self) -> dict[str, float]:
@@ -123,22 +134,31 @@ class EPOET:
         time went)."""
         t, timer, start = self.iteration, PhaseTimer(), self.start_iteration()
         metrics: dict[str, float] = {}
-        if self.reproduce_due(t):
-            with timer("reproduce"):
-                metrics["admitted"] = float(self.reproduce(t))
-        with timer("optimize"):
-            metrics.update(self.es_step(t)[0])
-            metrics.update(self.evaluate_pairs(t))
-        if self.transfer_due(t):
-            with timer("transfer"):
-                metrics["transfers"] = float(self.transfer(t))
-        return self.end_iteration(
-            metrics,
-            timer,
-            start,
-            annecs(self.pool.pairs),
-            best_by_lineage(self.pool.active, lambda p: p.env.generation),
-        )
+        for step in self.steps():
+            if step.due(t):
+                with timer(step.name):
+                    metrics.update(step.run(t))
+        return self.end_iteration(metrics, timer, start)
+
+    def steps(self) -> list[Step]:
+        """The steps of an iteration, in order."""
+        return [
+            Step("reproduce", self.reproduce_due, self.reproduce_step),
+            Step("optimize", every_iteration, self.optimize),
+            Step("transfer", self.transfer_due, self.transfer_step),
+        ]
+
+    def reproduce_step(self, t: int) -> dict[str, float]:
+        return {"admitted": float(self.reproduce(t))}
+
+    def optimize(self, t: int) -> dict[str, float]:
+        """Every active pair's ES step, then its evaluation."""
+        metrics = self.es_step(t)[0]
+        metrics.update(self.evaluate_pairs(t))
+        return metrics
+
+    def transfer_step(self, t: int) -> dict[str, float]:
+        return {"transfers": float(self.transfer(t))}
 
     def reproduce_due(self, t: int) -> bool:
         """At the first interval, then every later interval (the reference: 75, then every 15;
@@ -199,14 +219,11 @@ class EPOET:
     def evaluate_pairs(self, t: int) -> dict[str, float]:
         """Each active agent's score on its own environment this iteration."""
         service, active = self.service, self.pool.active
-        scores = service.scores(
-            [
-                service.eval_request(
-                    service.terrain(p.env, t), p.theta[None], Key.EVAL, p.env.index, t
-                )
-                for p in active
-            ]
-        )
+        requests = [
+            service.eval_request(service.terrain(p.env, t), p.theta[None], Key.EVAL, p.env.index, t)
+            for p in active
+        ]
+        scores = service.scores(requests)
         metrics: dict[str, float] = {}
         for pair, score in zip(active, scores):
             self.pool.record(pair, float(score[0]))
@@ -214,8 +231,7 @@ class EPOET:
         return metrics
 
     def transfer(self, t: int) -> int:
-        """The transfer step (transfer.py); returns the agents replaced, counted in
-        `transfers`."""
+        """The transfer step (transfer.py); returns the agents replaced (`transfers`)."""
         return len(self.transfer_moves(t))
 
     def transfer_moves(self, t: int) -> dict[int, int]:
@@ -230,12 +246,7 @@ class EPOET:
         return time.perf_counter(), self.service.env_steps
 
     def end_iteration(
-        self,
-        metrics: dict[str, float],
-        timer: PhaseTimer,
-        start: tuple[float, int],
-        annecs: int,
-        generations: dict[str, float],
+        self, metrics: dict[str, float], timer: PhaseTimer, start: tuple[float, int]
     ) -> dict[str, float]:
         """Close iteration `self.iteration`: add the run-level metrics to its own and move on."""
         elapsed = time.perf_counter() - start[0]
@@ -243,8 +254,7 @@ class EPOET:
         self.cpu_time += self.cpu_meter.lap()  # since the last iteration: its checkpoint too
         score = max(p.score for p in self.pool.active)
         if self.best_score < self.pool.thresholds.repro <= score:
-            # The run's first walker: an evaluation score at the reproduction threshold (on
-            # 2000-step episodes the paper's "solved" 2000), and what it took to get there.
+            # The run's first walker (on 2000-step episodes the paper's "solved"): its cost.
             metrics.update(
                 {
                     "walker/cpu_time": self.cpu_time,
@@ -254,13 +264,13 @@ class EPOET:
             )
         self.best_score = max(self.best_score, score)
         metrics.update(timer.metrics())
-        metrics.update(generations)
+        metrics.update(best_by_lineage(self.pool.active, self.lineage))
         metrics.update(
             {
                 "best_score": self.best_score,
                 "active_envs": float(len(self.pool.active)),
                 "archived_envs": float(len(self.pool.archived)),
-                "annecs": float(annecs),
+                "annecs": float(annecs(self.novel_pairs())),
                 "env_steps": float(self.service.env_steps),
                 "steps_per_second": (self.service.env_steps - start[1]) / elapsed,
                 "time/iteration": elapsed,
@@ -274,6 +284,18 @@ class EPOET:
         )
         self.iteration += 1
         return metrics
+
+    def lineage(self, pair: Pair) -> int:
+        """The lineage `gen<g>/score` counts the pair in: its environment's generation."""
+        return pair.env.generation
+
+    def novel_pairs(self) -> list[Pair]:
+        """The pairs whose environments ANNECS may count: all of them."""
+        return self.pool.pairs
+
+    def progress(self, metrics: dict[str, float]) -> str:
+        """What the runner's progress line adds for an iteration: its events."""
+        return "".join(f" {k}={int(metrics[k])}" for k in self.EVENTS if k in metrics)
 
     # --- artifacts and checkpoints ----------------------------------------------------------
     def save_agents(self, folder: Path, choice: str = "best") -> Path:
@@ -328,16 +350,14 @@ class EPOET:
                 "best_theta": p.best_theta,
             }
 
-        obs_norm = self.service.obs_norm
         return {
             "iteration": self.iteration,
             "next_index": self.pool.next_index,
             "transfers": self.transfers,
-            "env_steps": self.service.env_steps,
             "elapsed": self.elapsed,
             "cpu_time": self.cpu_time,
             "best_score": self.best_score,
-            "obs_norm": None if obs_norm is None else obs_norm.state_dict(),
+            **self.service.state_dict(),  # env_steps, obs_norm
             "active": [pair_state(p) for p in self.pool.active],
             "archived": [pair_state(p) for p in self.pool.archived],
         }
@@ -357,30 +377,24 @@ class EPOET:
         self.iteration, self.transfers = state["iteration"], state["transfers"]
         self.elapsed = state["elapsed"]
         self.cpu_time = state.get("cpu_time", 0.0)  # checkpoints before the CPU clock: none
-        self.service.env_steps = state["env_steps"]
+        self.service.load_state_dict(state)
         # checkpoints older than the run-level best: the pairs' bests are the closest record
         self.best_score = state.get(
             "best_score", max(s["best_score"] for s in state["active"] + state["archived"])
         )
-        if self.service.obs_norm is not None:
-            self.service.obs_norm.load_state_dict(state["obs_norm"])
         self.pool.next_index = state["next_index"]
         self.pool.active = [restore(s) for s in state["active"]]
         self.pool.archived = [restore(s) for s in state["archived"]]
-        self.service.forget_terrains()
 
 
-def annecs(pairs: Iterable[Pair]) -> int:
-    """ANNECS: admitted environments (not the root) whose agent reached the reproduction
-    threshold, at admission or later."""
-    return sum(p.env.solved for p in pairs if p.env.index > 0)
-
-
-def best_by_lineage(pairs: Iterable[Pair], lineage: Callable[[Pair], int]) -> dict[str, float]:
-    """`gen<g>/score`: the best active score of each lineage g (paper Figure 2's
-    <algorithm>_gen<g> curves; ePOET's lineages are the environments' generations)."""
-    best: dict[int, float] = {}
-    for pair in pairs:
-        g = lineage(pair)
-        best[g] = max(best.get(g, -np.inf), pair.score)
-    return {f"gen{g}/score": score for g, score in sorted(best.items())}
+def loop_settings(cfg: Config) -> dict[str, Any]:
+    """What a loop takes of a run's config besides its algorithm and terrain: the seed, the
+    budget's population, evaluations and score scale, and the ES policy's layers."""
+    budget = cast("PoetBudgetConfig", cfg.budget)  # the ePOET family's YAML picks its budget
+    return {
+        "seed": cfg.seed,
+        "n_pairs": budget.n_pairs,
+        "eval_episodes": budget.eval_episodes,
+        "score_scale": budget.score_scale,
+        "layer_sizes": policy_sizes(cfg.agent, PoetConfig.of(cfg).es.hidden),
+    }

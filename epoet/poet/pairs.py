@@ -1,11 +1,11 @@
 """Environment-agent pairs, what the ePOET loop keeps for each environment it has admitted, the
-pool that holds them, and the small records its steps pass around (thresholds, proposed
-children)."""
+pool that holds them, the small records its steps pass around (thresholds, proposed children),
+and what an iteration reports of them (ANNECS, the best score of each lineage)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Iterable
 
 import numpy as np
 
@@ -17,14 +17,15 @@ if TYPE_CHECKING:
 
 @dataclass
 class Environment:
-    """An environment of the pool: a CPPN genome (or none for bowl-only) plus provenance.
+    """An environment of the pool: its encoding (the terrain generator's genome: a CPPN's neat
+    genome) plus provenance.
 
     The concrete heightmap changes every iteration (the bowl part is redrawn and the maximum
     height grows, paper appendix "Generated Environments"), so the pool stores what is fixed.
     """
 
     index: int  # admission order: 0 is the root environment
-    genome: Any  # neat-python genome of the CPPN part
+    genome: Any  # the encoding the generator renders and mutates
     generation: int
     parent: int | None  # index of the parent environment
     created_at: int  # iteration of admission
@@ -115,3 +116,19 @@ class Pool:
         pair.es.reset(theta)
         pair.scores.pop()
         self.record(pair, score)
+
+
+def annecs(pairs: Iterable[Pair]) -> int:
+    """ANNECS: admitted environments (not the root) whose agent reached the reproduction
+    threshold, at admission or later."""
+    return sum(p.env.solved for p in pairs if p.env.index > 0)
+
+
+def best_by_lineage(pairs: Iterable[Pair], lineage: Callable[[Pair], int]) -> dict[str, float]:
+    """`gen<g>/score`: the best active score of each lineage g (paper Figure 2's
+    <algorithm>_gen<g> curves; ePOET's lineages are the environments' generations)."""
+    best: dict[int, float] = {}
+    for pair in pairs:
+        g = lineage(pair)
+        best[g] = max(best.get(g, -np.inf), pair.score)
+    return {f"gen{g}/score": score for g, score in sorted(best.items())}

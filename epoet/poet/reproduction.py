@@ -13,7 +13,7 @@ from epoet.poet.keys import Key
 from epoet.poet.novelty import pata_ec, rank_by_novelty
 from epoet.poet.pairs import Child, Environment, Pair, Pool
 from epoet.poet.service import FineTune, Service
-from epoet.terrain import CppnMutationError, cppn_inputs, mutate_genome
+from epoet.terrain import MutationError
 
 
 def reproduce(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
@@ -31,22 +31,18 @@ def reproduce(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
 def propose_children(
     service: Service, cfg: PoetConfig, parents: list[Pair], t: int
 ) -> list[tuple[Child, Pair]]:
-    """Up to `num_children` valid CPPN mutations of randomly chosen eligible parents."""
+    """Up to `num_children` valid mutations (the terrain generator's) of randomly chosen
+    eligible parents."""
     rng = np.random.default_rng(service.seed(Key.PARENTS, t))
-    tc = service.terrain_cfg
     children = []
     for slot in range(cfg.num_children):
         parent = parents[int(rng.integers(len(parents)))]
         try:
-            genome = mutate_genome(
-                parent.env.genome,
-                tc.cppn,
-                tc.mutation,
-                service.seed(Key.CHILD_GENOME, parent.env.index, t, slot),
-                cppn_inputs(tc),
+            genome = service.child_genome(
+                parent.env, service.seed(Key.CHILD_GENOME, parent.env.index, t, slot)
             )
-        except CppnMutationError:
-            continue  # this parent yielded no valid child in max_tries; propose the next
+        except MutationError:
+            continue  # this parent yielded no valid child in its tries; propose the next
         env = Environment(
             index=-1,
             genome=genome,

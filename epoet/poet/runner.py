@@ -1,16 +1,16 @@
 """`algo=epoet`: the loop's iterations for the budget, tracked and resumable (`train_loop` runs
-them for ePOET-SAC's loop too: epoet/epoet_sac/runner.py)."""
+them for any loop that extends ePOET's)."""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, Protocol, cast
+from typing import Any, cast
 
 from epoet.config import Config, PoetBudgetConfig
 from epoet.core.lifecycle import raise_if_stopped, stop_requested
+from epoet.poet.config import PoetConfig
 from epoet.poet.loop import EPOET
-from epoet.poet.service import Service
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import policy_sizes
 from epoet.run_state import report_stop, save_run_state, take_snapshots
@@ -20,7 +20,7 @@ from epoet.tracking import Tracker
 def layer_sizes(cfg: Config) -> tuple[int, ...]:
     """The ES policy's sizes, derived here only: the evaluator takes them, the loop reads them
     from it."""
-    return policy_sizes(cfg.agent, cfg.algo.es.hidden)
+    return policy_sizes(cfg.agent, PoetConfig.of(cfg).es.hidden)
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
@@ -31,29 +31,8 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
     return loop
 
 
-class Loop(Protocol):
-    """What `train_loop` asks of a loop (EPOET, EpoetSac)."""
-
-    service: Service
-
-    @property
-    def iteration(self) -> int: ...
-
-    @property
-    def elapsed(self) -> float: ...
-
-    @property
-    def cpu_time(self) -> float: ...
-
-    def run_iteration(self) -> dict[str, float]: ...
-    def save_agents(self, folder: Path, choice: str = "best") -> Path: ...
-    def state_dict(self) -> dict[str, Any]: ...
-    def load_state_dict(self, state: dict[str, Any]) -> None: ...
-    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str) -> None: ...
-
-
 def train_loop(
-    loop: Loop, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
+    loop: EPOET, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> None:
     """Run `loop`'s iterations until `budget.iterations` (or `budget.hours`, `budget.cpu_hours`),
     logging each one's metrics, saving the pool's agents at each CPU-time mark of
@@ -83,7 +62,7 @@ def train_loop(
             metrics["workers/restarts"] = evaluator.restarts - restarts
             restarts = evaluator.restarts
         tracker.log_metrics(loop.iteration - 1, metrics)
-        _progress(cfg, loop.iteration, metrics, time.perf_counter() - started)
+        _progress(cfg, loop, metrics, time.perf_counter() - started)
         info = {k: metrics[k] for k in ("cpu_time", "elapsed", "env_steps", "max_height")}
         for minutes in take_snapshots(
             run_dir,
@@ -110,25 +89,14 @@ def train_loop(
     loop.log_artifacts(run_dir, tracker, cfg.agent_choice)
 
 
-EVENTS = ("admitted", "transfers", "joined", "replaced")  # shown when an iteration has them
-
-
-def _progress(cfg: Config, iteration: int, metrics: dict[str, float], elapsed: float) -> None:
-    extra = "".join(f" {k}={int(metrics[k])}" for k in EVENTS if k in metrics)
-    if "sac/score" in metrics:
-        extra += f" sac_score={metrics['sac/score']:.1f}"
-    if "join/mapped_score" in metrics:  # ePOET-SAC's join
-        extra += (
-            f" join: {cfg.algo.mapping} mapping scored {metrics['join/mapped_score']:.1f}"
-            f" vs the SAC actor's {metrics['join/sac_score']:.1f}"
-        )
+def _progress(cfg: Config, loop: EPOET, metrics: dict[str, float], elapsed: float) -> None:
     iterations = cast(PoetBudgetConfig, cfg.budget).iterations
     print(
-        f"[{cfg.algo.name}] it {iteration}/{iterations} "
+        f"[{cfg.algo.name}] it {loop.iteration}/{iterations} "
         f"pairs={int(metrics['active_envs'])} archived={int(metrics['archived_envs'])} "
         f"score={metrics['score']:.1f} best={metrics['best_score']:.1f} "
         f"annecs={int(metrics['annecs'])} S={metrics['max_height']:.2f} "
         f"steps/s={metrics['steps_per_second']:,.0f} elapsed={elapsed:.0f}s "
-        f"cpu={metrics['cpu_time'] / 60:.1f}min{extra}",
+        f"cpu={metrics['cpu_time'] / 60:.1f}min{loop.progress(metrics)}",
         flush=True,
     )

@@ -2,15 +2,17 @@
 terrains, scores, fine-tuned agents) and nothing about the pool it serves.
 
 All randomness is keyed: a seed for (purpose, ids...) comes from one SeedSequence of the run's
-seed (keys.py names the purposes), so the order in which things are evaluated, the number of
-workers and a checkpoint/resume never change what a run does. Each call to `run` (and so to
-`scores` and `fine_tune`) is one call to the workers for every request it is given, so no worker
-waits at a per-pair barrier.
+seed (keys.py names ePOET's purposes; a loop extending ePOET's names its own, numbered after
+them), so the order in which things are evaluated, the number of workers and a
+checkpoint/resume never change what a run does. Each call to `run` (and so to `scores` and
+`fine_tune`) is one call to the workers for every request it is given, so no worker waits at a
+per-pair barrier.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from enum import IntEnum
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -23,7 +25,7 @@ from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import Standardizer
 from epoet.rollout.populations import Agents, Mirrored, Request
-from epoet.terrain import Terrain, make_terrain
+from epoet.terrain import Terrain, generator_for, make_terrain
 from epoet.terrain.config import TerrainConfig
 
 
@@ -53,12 +55,13 @@ class Service:
     ) -> None:
         self.evaluator = evaluator
         self.terrain_cfg = terrain
+        self.generator = generator_for(terrain.kind)  # encodes and mutates the environments
         self.es_cfg = es
         self.run_seed = seed
         self.n_pairs = n_pairs
         self.eval_episodes = eval_episodes
         self.layer_sizes = layer_sizes
-        self.env_steps = 0
+        self.env_steps = 0  # counted here only: `run`, `count_steps`, `load_state_dict`
         # Observation normalisation: every theta of the pool acts on standardised observations
         # (one set of statistics per run, as Salimans et al.); what runs is `policy(theta)`.
         self.obs_norm = ObsNormalizer(layer_sizes[0]) if es.obs_norm_episodes else None
@@ -68,17 +71,26 @@ class Service:
         self._terrains_at = -1
 
     # --- seeds ------------------------------------------------------------------------------
-    def seeds(self, n: int, key: Key, *ids: int) -> np.ndarray:
+    def seeds(self, n: int, key: IntEnum, *ids: int) -> np.ndarray:
         """n non-negative int64 seeds, a function of the run seed, the key and the ids alone."""
         seq = np.random.SeedSequence([self.run_seed, int(key), *ids])
         return (seq.generate_state(n, np.uint64) >> np.uint64(1)).astype(np.int64)
 
-    def seed(self, key: Key, *ids: int) -> int:
+    def seed(self, key: IntEnum, *ids: int) -> int:
         return int(self.seeds(1, key, *ids)[0])
 
-    # --- terrains ---------------------------------------------------------------------------
+    # --- environments and terrains ------------------------------------------------------------
+    def root_genome(self, seed: int) -> Any:
+        """The encoding of a new lineage (the terrain generator's)."""
+        return self.generator.encode(self.terrain_cfg, seed)
+
+    def child_genome(self, parent: Environment, seed: int) -> Any:
+        """A valid mutation of `parent`'s encoding; MutationError when there is none."""
+        return self.generator.mutate(self.terrain_cfg, parent.genome, seed)
+
     def terrain(self, env: Environment, t: int) -> Terrain:
-        """The environment's heightmap at iteration t: its CPPN, a fresh bowl, S(t)."""
+        """The environment's heightmap at iteration t: its encoding rendered with a fresh bowl
+        at S(t)."""
         terrains = self._iteration_terrains(t)
         if env.index not in terrains:
             terrains[env.index] = self.make_terrain(env, self.seed(Key.BOWL, env.index, t), t)
@@ -105,8 +117,22 @@ class Service:
             parent_id=parent,
         )
 
-    def forget_terrains(self) -> None:
-        """After a resume: the terrains are made again from their keys."""
+    # --- the run's counters -------------------------------------------------------------------
+    def count_steps(self, steps: int) -> None:
+        """Environment steps taken outside the workers (a learner's own env)."""
+        self.env_steps += steps
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "env_steps": self.env_steps,
+            "obs_norm": None if self.obs_norm is None else self.obs_norm.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """The counters of a checkpoint; the terrains are made again from their keys."""
+        self.env_steps = state["env_steps"]
+        if self.obs_norm is not None:
+            self.obs_norm.load_state_dict(state["obs_norm"])
         self._terrains, self._terrains_at = {}, -1
 
     # --- agents -----------------------------------------------------------------------------
@@ -132,7 +158,9 @@ class Service:
         self.env_steps += sum(int(e.lengths.sum()) for e in episodes)
         return episodes
 
-    def eval_request(self, terrain: Terrain, thetas: np.ndarray, key: Key, *ids: int) -> Request:
+    def eval_request(
+        self, terrain: Terrain, thetas: np.ndarray, key: IntEnum, *ids: int
+    ) -> Request:
         """`eval_episodes` seeded episodes of each agent in `thetas` (K, P) on `terrain`."""
         return Request(
             terrain, Agents.of(self.policy(thetas), self.seeds(self.eval_episodes, key, *ids))

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar, Optional
 
+from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import check, config_key, non_negative, positive
 
 # --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, docs/reference.md) -----------------
@@ -32,10 +33,9 @@ def _check_network(obj: Any) -> None:
     check(0.0 < obj.gamma <= 1.0, f"{config_key(obj, 'gamma')} must be in (0, 1], got {obj.gamma}.")
 
 
-class BaselineConfig:
+@dataclass
+class BaselineConfig(AlgoSettings):
     """What the RL baselines ask of a run: they collect in-process and count frames."""
-
-    name: str  # the algorithm's, a field of each baseline's schema
 
     def check_run(self, cfg: Any) -> None:
         """What a baseline needs of the run's other settings (`cfg`: the root Config)."""
@@ -54,10 +54,6 @@ class BaselineConfig:
 class RlConfig(BaselineConfig):
     """What PPO and VMPO share: the networks, the optimiser and the collector batch."""
 
-    KEY: ClassVar[str] = "algo"
-
-    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
-    name: str
     hidden: list[int]
     activation: str
     lr: float  # one Adam over all parameters (Table 2: policy = value lr)
@@ -165,8 +161,6 @@ class SacConfig(SacLearnerConfig, BaselineConfig):
 
     KEY: ClassVar[str] = "algo"
 
-    _target_: str  # the runner epoet.run calls (conf/algo/*.yaml names it)
-    name: str
     frames_per_batch: int  # the paper's trajectory_length
     obs_norm: bool  # false: the paper normalises for PPO and VMPO only
     updates_per_batch: int  # gradient updates per collector batch
@@ -182,3 +176,29 @@ class SacConfig(SacLearnerConfig, BaselineConfig):
             f"budget.frames ({cfg.budget.frames}) must be at least algo.batch_size "
             f"({self.batch_size}), or SAC never updates.",
         )
+
+
+PPO = Algorithm(
+    name="ppo",
+    family=Family.BASELINE,
+    schema=PpoConfig,
+    runner="epoet.rl.ppo.train",
+    label="PPO",
+    colour="tab:blue",
+)
+SAC = Algorithm(
+    name="sac",
+    family=Family.BASELINE,
+    schema=SacConfig,
+    runner="epoet.rl.sac.train",
+    label="SAC",
+    colour="tab:orange",
+)
+VMPO = Algorithm(
+    name="vmpo",
+    family=Family.BASELINE,
+    schema=VmpoConfig,
+    runner="epoet.rl.vmpo.train",
+    label="VMPO",
+    colour="tab:green",
+)

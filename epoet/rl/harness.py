@@ -47,6 +47,7 @@ from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.clock import CpuMeter
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import stop_requested
+from epoet.rl.config import RlConfig, SacConfig
 from epoet.rl.env import (
     RunningObsNorm,
     Seeds,
@@ -91,10 +92,19 @@ class BatchPlan:
         return max(minimum, round(count * self.scale))
 
 
+def baseline(cfg: Config) -> RlConfig | SacConfig:
+    """The run's baseline settings: PPO's or VMPO's (`RlConfig`), or SAC's."""
+    algo = cfg.algo
+    if not isinstance(algo, (RlConfig, SacConfig)):
+        raise TypeError(f"algo={algo.name} is not a baseline.")  # a runner's bug
+    return algo
+
+
 def batch_plan(cfg: Config) -> BatchPlan:
-    budget = cast(BaselineBudgetConfig, cfg.budget)  # a baseline's YAML picks the baselines'
-    frames = min(cfg.algo.frames_per_batch, budget.frames)
-    return BatchPlan(frames, math.ceil(budget.frames / frames), frames / cfg.algo.frames_per_batch)
+    budget = cast(BaselineBudgetConfig, cfg.budget)  # a baseline's record: the baselines family
+    per_batch = baseline(cfg).frames_per_batch
+    frames = min(per_batch, budget.frames)
+    return BatchPlan(frames, math.ceil(budget.frames / frames), frames / per_batch)
 
 
 def set_threads(cfg: Config) -> int:
@@ -194,10 +204,11 @@ class Harness:
         self.seeds = Seeds.from_seed(cfg.seed)
         self.seeds.apply()
         # the envs before the networks: their construction draws from the seeded streams
-        self.env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=self.seeds.env)
-        self.eval_env = make_env(cfg, obs_norm=cfg.algo.obs_norm, seed=self.seeds.eval)
+        self.algo = baseline(cfg)
+        self.env = make_env(cfg, obs_norm=self.algo.obs_norm, seed=self.seeds.env)
+        self.eval_env = make_env(cfg, obs_norm=self.algo.obs_norm, seed=self.seeds.eval)
         self.state = LoopState(**resume["loop"]) if resume is not None else LoopState()
-        self.obs_stats = RunningObsNorm(obs_norm_of(self.env)) if cfg.algo.obs_norm else None
+        self.obs_stats = RunningObsNorm(obs_norm_of(self.env)) if self.algo.obs_norm else None
         self.collector: Collector | None = None
         self.actor: ProbabilisticActor | None = None
         self.progress: tqdm | None = None
@@ -342,9 +353,8 @@ class Harness:
     def export_policy(self, folder: Path) -> Path:
         """The actor as a policy file in `folder` (epoet.rl.policy_file)."""
         assert self.actor is not None  # given to `start`
-        algo = self.cfg.algo
         return export_policy(
-            folder / POLICY_FILE, self.actor, self.env, algo.hidden, algo.activation
+            folder / POLICY_FILE, self.actor, self.env, self.algo.hidden, self.algo.activation
         )
 
     def checkpoint(self, learner: Learner) -> None:

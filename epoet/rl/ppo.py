@@ -31,8 +31,8 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report 
 def train(
     cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> TrainResult:
-    """The `algo=ppo` runner (conf/algo/ppo.yaml `_target_`)."""
-    algo: PpoConfig = cfg.algo
+    """The `algo=ppo` runner (its record: epoet/rl/config.py `PPO`)."""
+    algo = PpoConfig.of(cfg)
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)
         critic = make_value(run.env, algo.hidden, algo.activation)

@@ -247,8 +247,8 @@ class SacLearner:
 def train(
     cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> TrainResult:
-    """The `algo=sac` runner (conf/algo/sac.yaml `_target_`)."""
-    algo: SacConfig = cfg.algo
+    """The `algo=sac` runner (its record: epoet/rl/config.py `SAC`)."""
+    algo = SacConfig.of(cfg)
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         learner = SacLearner(algo, run.env)
         updates = run.plan.scaled(algo.updates_per_batch, minimum=1)

@@ -33,8 +33,8 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report 
 def train(
     cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> TrainResult:
-    """The `algo=vmpo` runner (conf/algo/vmpo.yaml `_target_`)."""
-    algo: VmpoConfig = cfg.algo
+    """The `algo=vmpo` runner (its record: epoet/rl/config.py `VMPO`)."""
+    algo = VmpoConfig.of(cfg)
     with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
         actor = make_actor(run.env, algo.hidden, algo.activation, state_independent_scale=True)
         critic = make_value(run.env, algo.hidden, algo.activation)

@@ -2,13 +2,18 @@
 
 Regenerated from a new seed every iteration, it keeps the agent on changing ground even while
 the CPPN part of its environment stays the same (paper, Appendix "Generated Environments").
+Alone it is the kind `terrain=bowl` (the baselines' terrain): drawn from its seed, no genome,
+nothing to evolve.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy import ndimage
 
+from epoet.terrain.config import TerrainConfig, register
 from epoet.terrain.terrain import normalize
 
 
@@ -46,3 +51,47 @@ def random_bowl(
     rows, cols = np.meshgrid(at, at, indexing="ij")
     smooth = ndimage.map_coordinates(bumps, [rows, cols], order=3, mode="nearest")
     return normalize(bowl * smooth)
+
+
+def bowl_of(cfg: TerrainConfig, seed: int, max_height: float) -> np.ndarray:
+    """The terrain's bowl at relief S = `max_height`, drawn from `seed`."""
+    return random_bowl(
+        np.random.default_rng(seed),
+        cfg.grid,
+        max_height,
+        cfg.bump_grid,
+        cfg.bump_low,
+        cfg.bump_high,
+    )
+
+
+class BowlGenerator:
+    """`terrain.kind=bowl`: a fresh bowl from each seed, and no genome."""
+
+    kind = "bowl"
+    evolves = False
+    unused_keys: tuple[str, ...] = (
+        "terrain.cppn",
+        "terrain.mutation",
+        "terrain.cppn_scale",
+        "terrain.cppn_origin",
+    )
+
+    def encode(self, cfg: TerrainConfig, seed: int) -> None:
+        return None
+
+    def mutate(self, cfg: TerrainConfig, parent: Any, seed: int) -> Any:
+        raise ValueError("bowl terrains do not mutate: a bowl is drawn from its seed alone.")
+
+    def render(self, cfg: TerrainConfig, genome: Any, seed: int, max_height: float) -> np.ndarray:
+        return bowl_of(cfg, seed, max_height)
+
+    def describe(self, genome: Any) -> str:
+        return ""
+
+    def check(self, genome: Any) -> None:
+        if genome is not None:
+            raise ValueError("a 'bowl' terrain takes no genome (a CPPN's is terrain.kind='cppn').")
+
+
+register(BowlGenerator())

@@ -1,11 +1,24 @@
-"""Terrain settings (conf/terrain/): the heightfield, its bowl and CPPN parts, and CPPN mutation."""
+"""Terrain settings (conf/terrain/): the heightfield, its bowl and CPPN parts, CPPN mutation, and
+the kinds of terrain `terrain.kind` chooses from: the generator interface and its registry.
+
+The registry is the set of allowed kinds, so it lives here, in the schema module, where
+`TerrainConfig` checks a kind before any work starts (docs/architecture.md, "Adding a terrain
+generator"). Each generator's module registers it when imported; `generator_for` imports
+`epoet/terrain/<kind>.py` on first use, so a new kind is that module and its
+conf/terrain/<kind>.yaml.
+"""
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import re
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar, Protocol
 
-from epoet.core.schema import check, non_negative, positive
+import numpy as np
+
+from epoet.core.schema import ConfigError, check, non_negative, positive
 
 
 @dataclass
@@ -148,10 +161,7 @@ class TerrainConfig:
     mutation: MutationConfig
 
     def __post_init__(self) -> None:
-        check(
-            self.kind in ("bowl", "cppn"),
-            f"terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.",
-        )
+        generator_for(self.kind)  # a ConfigError naming the kinds if there is none
         positive(self, "grid", "size", "base", "bump_grid", "max_height_limit", "cppn_scale")
         non_negative(self, "max_height", "max_height_step")
         check(self.grid >= 8, f"terrain.grid must be >= 8 samples, got {self.grid}.")
@@ -175,7 +185,79 @@ class TerrainConfig:
         )
 
     def unused_keys(self) -> tuple[str, ...]:
-        """The settings this terrain never reads: the bowl has no CPPN."""
-        if self.kind == "bowl":
-            return ("terrain.cppn", "terrain.mutation", "terrain.cppn_scale", "terrain.cppn_origin")
-        return ()
+        """The settings this terrain's generator never reads (the bowl: the CPPN's)."""
+        return generator_for(self.kind).unused_keys
+
+
+# --- the kinds of terrain ---------------------------------------------------------------------
+
+
+class MutationError(RuntimeError):
+    """A generator found no valid child of an environment within its tries."""
+
+
+class TerrainGenerator(Protocol):
+    """A kind of terrain: how an environment is encoded, mutated and rendered to a heightmap.
+
+    ePOET keeps each environment's encoding (its genome; None for a kind that has none) and
+    renders it anew every iteration with a fresh seed and the schedule's S; reproduction mutates
+    it. Novelty needs nothing of the generator: PATA-EC ranks the agents on the rendered
+    terrain. uber-research/poet has the same seam: an environment's config, its mutation, and
+    the niche that builds the environment from it."""
+
+    kind: str  # its `terrain.kind`, stored in terrain files and ids
+    evolves: bool  # whether `mutate` makes children (ePOET needs a kind that evolves)
+    unused_keys: tuple[str, ...]  # the settings of conf/terrain/ it never reads
+
+    def encode(self, cfg: TerrainConfig, seed: int) -> Any:
+        """The root encoding of a new lineage, a function of `seed`."""
+        ...
+
+    def mutate(self, cfg: TerrainConfig, parent: Any, seed: int) -> Any:
+        """A valid child of `parent`, a function of `seed`; MutationError when none is found."""
+        ...
+
+    def render(self, cfg: TerrainConfig, genome: Any, seed: int, max_height: float) -> np.ndarray:
+        """The (grid, grid) heights in [0, 1] of `genome` at relief S = `max_height`, its random
+        parts (the bowl's) drawn from `seed`."""
+        ...
+
+    def describe(self, genome: Any) -> str:
+        """A canonical text of the encoding, equal for equal environments: a terrain's id digests
+        it, so saved terrains name what made them."""
+        ...
+
+    def check(self, genome: Any) -> None:
+        """ValueError in one sentence unless `genome` is an encoding of this kind."""
+        ...
+
+
+GENERATORS: dict[str, TerrainGenerator] = {}  # terrain.kind -> its generator
+_MODULE_NAME = re.compile(r"[a-z_][a-z0-9_]*")
+
+
+def register(generator: TerrainGenerator) -> TerrainGenerator:
+    """Make `generator` the one of its kind (its module calls this when imported)."""
+    GENERATORS[generator.kind] = generator
+    return generator
+
+
+def generator_for(kind: str, key: str = "terrain.kind") -> TerrainGenerator:
+    """The generator of `kind`, its module epoet/terrain/<kind>.py imported on first use;
+    ConfigError naming `key` and the registered kinds if there is none."""
+    if (
+        kind not in GENERATORS
+        and _MODULE_NAME.fullmatch(kind)
+        and importlib.util.find_spec(f"epoet.terrain.{kind}") is not None
+    ):
+        importlib.import_module(f"epoet.terrain.{kind}")
+    if kind not in GENERATORS:
+        *others, last = sorted(GENERATORS)
+        choices = f"{', '.join(map(repr, others))} or {last!r}" if others else repr(last)
+        raise ConfigError(f"{key} must be {choices}, got {kind!r}.")
+    return GENERATORS[kind]
+
+
+def evolving_kinds() -> list[str]:
+    """The registered kinds ePOET can evolve."""
+    return sorted(kind for kind, generator in GENERATORS.items() if generator.evolves)

@@ -1,4 +1,5 @@
-"""CPPN part of a terrain: real neat-python 2.0 genomes, evaluated over a grid with numpy.
+"""CPPN-NEAT terrains (`terrain.kind=cppn`, ePOET's): a random bowl mixed with the heights of an
+evolving CPPN, real neat-python 2.0 genomes evaluated over a grid with numpy.
 
 Conventions (fixed here, used everywhere in the package):
 - Inputs: node -1 is x, node -2 is y. On a terrain the inputs are metres from
@@ -29,13 +30,21 @@ import neat
 import numpy as np
 from neat.graphs import feed_forward_layers
 
-from epoet.terrain.config import CppnConfig, MutationConfig
+from epoet.terrain.bowl import bowl_of
+from epoet.terrain.config import (
+    CppnConfig,
+    MutationConfig,
+    MutationError,
+    TerrainConfig,
+    register,
+)
+from epoet.terrain.terrain import normalize
 
 INPUT_KEYS = (-1, -2)  # x, y
 OUTPUT_KEY = 0
 
 
-class CppnMutationError(RuntimeError):
+class CppnMutationError(MutationError):
     """No valid child CPPN was found within `mutation.max_tries` attempts."""
 
 
@@ -288,3 +297,55 @@ def fingerprint(genome: neat.DefaultGenome) -> str:
         f"c{k[0]},{k[1]}:{g.weight!r}:{g.enabled}" for k, g in sorted(genome.connections.items())
     ]
     return ";".join(nodes + conns)
+
+
+# --- the generator ----------------------------------------------------------------------------
+
+
+def cppn_inputs(cfg: TerrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The CPPN's (x, y) inputs at the terrain's samples (the reference's metres per unit)."""
+    return field_inputs(cfg.grid, cfg.size, cfg.cppn_origin, cfg.cppn_scale)
+
+
+def mix(bowl: np.ndarray, cppn: np.ndarray, bowl_weight: float) -> np.ndarray:
+    """normalize(w * normalize(bowl) + (1 - w) * normalize(cppn)), in [0, 1] (paper: w = 0.3)."""
+    if not 0.0 <= bowl_weight <= 1.0:
+        raise ValueError(f"bowl_weight must be in [0, 1], got {bowl_weight}.")
+    return normalize(bowl_weight * normalize(bowl) + (1.0 - bowl_weight) * normalize(cppn))
+
+
+class CppnGenerator:
+    """`terrain.kind=cppn`: the bowl mixed with a CPPN genome's heights (`bowl_weight`); children
+    are valid mutations of the genome (`mutate_genome`)."""
+
+    kind = "cppn"
+    evolves = True
+    unused_keys: tuple[str, ...] = ()
+
+    def encode(self, cfg: TerrainConfig, seed: int) -> neat.DefaultGenome:
+        return new_genome(cfg.cppn, seed)
+
+    def mutate(
+        self, cfg: TerrainConfig, parent: neat.DefaultGenome, seed: int
+    ) -> neat.DefaultGenome:
+        return mutate_genome(parent, cfg.cppn, cfg.mutation, seed, cppn_inputs(cfg))
+
+    def render(
+        self, cfg: TerrainConfig, genome: neat.DefaultGenome, seed: int, max_height: float
+    ) -> np.ndarray:
+        cppn = evaluate(genome, *cppn_inputs(cfg))
+        if not np.all(np.isfinite(cppn)):
+            raise ValueError(
+                f"the CPPN genome gives non-finite heights on the {cfg.grid} x {cfg.grid} grid."
+            )
+        return mix(bowl_of(cfg, seed, max_height), cppn, cfg.bowl_weight)
+
+    def describe(self, genome: neat.DefaultGenome) -> str:
+        return fingerprint(genome)
+
+    def check(self, genome: object) -> None:
+        if not isinstance(genome, neat.DefaultGenome):
+            raise ValueError("a 'cppn' terrain needs its CPPN genome (a neat DefaultGenome).")
+
+
+register(CppnGenerator())

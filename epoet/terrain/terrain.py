@@ -20,14 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-import neat
 import numpy as np
 
 from epoet.core.errors import first_line
 from epoet.core.files import atomic_write
-from epoet.terrain.cppn import fingerprint
+from epoet.terrain.config import generator_for
 
-KINDS = ("bowl", "cppn")
 _FORMAT = 1  # bump when the npz layout changes
 
 
@@ -70,11 +68,11 @@ class Terrain:
     heightmap: np.ndarray  # (grid, grid) float64 in [0, 1], read-only
     max_height: float  # S: metres of relief that height 1.0 stands for
     size: float  # metres per side the terrain was made for
-    kind: str  # "bowl" | "cppn"
+    kind: str  # the generator that made it (terrain.kind)
     seed: int  # seed of this terrain's random parts (bowl; CPPN mutation)
-    generation: int = 0  # CPPN mutations since the root
+    generation: int = 0  # mutations since the root
     parent_id: str | None = None
-    genome: neat.DefaultGenome | None = None
+    genome: Any = None  # the generator's encoding (a CPPN's neat genome; none for the bowl)
     id: str = field(init=False)
 
     def __post_init__(self) -> None:
@@ -92,15 +90,12 @@ class Terrain:
             raise ValueError(f"Terrain.max_height must be >= 0 metres, got {self.max_height}.")
         if not (np.isfinite(self.size) and self.size > 0):
             raise ValueError(f"Terrain.size must be > 0 metres, got {self.size}.")
-        if self.kind not in KINDS:
-            raise ValueError(f"Terrain.kind must be 'bowl' or 'cppn', got {self.kind!r}.")
+        generator = generator_for(self.kind, "Terrain.kind")
         for name in ("seed", "generation"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or value < 0:
                 raise ValueError(f"Terrain.{name} must be an integer >= 0, got {value!r}.")
-        if (self.kind == "cppn") != isinstance(self.genome, neat.DefaultGenome):
-            need = "carry a neat genome" if self.kind == "cppn" else "carry no genome"
-            raise ValueError(f"a {self.kind!r} terrain must {need}.")
+        generator.check(self.genome)
         object.__setattr__(self, "max_height", float(self.max_height))
         object.__setattr__(self, "size", float(self.size))
         object.__setattr__(self, "seed", int(self.seed))
@@ -112,7 +107,7 @@ class Terrain:
         return int(self.heightmap.shape[0])
 
     def _make_id(self) -> str:
-        genes = fingerprint(self.genome) if self.genome is not None else ""
+        genes = generator_for(self.kind).describe(self.genome)
         prov = [
             self.kind,
             self.seed,
@@ -141,8 +136,8 @@ class Terrain:
     def save(self, path: str | os.PathLike) -> Path:
         """Write an npz atomically (`atomic_write`): a crash never leaves half a file.
 
-        The genome is stored pickled (neat genomes are plain Python objects); evaluating it
-        needs no neat config (see cppn.evaluate), so it is stored alone.
+        The genome is stored pickled (a CPPN's neat genome is a plain Python object, and
+        evaluating it needs no neat config: cppn.evaluate), so it is stored alone.
         """
         path = Path(path)
         genome = (

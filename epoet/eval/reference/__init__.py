@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from epoet.eval.agents import TrainedRun
+    from epoet.eval.trained_run import TrainedRun
     from epoet.tracking import StoredRun
 
 FOLDER = Path(__file__).resolve().parent.parent.parent / "reference"
@@ -43,7 +43,8 @@ def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
     from epoet.config import load
     from epoet.envs.config import HEXAPOD
     from epoet.envs.spaces import robot_sizes
-    from epoet.eval.agents import AgentError, AgentSource, TrainedRun
+    from epoet.eval.trained_run import AgentSource, TrainedRun
+    from epoet.rollout.agent_files import AgentError
 
     name = spec.removeprefix(PREFIX)
     entry = manifest()["agents"].get(name)

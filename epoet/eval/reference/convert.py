@@ -55,7 +55,8 @@ from epoet.eval.reference.layout import (
 )
 from epoet.eval.reference.pickles import ReferenceFileError, read_genome, read_normaliser, to_neat
 from epoet.eval.reference.terrain import EVAL_HEIGHT, render
-from epoet.eval.suite import SUITE_FORMAT, level_of, load_suite, quantize
+from epoet.eval.suite import load_suite
+from epoet.eval.suite_format import SUITE_FORMAT, level_of, quantize
 from epoet.rollout.agent_files import POLICY_FORMAT
 from epoet.rollout.policy import num_params
 

@@ -1,0 +1,72 @@
+"""What an algorithm is to the platform: one record (`Algorithm`), declared beside its settings'
+schema, and the interface that schema implements (`AlgoSettings`, the type of `Config.algo`).
+
+The record is the one place an algorithm's name, family, runner, schema and figure style are
+written; composition (epoet/config.py), the run (epoet/run.py), `make paper` and analysis read
+it through epoet/registry.py, which finds the records. It lives in `core` so that every wing's
+schema module can declare one without importing anything above it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import Enum
+from typing import Any, ClassVar, Self
+
+
+class Family(Enum):
+    """What an algorithm trains and so what its budget counts. The value names the folder of
+    the values every algorithm of the family runs on a budget,
+    conf/algo_budget/<value>/<budget>.yaml. Declaration order is table and legend order."""
+
+    BASELINE = "baselines"  # one agent learning from environment frames
+    POOL = "poet"  # an open-ended pool of environment-agent pairs, trained by ES
+
+    @property
+    def counts(self) -> str:
+        """The unit of the family's budget: environment frames or iterations of the ES loop."""
+        return "frames" if self is Family.BASELINE else "iterations"
+
+
+@dataclass
+class AlgoSettings:
+    """What a run asks of its algorithm's settings (`cfg.algo`): every algorithm's schema is a
+    dataclass subclassing this one. `_target_` and `name` are filled in from the record when the
+    schema is registered (epoet/config.py), so an algorithm's YAML repeats neither."""
+
+    KEY: ClassVar[str] = "algo"
+
+    _target_: str  # the runner epoet.run calls: train(cfg, tracker, run_dir, resume)
+    name: str  # the algorithm's record name: algo=<name>, its runs' `algo` tag
+
+    @classmethod
+    def of(cls, cfg: Any) -> Self:
+        """`cfg.algo` (`cfg`: the root Config) as this schema, what a runner reads its own
+        settings through; TypeError if the run is another algorithm's (a runner's bug)."""
+        algo = cfg.algo
+        if not isinstance(algo, cls):
+            raise TypeError(f"algo={algo.name} has {type(algo).__name__}, not {cls.__name__}.")
+        return algo
+
+    def check_run(self, cfg: Any) -> None:
+        """What the algorithm needs of the run's other settings (`cfg`: the root Config; it is
+        above this module's wing); ConfigError in one sentence. Nothing, unless overridden."""
+
+    def unused_keys(self) -> Sequence[str]:
+        """Dotted keys (and key prefixes) of the run's settings this algorithm never reads, left
+        out of its MLflow params. None, unless overridden."""
+        return ()
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    """One algorithm, declared once, as a module-level value of the module that defines its
+    schema (epoet/<package>/config.py), where epoet/registry.py finds it."""
+
+    name: str  # conf/algo/<name>.yaml, `algo=<name>`, its runs' `algo` tag
+    family: Family
+    schema: type[AlgoSettings]  # its settings, checked at composition and by `validate`
+    runner: str  # dotted path of train(cfg, tracker, run_dir, resume), imported when it runs
+    label: str  # its name in figures
+    colour: str  # its colour in figures (a matplotlib colour)

@@ -1,0 +1,170 @@
+"""The algorithm as the unit: every algorithm is one record (epoet/core/algorithm.py) that
+composition, the run, `make paper` and analysis read (epoet/registry.py), and nothing else lists
+the algorithms. A toy algorithm registered from outside epoet/ (tests/toy_algorithm.py) composes,
+trains on the smoke budget, is evaluated and appears in the tables, with no repository file
+naming it.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import pandas as pd
+import pytest
+from omegaconf import OmegaConf
+
+from conftest import subset_suite
+from epoet.config import CONF_DIR, compose
+from epoet.core.algorithm import Algorithm, Family
+from epoet.registry import algorithm, algorithms, names, register
+from epoet.rl.config import PpoConfig
+
+ROOT = Path(__file__).resolve().parent.parent
+TOY = Path(__file__).with_name("toy_algorithm.py")
+# What `python -m epoet algo=<algo> budget=<budget>` composed to before the records (commit
+# 54618cf), every value resolved; `python tests/test_algorithms.py` writes it again, for a change
+# to the configs that is meant.
+COMPOSED = Path(__file__).with_name("configs_by_algo_and_budget.json")
+BUDGETS = sorted(p.stem for p in (CONF_DIR / "budget").glob("*.yaml"))
+CODE = ("epoet", "analysis", "pipeline", "bench")
+
+
+def composed(key: str) -> dict:
+    return OmegaConf.to_container(compose(key.split()), resolve=True)  # type: ignore[return-value]
+
+
+def test_the_records_are_found_in_table_order() -> None:
+    """The paper's five are found in the packages (a sixth may join them), baselines first."""
+    paper = ["ppo", "sac", "vmpo", "epoet", "epoet_sac"]
+    assert [n for n in names() if n in paper] == paper
+    assert [n for n in names(Family.POOL) if n in paper] == ["epoet", "epoet_sac"]
+    records = algorithms()
+    assert len({r.label for r in records}) == len({r.colour for r in records}) == len(records)
+    assert algorithm("ppo").schema is PpoConfig and algorithm("ppo").family.counts == "frames"
+    assert algorithm("epoet").family.counts == "iterations"
+    with pytest.raises(ValueError, match="two algorithms are named 'ppo'"):
+        register(Algorithm("ppo", Family.POOL, PpoConfig, "epoet.rl.ppo.train", "PPO", "red"))
+
+
+@pytest.mark.parametrize("key", sorted(json.loads(COMPOSED.read_text())))
+def test_every_algorithm_and_budget_composes_as_before(key: str) -> None:
+    assert composed(key) == json.loads(COMPOSED.read_text())[key]
+
+
+def test_algo_budget_files_are_a_family_or_an_algorithm_on_a_budget() -> None:
+    """An algorithm's own file is optional, so a misnamed one would be skipped silently: every
+    file is <family or algorithm>/<budget>.yaml, and every family has every budget."""
+    root = CONF_DIR / "algo_budget"
+    folders = {f.value for f in Family} | set(names())
+    files = [p.relative_to(root) for p in root.rglob("*") if p.is_file()]
+    wrong = [
+        f
+        for f in files
+        if len(f.parts) != 2 or f.parts[0] not in folders or f.suffix != ".yaml"
+        or f.stem not in BUDGETS
+    ]  # fmt: skip
+    assert files and not wrong, wrong
+    for family in Family:
+        assert sorted(p.stem for p in (root / family.value).iterdir()) == BUDGETS
+
+
+def _name_lists(path: Path, known: set[str]) -> list[str]:
+    """Each tuple, list, set or dict literal in `path` with two or more algorithm names among
+    its elements, keys or values (a record holds one name; a list of them is a second registry)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+            groups = [node.elts]
+        elif isinstance(node, ast.Dict):
+            groups = [[k for k in node.keys if k is not None], node.values]
+        else:
+            continue
+        for group in groups:
+            hits = [e.value for e in group if isinstance(e, ast.Constant) and e.value in known]
+            if len(hits) >= 2:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno} {hits}")
+    return found
+
+
+def test_no_list_of_algorithm_names_outside_the_records() -> None:
+    known = set(names())
+    found = [
+        hit
+        for d in CODE
+        for path in sorted((ROOT / d).rglob("*.py"))
+        for hit in _name_lists(path, known)
+    ]
+    assert not found, "\n".join(found)
+    # it sees one: the list of names test_the_records_are_found_in_table_order checks against
+    assert _name_lists(Path(__file__), known)
+
+
+def _run(args: list[str], cwd: Path, uri: str) -> subprocess.CompletedProcess:
+    """A command as a user runs it, on this worktree's code and the test's store."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MLFLOW_TRACKING_URI": uri}
+    proc = subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc
+
+
+def test_a_toy_algorithm_trains_is_evaluated_and_tabled(tmp_path: Path) -> None:
+    """The toy's record, schema, runner and YAML are tests/toy_algorithm.py's only: it trains
+    through `python -m epoet`, takes the baselines family's smoke frames (algo_budget/
+    baselines/smoke.yaml) without a file of its own, its agent is evaluated by the plain
+    `python -m epoet.eval.evaluate`, and `make tables` (analysis.tables) reads it from MLflow."""
+    assert not [p for p in (*CONF_DIR.rglob("*toy*"), *(ROOT / "epoet").rglob("*toy*"))]
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    run_dir, suite = (
+        tmp_path / "run",
+        subset_suite(tmp_path / "suite", [("easy", 0), ("medium", 0)]),
+    )
+    _run(
+        [str(TOY), "epoet", "algo=toy", "budget=smoke", "seed=1", "workers.num=1",
+         "evaluate=false", "tracking.experiment=toy", f"hydra.run.dir={run_dir}"],
+        tmp_path,
+        uri,
+    )  # fmt: skip
+    (run,) = mlflow.MlflowClient(uri).search_runs(
+        [mlflow.MlflowClient(uri).get_experiment_by_name("toy").experiment_id]
+    )
+    assert run.data.tags["algo"] == "toy" and run.info.status == "FINISHED"
+    assert run.data.params["algo._target_"] == "toy_algorithm.train"
+    assert run.data.params["budget.frames"] == "400" and run.data.metrics["frames"] >= 400
+    assert (run_dir / "policies" / "env0.npz").is_file()
+
+    _run(
+        ["-m", "epoet.eval.evaluate", f"run={run_dir}", f"suite={suite}", "episodes=1"],
+        tmp_path,
+        uri,
+    )
+    out = tmp_path / "tables"
+    printed = _run(
+        [
+            str(TOY),
+            "analysis.tables",
+            "--experiment",
+            "toy",
+            "--suite",
+            str(suite),
+            "--out",
+            str(out),
+        ],
+        tmp_path,
+        uri,
+    ).stdout
+    table1 = pd.read_csv(out / "toy" / "suite" / "table1_suite.csv")
+    assert list(table1.algo) == ["toy"] and table1.runs.tolist() == [1]
+    assert "| toy " in printed
+
+
+if __name__ == "__main__":
+    configs = {
+        f"algo={a} budget={b}": composed(f"algo={a} budget={b}") for a in names() for b in BUDGETS
+    }
+    COMPOSED.write_text(json.dumps(configs, indent=1, sort_keys=True) + "\n")
