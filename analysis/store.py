@@ -20,6 +20,7 @@ from omegaconf import OmegaConf
 from epoet.config import CONF_DIR
 from epoet.core.algorithm import Family
 from epoet.core.errors import first_line
+from epoet.envs.config import HEXAPOD
 from epoet.eval.agents import AgentError
 from epoet.eval.keys import SHIPPED_NAME, Logged, logged_evaluation
 from epoet.eval.suite import Suite, SuiteError, load_suite
@@ -172,12 +173,19 @@ def unevaluated(runs: Sequence[Run], suite: Suite) -> list[Run]:
 
 
 def require_runs(runs: list[Run], experiment: str, uri: str) -> list[Run]:
-    """The runs, or AnalysisError saying what to run first."""
+    """The runs, all of one robot, or AnalysisError saying what to run first (or apart)."""
     if not runs:
         raise AnalysisError(
             f"experiment {experiment!r} in {uri} has no finished runs: train "
             f"first, e.g. `python -m epoet algo=epoet` or "
             f"`make paper BUDGET=smoke SEEDS=1`."
+        )
+    robots = sorted({r.data.tags.get("agent", HEXAPOD) for r in runs})
+    if len(robots) > 1:
+        raise AnalysisError(
+            f"experiment {experiment!r} in {uri} holds runs of several robots "
+            f"({', '.join(robots)}), which one table would mix: give each robot its own "
+            f"experiment (tracking.experiment=<name>) or choose runs with --run."
         )
     return runs
 

@@ -42,7 +42,7 @@ from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.runner import warm_start_of
 from epoet.poet.loop import EPOET
 from epoet.poet.runner import layer_sizes
-from epoet.rl.env import hexapod
+from epoet.rl.env import terrain_env
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.policy import policy_sizes
 
@@ -149,7 +149,7 @@ def prepared_loop(cfg: Config, evaluator: Any) -> EpoetSac:
     _, episodes = loop.es_step(0, record=cfg.algo.es_episodes_per_pair)
     loop.sync_obs_statistics()
     loop.add_to_replay(episodes)
-    hexapod(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))
+    terrain_env(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))
     while len(loop.learner.buffer) < 4 * loop.learner.batch_size:
         loop.learner.add(loop.collect(loop.frames_per_iteration, 0, explore=True))
     return loop
@@ -269,7 +269,7 @@ def es_steps_ratio(cfg: Config, rounds: int, cores: int) -> float:
         budget = cfg.budget
         epoet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
                       eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                      layer_sizes=policy_sizes(cfg.algo.es.hidden))
+                      layer_sizes=policy_sizes(cfg.agent, cfg.algo.es.hidden))
         steps: dict[Any, int] = {epoet: 0, sac: 0}  # worker steps per loop
         for loop in steps:
             run = loop.service.run

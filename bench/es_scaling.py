@@ -40,7 +40,7 @@ def main() -> None:
     terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
     rng = np.random.default_rng(0)
-    sizes = policy_sizes(paper.algo.es.hidden)
+    sizes = policy_sizes(paper.agent, paper.algo.es.hidden)
     batch = args.batch or paper.workers.batch
     theta = init_params(0, sizes)
     es = Request(terrain, Mirrored.of(theta, rng.integers(0, 2**62, args.pairs),

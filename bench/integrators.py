@@ -64,11 +64,11 @@ def steps_per_second(cfg: Config, integrator: str, terrain: Terrain, steps: int,
 Policy = Callable[[np.ndarray], np.ndarray]
 
 
-def policies(paths: list[Path], n_random: int, hidden: list[int]) -> dict[str, Policy]:
+def policies(cfg: Config, paths: list[Path], n_random: int) -> dict[str, Policy]:
     rng = np.random.default_rng(1)
     out: dict[str, Policy] = {"uniform random actions": lambda obs: rng.uniform(-1, 1, 18)}
     for i in range(n_random):
-        sizes = policy_sizes(hidden)
+        sizes = policy_sizes(cfg.agent, cfg.algo.es.hidden)
         theta = init_params(i, sizes, std=0.5)
         out[f"random ES policy {i}"] = lambda obs, theta=theta, sizes=sizes: forward(theta, obs,
                                                                                       sizes)
@@ -117,7 +117,7 @@ def main() -> None:
     print(f"terrains: {len(terrains)} CPPN, {args.generations} mutations deep, "
           f"S = {terrains[0].max_height:.2f} m")
     for name, policy in ({} if args.speed_only else
-                         policies(args.policy, args.random_policies, cfg.algo.es.hidden)).items():
+                         policies(cfg, args.policy, args.random_policies)).items():
         for integrator in INTEGRATORS:
             n, bad, steps = unstable_episodes(cfg, integrator, terrains, policy, args.episodes)
             print(f"stability {integrator:12s} {name}: {bad}/{n} unstable episodes "

@@ -21,7 +21,7 @@ import numpy as np
 from epoet.config import load
 from epoet.envs.config import AgentConfig
 from epoet.terrain.config import TerrainConfig
-from epoet.envs.model import Ground, action_to_targets, build_model
+from epoet.envs.model import Ground, action_to_ctrl, build_model, layout
 from epoet.envs.spawn import spawn
 from epoet.rollout.populations import mirrored_population
 from epoet.rollout.policy import init_params, policy_sizes
@@ -36,12 +36,13 @@ def raw_seconds(agent: AgentConfig, terrain_cfg: TerrainConfig, terrain: Terrain
     ground = Ground(model)
     ground.set(model, np.asarray(terrain.heightmap), terrain.max_height, terrain.size)
     data = mujoco.MjData(model)
-    targets = action_to_targets(actions)
+    lay = layout(model)
+    targets = action_to_ctrl(lay, actions)
     total = 0.0
     for e, seed in enumerate(seeds):
         rows = list(targets[episode == e])
         start = time.perf_counter()
-        spawn(model, data, ground, agent, np.random.default_rng(int(seed)))
+        spawn(model, data, ground, agent, lay, np.random.default_rng(int(seed)))
         for row in rows:
             np.copyto(data.ctrl, row)
             mujoco.mj_step(model, data)
@@ -65,7 +66,7 @@ def main() -> None:
     agent = replace(paper.agent, max_episode_steps=args.max_steps)
     terrain_cfg = paper.terrain
     terrain = make_terrain(terrain_cfg, seed=0, iteration=20)
-    sizes = policy_sizes(paper.algo.es.hidden)
+    sizes = policy_sizes(paper.agent, paper.algo.es.hidden)
     engine = RolloutEngine(agent, terrain_cfg, args.batch or paper.workers.batch, sizes)
     rng = np.random.default_rng(0)
     params = mirrored_population(init_params(0, sizes), rng.integers(0, 2**62, args.pairs), 0.02)

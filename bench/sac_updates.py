@@ -27,12 +27,13 @@ from tensordict import TensorDict
 from torch import nn
 
 from epoet.config import load
-from epoet.envs.task import ACT_DIM, OBS_DIM
+from epoet.envs.spaces import robot_sizes
 from epoet.rl.env import make_env
 from epoet.rl.harness import set_threads
 from epoet.rl.sac import SacLearner
 
 BUFFER = 10_000
+OBS_DIM, ACT_DIM = robot_sizes(load([]).agent)  # the default robot's: the hexapod's 53 and 18
 
 
 class PlainActor(nn.Module):

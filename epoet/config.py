@@ -15,6 +15,7 @@ import importlib.util
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any, ClassVar, Optional, cast
 
@@ -26,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import ConfigError, check, positive
-from epoet.envs.config import AgentConfig
+from epoet.envs.config import BODY_KEYS, HEXAPOD, AgentConfig
 from epoet.eval.config import (
     EvaluateConfig,
     GalleryConfig,
@@ -207,7 +208,7 @@ def register_configs() -> None:
     cs.store(name="config_schema", node=Config)
     for name, schema in COMMAND_SCHEMAS.items():
         cs.store(name=f"{name}_schema", node=schema)
-    cs.store(group="agent", name="hexapod_schema", node=AgentConfig)
+    cs.store(group="agent", name="agent_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
     for family, budget in FAMILY_BUDGETS.items():
@@ -284,10 +285,13 @@ def _typed_keys(message: str, cfg: DictConfig) -> str:
     return message
 
 
-def task_configs(agent: Any = None, terrain: Any = None) -> tuple[AgentConfig, TerrainConfig]:
-    """The hexapod task's configs for code that builds an env outside a run (gym.make,
-    notebooks, tests): dataclasses as they are; dicts or DictConfigs as overrides of the paper
-    budget's agent and of the terrain file their `kind` names (or a kind's name), range-checked."""
+def task_configs(
+    agent: Any = None, terrain: Any = None, robot: str = "hexapod"
+) -> tuple[AgentConfig, TerrainConfig]:
+    """A robot's task configs for code that builds an env outside a run (gym.make, notebooks,
+    tests): dataclasses as they are; dicts or DictConfigs as overrides of the paper budget's
+    agent (conf/agent/<robot>.yaml) and of the terrain file their `kind` names (or a kind's
+    name), range-checked."""
     if isinstance(agent, AgentConfig) and isinstance(terrain, TerrainConfig):
         return agent, terrain
     terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
@@ -295,6 +299,7 @@ def task_configs(agent: Any = None, terrain: Any = None) -> tuple[AgentConfig, T
     base = compose(
         [
             "budget=paper",
+            f"agent={robot}",
             f"terrain={kind}"
             if (CONF_DIR / "terrain" / f"{kind}.yaml").exists()
             else "terrain=bowl",
@@ -310,6 +315,20 @@ def task_configs(agent: Any = None, terrain: Any = None) -> tuple[AgentConfig, T
         )
 
     return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
+
+
+@cache
+def _robot_body(robot: str) -> dict[str, Any]:
+    agent = validate(compose([f"agent={robot}"])).agent
+    return {key: getattr(agent, key) for key in BODY_KEYS}
+
+
+def saved_agent(agent: Mapping[str, Any]) -> dict[str, Any]:
+    """A saved agent config (a checkpoint's, a run's config artifact) in today's layout: one
+    from before robots were parts names no MJCF and is the hexapod's, whose body it gets."""
+    if "mjcf" in agent:
+        return dict(agent)
+    return {**_robot_body(HEXAPOD), **agent}
 
 
 def _plain(value: Any) -> dict:

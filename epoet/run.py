@@ -17,12 +17,12 @@ from typing import TYPE_CHECKING, Any, Callable, cast
 from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
-from epoet.config import Config, compose, validate
+from epoet.config import Config, compose, saved_agent, validate
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.core.compute import default_workers
 from epoet.core.files import atomic_write
 from epoet.core.lifecycle import StopOnSignal
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.envs.spaces import robot_sizes
 
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
@@ -56,7 +56,9 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
     algorithm x budget values moved to conf/algo_budget/ kept every algorithm's budget keys, the
     integrator and S schedule only in `agent` and `terrain`, ePOET's intervals as budget
     overrides of the algorithm's (null: the algorithm's) and ePOET-SAC's Train_SAC frames as
-    `budget.sac_frames_per_iteration` (null: `algo.frames_per_iteration`)."""
+    `budget.sac_frames_per_iteration` (null: `algo.frames_per_iteration`). Checkpoints from
+    before robots were parts are the hexapod's (`saved_agent`)."""
+    saved = {**saved, "agent": saved_agent(saved["agent"])}
     budget, algo = dict(saved["budget"]), dict(saved["algo"])
     if "max_height" not in budget:  # before the budget owned S's start: the terrain's
         budget["max_height"] = saved["terrain"]["max_height"]
@@ -158,6 +160,9 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
     TrackingError in one sentence; None: `resume=auto` finds `run_dir` finished (DONE). Writes
     nothing (a new sqlite store is not made yet), so `check=true` calls it too."""
     cfg: Config = validate(raw)
+    from epoet.envs.mjcf import robot_spec  # imports MuJoCo
+
+    robot_spec(cfg.agent)  # the robot's MJCF fits its config (ConfigError otherwise)
     resume = None
     resume_from: str | Path | None = cfg.resume
     path = None
@@ -259,7 +264,7 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
         )
         with StopOnSignal():
             result = runner_for(cfg)(cfg, tracker, run_dir, resume)
-        log_agent_model(tracker, run_dir)
+        log_agent_model(tracker, run_dir, cfg)
     if cfg.evaluate:
         evaluate_agent(cfg, run_dir)
     assert tracker.run_id is not None  # start() set it
@@ -312,7 +317,7 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
     ]
 
 
-def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:
+def log_agent_model(tracker: MlflowTracker, run_dir: Path, cfg: Config) -> None:
     """The exported agent (as `agent_choice` picked it, what evaluation uses) as the run's MLflow
     model `agent` (epoet.eval.agent_model)."""
     from epoet.eval.agents import policy_in
@@ -320,7 +325,7 @@ def log_agent_model(tracker: MlflowTracker, run_dir: Path) -> None:
     found = policy_in(run_dir)
     if found is None:
         raise RuntimeError(f"the run exported no agent into {run_dir}.")  # a runner's bug
-    tracker.log_agent(found[0].path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)
+    tracker.log_agent(found[0].path, "epoet.eval.agent_model", *robot_sizes(cfg.agent))
 
 
 class EvaluationError(RuntimeError):

@@ -27,6 +27,7 @@ LONGEST_FIRST = (
     "test_evaluation.py",
     "test_baselines.py",
     "test_scale_out.py",
+    "test_robots.py",
     "test_epoet_sac.py",
     "test_bad_input.py",
     "test_help.py",
@@ -44,8 +45,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable within a file
 
 
-# The ES policy's layer sizes with the default config's hidden layers (algo.es.hidden).
-ES_SIZES = policy_sizes(load([]).algo.es.hidden)
+# The ES policy's layer sizes of the default config's robot (the hexapod) and hidden layers.
+ES_SIZES = policy_sizes(load([]).agent, load([]).algo.es.hidden)
+OBS_DIM, ACT_DIM = ES_SIZES[0], ES_SIZES[-1]  # the hexapod's observation and action sizes
 
 # ePOET's tiny run (small network and grid, one worker), and the settings that make every step
 # of its loop happen within a few iterations: transfers every iteration, reproduction every 2,

@@ -15,8 +15,7 @@ import pandas as pd
 import pytest
 import torch
 
-from conftest import ES_SIZES, one_terrain_suite
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from conftest import ACT_DIM, ES_SIZES, OBS_DIM, one_terrain_suite
 from epoet.rl.policy_file import POLICY_FORMAT
 from epoet.rollout.policy import init_params, num_params
 from test_render import one_error_line, render_cli
@@ -99,7 +98,7 @@ def bad_files(tmp: Path) -> dict[str, tuple[Path, str]]:
         "no theta": (es_file(tmp / "no_theta.npz"), "has no theta"),
         "wrong input size": (
             es_file(tmp / "wrong_in.npz", init_params(0, (10, 64, 18)), (10, 64, 18)),
-            f"the task has {OBS_DIM} observations",
+            f"the hexapod has {OBS_DIM} observations",
         ),
         "theta length": (
             es_file(tmp / "short.npz", init_params(0, ES_SIZES)[:-5]),

@@ -23,7 +23,7 @@ from epoet.config import validate
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.rl import sac
-from epoet.rl.env import RunningObsNorm, hexapod, make_env, obs_norm_of
+from epoet.rl.env import RunningObsNorm, make_env, obs_norm_of, terrain_env
 from epoet.rl.harness import batch_plan
 from epoet.rl.policy_file import load_policy
 from epoet.run import run
@@ -267,7 +267,7 @@ def test_training_env_draws_a_new_terrain_per_episode_on_the_height_schedule(ter
     seen = []
     for _ in range(4):
         env.reset()
-        seen.append(hexapod(env).terrain)
+        seen.append(terrain_env(env).terrain)
     env.close()
     assert all(t.kind == terrain for t in seen)
     assert len({t.id for t in seen}) == 4

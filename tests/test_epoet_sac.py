@@ -24,7 +24,7 @@ from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.runner import warm_start_of
 from epoet.poet.keys import Key
 from epoet.poet.runner import layer_sizes
-from epoet.rl.env import episode_metrics, hexapod
+from epoet.rl.env import episode_metrics, terrain_env
 from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.policy import forward
@@ -539,7 +539,7 @@ def test_sacs_frames_cut_episodes_as_torchrls_rollout_did() -> None:
     followed by a fresh one, and the episode statistics add up (what `episode_metrics` and the
     learner read)."""
     loop, evaluator = _loop(["budget.episode_steps=20"])
-    hexapod(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))
+    terrain_env(loop.sac_env).set_terrain(loop.service.terrain(loop.pool.active[0].env, 0))
     torch.manual_seed(0)
     data = loop.collect(50, 3, explore=True)
     nxt = data["next"]

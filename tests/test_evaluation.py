@@ -23,10 +23,9 @@ import pytest
 from mlflow.types import DataType
 
 from analysis.tables import formatted, table1, table2
-from conftest import ES_SIZES, one_terrain_suite
+from conftest import ACT_DIM, ES_SIZES, OBS_DIM, one_terrain_suite
 from epoet import registry
 from epoet.core.compute import default_workers
-from epoet.envs.task import ACT_DIM, OBS_DIM
 from epoet.eval.agents import resolve_run
 from epoet.eval.suite import LEVELS, SHIPPED, load_suite
 

@@ -107,7 +107,7 @@ def test_ray_actors_step_as_many_robots_as_local_workers() -> None:
     from epoet.rollout.evaluators import evaluator_for
 
     local, on_ray = (load([*SMOKE, "workers.num=2", *extra]) for extra in ([], ["workers=ray"]))
-    sizes = policy_sizes(local.algo.es.hidden)
+    sizes = policy_sizes(local.agent, local.algo.es.hidden)
     with evaluator_for(local.workers, local.agent, local.terrain, sizes) as pool:
         given = pool.batch  # what each pool worker's engine is built with
     with evaluator_for(on_ray.workers, on_ray.agent, on_ray.terrain, sizes) as actors:

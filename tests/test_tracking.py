@@ -406,7 +406,7 @@ def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, re
     policy does on the same values; both models have one signature."""
     import mlflow
 
-    from epoet.envs.spaces import ACT_DIM, OBS_DIM
+    from conftest import ACT_DIM, OBS_DIM
     from epoet.eval.agents import file_source
     from epoet.eval.reference import FOLDER
 

@@ -21,8 +21,9 @@ from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.files import atomic_write, savez
 from epoet.core.schema import positive
+from epoet.envs.spaces import layout_of
 from epoet.registry import register as register_record
-from epoet.rollout.agent_files import ES_POLICIES
+from epoet.rollout.agent_files import ES_POLICIES, LAYOUT, layout_array
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import num_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
@@ -60,7 +61,7 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
     parameters as the ES policy file evaluation reads, then checkpoints (its last state)."""
     algo = ToyConfig.of(cfg)
     frames_budget = cast(BaselineBudgetConfig, cfg.budget).frames  # its family's unit
-    sizes = policy_sizes(algo.hidden)
+    sizes = policy_sizes(cfg.agent, algo.hidden)
     state = (resume or {}).get("toy") or {
         "theta": np.zeros(num_params(sizes)),
         "best": -np.inf,
@@ -84,7 +85,8 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
             tracker.log_metrics(state["step"], {**metrics, "frames": state["frames"]})
             state["step"] += 1
     with atomic_write(run_dir / ES_POLICIES / "env0.npz") as file:
-        savez(file, {"theta": state["theta"], "score": state["best"], "layer_sizes": sizes})
+        arrays = {"theta": state["theta"], "score": state["best"], "layer_sizes": sizes}
+        savez(file, {**arrays, LAYOUT: layout_array(layout_of(cfg.agent))})  # the robot's
     state["rng"] = rng.bit_generator.state
     save_run_state(run_dir, tracker, cfg, {"toy": state})
     return state["best"]

@@ -1,12 +1,16 @@
-"""The hexapod terrain task, registered with gymnasium as `epoet/Hexapod-v0`
-(`epoet.envs.hexapod_env.make_hexapod`, imported when gymnasium makes one: importing this
+"""The robots' terrain task, registered with gymnasium as `epoet/Hexapod-v0` and `epoet/Ant-v0`
+(`epoet.envs.terrain_env.make_terrain_env`, imported when gymnasium makes one: importing this
 package, for its schemas say, stays light)."""
 
 import gymnasium as gym
 
 ENV_ID = "epoet/Hexapod-v0"
+ROBOT_ENV_IDS = {"hexapod": ENV_ID, "ant": "epoet/Ant-v0"}  # conf/agent/<robot>.yaml
 
-if ENV_ID not in gym.registry:
-    # Episode length is enforced by the task itself (truncated at agent.max_episode_steps), so
-    # no TimeLimit wrapper is stacked on top.
-    gym.register(id=ENV_ID, entry_point="epoet.envs.hexapod_env:make_hexapod")
+for _robot, _id in ROBOT_ENV_IDS.items():
+    if _id not in gym.registry:
+        # Episode length is enforced by the task itself (truncated at agent.max_episode_steps),
+        # so no TimeLimit wrapper is stacked on top.
+        gym.register(
+            id=_id, entry_point="epoet.envs.terrain_env:make_terrain_env", kwargs={"robot": _robot}
+        )

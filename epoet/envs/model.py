@@ -1,15 +1,16 @@
-"""The hexapod's MuJoCo model on a run-time heightfield, and the index maps the task reads.
+"""A robot's MuJoCo model on a run-time heightfield, and the index maps the task reads.
 
-The MJCF (assets/hexapod.xml) fixes the robot; the heightfield's resolution, extent and elevation
-come from the terrain config, applied through MjSpec before compiling, so one compiled model serves
-every terrain of a run: `set_heightfield` rewrites `hfield_data` in place (no recompilation).
+The robot's MJCF (agent.mjcf) fixes the body; epoet.envs.mjcf checks it against the robot's
+config and adds the terrain and the sensors. The heightfield's resolution, extent and elevation
+come from the terrain config, applied through MjSpec before compiling, so one compiled model
+serves every terrain of a run: `Ground.set` rewrites `hfield_data` in place (no recompilation).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib import resources
+from functools import cache
 
 import mujoco
 import numpy as np
@@ -17,18 +18,8 @@ from numba import njit
 from scipy.ndimage import uniform_filter
 
 from epoet.envs.config import INTEGRATORS, AgentConfig
+from epoet.envs.mjcf import add_sensors, add_terrain, robot_spec
 from epoet.terrain.config import TerrainConfig
-
-LEGS = ("fl", "fr", "ml", "mr", "rl", "rr")
-"""The one leg order used by joints, actuators, observation, action and contact flags."""
-SEGMENTS = ("coxa", "femur", "tibia")
-JOINTS = tuple(f"{leg}_{seg}" for leg in LEGS for seg in SEGMENTS)
-
-# Position targets per segment (docs/reference.md): q* = (a/2 + 1/2)(high - low) + low.
-TARGET_LOW = np.tile([-0.6, -1.4, -0.8], len(LEGS))
-TARGET_HIGH = np.tile([0.6, 0.4, 0.8], len(LEGS))
-
-MJCF = resources.files("epoet.envs") / "assets" / "hexapod.xml"
 
 # The schema's choices (epoet.envs.config.INTEGRATORS), as MuJoCo's enum.
 _MJ_INTEGRATORS = {
@@ -42,37 +33,43 @@ class TerrainMismatchError(ValueError):
 
 @dataclass(frozen=True)
 class Layout:
-    """Where the task's quantities live in qpos/qvel/sensordata (checked against the MJCF)."""
+    """Where the task's quantities live in qpos/qvel/sensordata/ctrl, in the joints' order (the
+    one order of the observation, the action, the forces; the feet's for the contacts)."""
 
     joint_qpos: slice
     joint_qvel: slice
     contact: slice
     actuator_force: slice
+    ctrl_index: np.ndarray  # the actuator of each joint
+    ctrl_low: np.ndarray  # its ctrlrange: the action's -1 ...
+    ctrl_span: np.ndarray  # ... and +1 map to low and low + span
+
+    @property
+    def joints(self) -> int:
+        return self.joint_qpos.stop - self.joint_qpos.start
+
+    @property
+    def feet(self) -> int:
+        return self.contact.stop - self.contact.start
 
 
 def build_model(agent: AgentConfig, terrain: TerrainConfig) -> mujoco.MjModel:
-    """Compile the hexapod with a heightfield sized by the terrain config.
-
-    The hfield's elevation is fixed at `max_height_limit`: each terrain's data are scaled by
-    S / limit, so the physical relief is exactly S (the reference scaled by S twice: defect 2).
-    """
-    spec = mujoco.MjSpec.from_file(str(MJCF))
-    spec.option.timestep = agent.timestep
-    spec.option.integrator = _MJ_INTEGRATORS[agent.integrator]
-    # On a blow-up MuJoCo would silently reset the robot to its initial pose and go on; the
-    # task sees the NaN or huge state instead and ends the episode (HexapodTask.step).
-    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
-    hfield = spec.hfields[0]
-    hfield.nrow = hfield.ncol = terrain.grid
+    """Compile the robot (checked against `agent`: ConfigError) on a heightfield sized by the
+    terrain config."""
     half = terrain.size / 2
-    hfield.size = [half, half, terrain.max_height_limit, terrain.base]
-    hfield.userdata = [0.0] * (terrain.grid * terrain.grid)
-    half_extent_ok = abs(agent.start_x) < half and abs(agent.finish_x) < half
-    if not half_extent_ok:
+    if not (abs(agent.start_x) < half and abs(agent.finish_x) < half):
         raise TerrainMismatchError(
             f"agent.start_x/finish_x ({agent.start_x}, {agent.finish_x}) must lie inside the "
             f"terrain (|x| < {half} m for terrain.size={terrain.size})."
         )
+    spec = robot_spec(agent)
+    add_terrain(spec, terrain)
+    add_sensors(spec, agent)
+    spec.option.timestep = agent.timestep
+    spec.option.integrator = _MJ_INTEGRATORS[agent.integrator]
+    # On a blow-up MuJoCo would silently reset the robot to its initial pose and go on; the
+    # task sees the NaN or huge state instead and ends the episode (epoet.envs.task).
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_AUTORESET
     return spec.compile()
 
 
@@ -113,36 +110,64 @@ def _step_split(model: mujoco.MjModel, data: mujoco.MjData) -> None:
 
 
 def layout(model: mujoco.MjModel) -> Layout:
-    """Index slices of the 18 leg joints, the 6 foot contact sensors and the 18 actuator forces."""
-    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(1, model.njnt)]
-    assert tuple(names) == JOINTS, f"MJCF joint order {names} differs from {JOINTS}"
-    first = model.sensor_adr[0]
+    """The index maps of a model `build_model` compiled: the joints after the free root, the
+    contact sensors, then the actuator-force sensors (one value each, in the joints' order)."""
+    joints = model.njnt - 1
+    contacts = np.flatnonzero(model.sensor_type == mujoco.mjtSensor.mjSENS_CONTACT)
+    first = int(model.sensor_adr[contacts[0]])
+    ctrl_index = np.array(
+        [np.flatnonzero(model.actuator_trnid[:, 0] == j)[0] for j in range(1, model.njnt)]
+    )
+    low, high = model.actuator_ctrlrange[ctrl_index].T
     return Layout(
-        joint_qpos=slice(7, 7 + len(JOINTS)),
-        joint_qvel=slice(6, 6 + len(JOINTS)),
-        contact=slice(first, first + len(LEGS)),
-        actuator_force=slice(first + len(LEGS), first + len(LEGS) + len(JOINTS)),
+        joint_qpos=slice(int(model.jnt_qposadr[1]), int(model.jnt_qposadr[1]) + joints),
+        joint_qvel=slice(int(model.jnt_dofadr[1]), int(model.jnt_dofadr[1]) + joints),
+        contact=slice(first, first + len(contacts)),
+        actuator_force=slice(first + len(contacts), first + len(contacts) + joints),
+        ctrl_index=ctrl_index,
+        ctrl_low=low.copy(),
+        ctrl_span=high - low,
     )
 
 
-def action_to_targets(action: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Map actions in [-1, 1] to joint position targets (works on (18,) or (B, 18))."""
+def action_to_ctrl(layout: Layout, action: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """The controls of actions in [-1, 1], (n,) or (B, n) in the joints' order: each spans its
+    actuator's ctrlrange, q* = (a/2 + 1/2)(high - low) + low (the hexapod's position targets,
+    docs/reference.md; the ant's motor torques)."""
     out = np.empty_like(action) if out is None else out
-    targets_rows(np.atleast_2d(action), np.atleast_2d(out))
+    targets_rows(
+        np.atleast_2d(action),
+        layout.ctrl_low,
+        layout.ctrl_span,
+        layout.ctrl_index,
+        np.atleast_2d(out),
+    )
     return out
 
 
-_SPAN = TARGET_HIGH - TARGET_LOW
-
-
 @njit(cache=True)
-def targets_rows(action: np.ndarray, out: np.ndarray) -> None:
-    """`action_to_targets` of (B, 18) actions, compiled (the rollout engine writes its batch's
+def targets_rows(
+    action: np.ndarray, low: np.ndarray, span: np.ndarray, index: np.ndarray, out: np.ndarray
+) -> None:
+    """`action_to_ctrl` of (B, n) actions, compiled (the rollout engine writes its batch's
     ctrl rows with it)."""
     for b in range(action.shape[0]):
         for j in range(action.shape[1]):
             a = min(max(action[b, j], -1.0), 1.0)
-            out[b, j] = (a * 0.5 + 0.5) * _SPAN[j] + TARGET_LOW[j]
+            out[b, index[j]] = (a * 0.5 + 0.5) * span[j] + low[j]
+
+
+@cache
+def _hexapod_layout() -> Layout:
+    from epoet.config import task_configs
+
+    return layout(build_model(*task_configs()))
+
+
+def action_to_targets(action: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """The hexapod's position targets of actions (18,) or (B, 18): `action_to_ctrl` of its
+    model, for code that drives the hexapod by hand (its tests and benches)."""
+    return action_to_ctrl(_hexapod_layout(), action, out)
 
 
 class Ground:

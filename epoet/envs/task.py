@@ -2,7 +2,10 @@
 
 Both the gymnasium env (a batch of one) and the ES rollout engine (hundreds of robots stepped in
 lockstep) call this one implementation, so the reward ES optimises is the reward the RL baselines
-see. Inputs are raw MuJoCo arrays gathered per step: qpos (B, 25), qvel (B, 24), sensordata (B, 24).
+see. Every robot's task is this one, read through its model's `Layout` (epoet.envs.model): the
+observation follows epoet.envs.spaces' rule, the reward the paper's Eq. 1 with the robot's
+weights. Inputs are raw MuJoCo arrays gathered per step: qpos (B, nq), qvel (B, nv), sensordata
+(B, feet + joints) (the hexapod's: 25, 24, 24).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from numba import njit
 
 from epoet.envs.config import AgentConfig, RewardConfig
 from epoet.envs.model import Layout
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.envs.spaces import observation_size
 
 # MuJoCo's own bound on a sane state value (mjMAXVAL): beyond it, or NaN, the physics blew up.
 MAX_STATE = 1e10
@@ -51,7 +54,7 @@ class EpisodeState:
 
 # What the compiled step reads of the config and the model layout, as a namedtuple (numba takes
 # one where it cannot take a dataclass): every reward weight under its config name, then the
-# episode rules and the index of the first actuator-force sensor.
+# episode rules, the index of the first actuator-force sensor and the number of actuators.
 if TYPE_CHECKING:
 
     class _Constants(RewardConfig):
@@ -64,6 +67,7 @@ if TYPE_CHECKING:
         max_episode_steps: int
         no_progress_steps: int
         actuator_force: int
+        actuators: int
 
         def __init__(self, *values: float) -> None: ...
 else:
@@ -78,6 +82,7 @@ else:
             "max_episode_steps",
             "no_progress_steps",
             "actuator_force",
+            "actuators",
         ],
     )
 
@@ -104,9 +109,15 @@ def _clip(v: float, low: float, high: float) -> float:
 
 @njit(cache=True)
 def _mean_square(row: np.ndarray) -> float:
-    """np.mean(row * row) of a row of 8 to 128 values, bit for bit: numpy adds them in 8
-    partial sums (the unrolled block of its pairwise summation), then the leftovers."""
+    """np.mean(row * row) of a row of 1 to 128 values (epoet.envs.mjcf refuses more), bit for
+    bit: numpy adds fewer than 8 in order, more in 8 partial sums (the unrolled block of its
+    pairwise summation), then the leftovers."""
     n = row.size
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += row[i] * row[i]
+        return total / n
     r = np.empty(8)
     for j in range(8):
         r[j] = row[j] * row[j]
@@ -125,7 +136,7 @@ def _mean_square(row: np.ndarray) -> float:
 @njit(cache=True)
 def _step(
     c: _Constants,
-    at: tuple[int, int, int],
+    at: tuple[int, int, int, int, int],
     qpos: np.ndarray,
     qvel: np.ndarray,
     sensordata: np.ndarray,
@@ -142,7 +153,7 @@ def _step(
     terms: np.ndarray,
     obs: np.ndarray,
 ) -> None:
-    """`HexapodTask.step` for every row, compiled: one call instead of ~80 numpy calls a step
+    """`Task.step` for every row, compiled: one call instead of ~80 numpy calls a step
     (at 16 robots those took about a quarter of the physics' time)."""
     for b in range(qpos.shape[0]):
         x, y = qpos[b, 0], qpos[b, 1]
@@ -158,7 +169,7 @@ def _step(
         # (Azayev et al.).
         heading_gain = np.abs(prev_heading[b]) - heading
         lateral_gain = np.abs(prev_y[b]) - np.abs(y)
-        force = sensordata[b, c.actuator_force : c.actuator_force + ACT_DIM]
+        force = sensordata[b, c.actuator_force : c.actuator_force + c.actuators]
         penalty = (
             c.c_lateral * y * y
             + c.c_heading * heading * heading
@@ -221,10 +232,10 @@ def _observe(
     qpos: np.ndarray,
     qvel: np.ndarray,
     sensordata: np.ndarray,
-    at: tuple[int, int, int],
+    at: tuple[int, int, int, int, int],
     out: np.ndarray,
 ) -> None:
-    """`HexapodTask.observe` for every row, compiled."""
+    """`Task.observe` for every row, compiled."""
     for b in range(qpos.shape[0]):
         _observe_row(qpos[b], qvel[b], sensordata[b], at, out[b])
 
@@ -234,28 +245,30 @@ def _observe_row(
     qpos: np.ndarray,
     qvel: np.ndarray,
     sensordata: np.ndarray,
-    at: tuple[int, int, int],
+    at: tuple[int, int, int, int, int],
     row: np.ndarray,
 ) -> None:
-    """One robot's observation; `at` holds the first index of the joint angles in qpos, of the
-    joint velocities in qvel and of the contact sensors in sensordata."""
-    joint_qpos, joint_qvel, contact = at
-    row[0:18] = qpos[joint_qpos : joint_qpos + 18]
-    row[18:36] = qvel[joint_qvel : joint_qvel + 18]
-    row[36:42] = qvel[0:6]
-    row[42:46] = qpos[3:7]
-    row[46] = qpos[1]
-    for k in range(6):
-        row[47 + k] = 1.0 if sensordata[contact + k] > 0.0 else 0.0
+    """One robot's observation (epoet.envs.spaces' rule); `at` holds the first index of the
+    joint angles in qpos, of the joint velocities in qvel and of the contact sensors in
+    sensordata, and the number of joints and of feet."""
+    joint_qpos, joint_qvel, contact, n, feet = at
+    row[0:n] = qpos[joint_qpos : joint_qpos + n]
+    row[n : 2 * n] = qvel[joint_qvel : joint_qvel + n]
+    row[2 * n : 2 * n + 6] = qvel[0:6]
+    row[2 * n + 6 : 2 * n + 10] = qpos[3:7]
+    row[2 * n + 10] = qpos[1]
+    for k in range(feet):
+        row[2 * n + 11 + k] = 1.0 if sensordata[contact + k] > 0.0 else 0.0
     # A blown-up robot's (terminal) observation is stored as zeros, never NaN: a replay buffer
     # multiplies terminal next-observations' values by zero, and NaN * 0 is NaN.
-    for k in range(OBS_DIM):
+    for k in range(row.size):
         if not np.isfinite(row[k]):
             row[k] = 0.0
 
 
-class HexapodTask:
-    """Observation, reward and termination of the paper's task (docs/reference.md).
+class Task:
+    """Observation, reward and termination of the paper's task (docs/reference.md), for the
+    robot whose model `layout` describes.
 
     Both run compiled (numba) over the rows, one call per step: with a few dozen numpy calls on
     (B,) arrays per step, the engine spent about a third of its time here rather than in MuJoCo.
@@ -272,15 +285,24 @@ class HexapodTask:
             agent.max_episode_steps,
             agent.no_progress_steps,
             layout.actuator_force.start,
+            layout.joints,
         )
-        self._at = (layout.joint_qpos.start, layout.joint_qvel.start, layout.contact.start)
+        self._at = (
+            layout.joint_qpos.start,
+            layout.joint_qvel.start,
+            layout.contact.start,
+            layout.joints,
+            layout.feet,
+        )
+        self.obs_dim = observation_size(layout.joints, layout.feet)
+        self.act_dim = layout.joints
 
     def observe(
         self, qpos: np.ndarray, qvel: np.ndarray, sensordata: np.ndarray, out: np.ndarray
     ) -> np.ndarray:
-        """53 dims: 18 joint angles, 18 joint velocities, torso linear + angular velocity,
-        torso quaternion (w, x, y, z), torso y, 6 foot contacts (1 when the foot touches).
-        A blown-up robot's (terminal) observation is zeros, never NaN."""
+        """Joint angles, joint velocities, torso linear + angular velocity, torso quaternion
+        (w, x, y, z), torso y, foot contacts (1 when the foot touches): the hexapod's 53 dims
+        (epoet.envs.spaces). A blown-up robot's (terminal) observation is zeros, never NaN."""
         _observe(qpos, qvel, sensordata, self._at, out)
         return out
 
@@ -328,6 +350,9 @@ class HexapodTask:
             terminated,
             truncated,
             terms,
-            np.empty((n, OBS_DIM)) if obs is None else obs,
+            np.empty((n, self.obs_dim)) if obs is None else obs,
         )
         return reward, terminated, truncated, terms
+
+
+HexapodTask = Task  # the name the hexapod's tests know it by

@@ -17,20 +17,20 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from epoet.envs.hexapod_env import HexapodEnv
-from epoet.envs.spaces import OBS_DIM
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.rl.env import OBS
 from epoet.rollout.engine import Episodes
 
 
 @torch.no_grad()
 def collect(
-    env: HexapodEnv, policy: nn.Module | None, frames: int, spawn_seed: int, act_dim: int
+    env: TerrainEnv, policy: nn.Module | None, frames: int, spawn_seed: int, act_dim: int
 ) -> TensorDict:
     """`frames` transitions from a reset with `spawn_seed` on the env's terrain; `policy` maps
     a raw observation to (loc, scale)."""
-    obs = np.empty((frames + 1, OBS_DIM), dtype=np.float32)
-    next_obs = np.empty((frames, OBS_DIM), dtype=np.float32)
+    obs_dim = env.task.obs_dim
+    obs = np.empty((frames + 1, obs_dim), dtype=np.float32)
+    next_obs = np.empty((frames, obs_dim), dtype=np.float32)
     reward = np.empty(frames, dtype=np.float32)
     flags = np.zeros((4, frames), dtype=bool)  # terminated, truncated, done, finished
     episode_reward = np.empty(frames, dtype=np.float32)

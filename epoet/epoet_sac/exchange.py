@@ -16,7 +16,7 @@ import torch
 from torch import nn
 from torchrl.data import ReplayBuffer
 
-from epoet.envs.hexapod_env import HexapodEnv
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.epoet_sac.bridge import (
     Mapped,
     ReplacedAgent,
@@ -45,7 +45,7 @@ class ActorExchange:
     service: Service
     pool: Pool
     actor_net: nn.Module  # raw obs -> (loc, scale)
-    score_env: HexapodEnv
+    score_env: TerrainEnv
     buffer: ReplayBuffer
     distill: DistillConfig
     dagger_cfg: DaggerConfig

@@ -21,6 +21,7 @@ from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
 from epoet.config import Config
+from epoet.core.files import savez
 from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import ReplacedAgent
 from epoet.epoet_sac.collect import collect, es_transitions
@@ -31,10 +32,11 @@ from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for, warm_start_alpha
 from epoet.poet.loop import EPOET, Step, every_iteration, loop_settings
 from epoet.poet.pairs import Environment, Pair
-from epoet.rl.env import episode_metrics, hexapod, make_env
+from epoet.rl.env import episode_metrics, make_env, terrain_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
+from epoet.rollout.agent_files import LAYOUT, layout_array
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.terrain import Terrain, make_terrain
@@ -101,7 +103,7 @@ class EpoetSac(EPOET):
         # The SAC actor's deterministic scores step SAC's gym env directly (every Train_SAC
         # resets it): reset(seed=s) gives the spawn of the workers' episodes with spawn seed s,
         # so both kinds of agent share the starts.
-        self.score_env = hexapod(sac_env)
+        self.score_env = terrain_env(sac_env)
         self.act_dim = sac_env.action_spec.shape[-1]
         self.sac_threads = torch.get_num_threads()  # from_config's (algo.sac_threads)
         self.frames_per_iteration = algo.frames_per_iteration
@@ -281,7 +283,7 @@ class EpoetSac(EPOET):
     def _train_sac(self, terrain: Terrain, torch_seed: int, spawn_seed: int) -> dict[str, float]:
         """`frames_per_iteration` frames of the stochastic actor (uniform actions while fewer
         than `init_random_frames` were collected) on `terrain`, then the gradient updates."""
-        hexapod(self.sac_env).set_terrain(terrain)
+        terrain_env(self.sac_env).set_terrain(terrain)
         torch.manual_seed(torch_seed)
         data = self.collect(
             self.frames_per_iteration,
@@ -358,13 +360,16 @@ class EpoetSac(EPOET):
         if self.exchange.replaced:
             folder = run_dir / "replaced"
             folder.mkdir(exist_ok=True)
+            layout = layout_array(self.service.evaluator.layout)
             for agent in self.exchange.replaced:
-                np.savez(
-                    folder / f"env{agent.env}_it{agent.iteration}.npz",
-                    theta=agent.theta,
-                    score=agent.score,
-                    layer_sizes=np.array(self.service.layer_sizes),
-                )
+                arrays = {
+                    "theta": agent.theta,
+                    "score": np.float64(agent.score),
+                    "layer_sizes": np.array(self.service.layer_sizes),
+                    LAYOUT: layout,
+                }
+                with open(folder / f"env{agent.env}_it{agent.iteration}.npz", "wb") as file:
+                    savez(file, arrays)
             tracker.log_artifact(folder, "replaced")
 
     def close(self) -> None:

@@ -27,7 +27,7 @@ def warm_start_of(cfg: Config) -> WarmStart | None:
     return (
         None
         if algo.sac_init is None
-        else load_warm_start(algo.sac_init, algo.sac, cfg.tracking.uri)
+        else load_warm_start(algo.sac_init, algo.sac, cfg.agent, cfg.tracking.uri)
     )
 
 

@@ -12,7 +12,8 @@ A warm start loads the actor's MLP and the critics as they are (the target criti
 optimiser's state stays fresh) with the temperature the source finished at (`alpha`: the
 authors' from their log, ours from the run's checkpoint or its last `train/alpha`; the loop
 takes `algo.warm.alpha` instead when set), so the layer sizes and activation must be
-`algo.sac`'s, and the weights must act on raw observations (a SAC run with `algo.obs_norm=true`
+`algo.sac`'s, the weights must be the run's robot's (the authors' are the hexapod's: other robots
+start cold by default, `agent.published_sac`) and act on raw observations (a SAC run with `algo.obs_norm=true`
 reads clipped normalised observations, which do not fold into a layer). The actor keeps the
 scale mapping it was trained with: TorchRL's biased softplus for ours, the authors'
 exp(clamp(log_std, -20, 2)) for theirs (epoet/rl/nets.py says why no weights convert one into
@@ -34,12 +35,13 @@ import torch
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from epoet.core.schema import ConfigError
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.envs.config import AgentConfig
+from epoet.envs.spaces import robot_sizes
 from epoet.epoet_sac.config import WarmConfig
 from epoet.rl.config import SacLearnerConfig
 from epoet.rl.nets import LOG_STD_SCALE, SOFTPLUS_SCALE
 from epoet.rl.policy_file import CRITICS_FILE, POLICY_FILE, read_critics
-from epoet.rollout.agent_files import AgentError, read_torch_policy
+from epoet.rollout.agent_files import LAYOUT, AgentError, read_torch_policy, robot_mismatch
 
 REFERENCE = "reference:"
 REFERENCE_FOLDER = Path(__file__).resolve().parent.parent / "reference"  # epoet/reference
@@ -121,7 +123,7 @@ def _from_files(
             "observations",
         )
     last = f"{2 * len(actor['hidden'])}.weight"
-    if actor["state_dict"][last].shape[0] != 2 * ACT_DIM:
+    if actor["state_dict"][last].shape[0] != 2 * int(actor["act_dim"]):
         raise _fail(
             spec, "has no SAC actor (its output layer is not a mean and a scale per action)"
         )
@@ -200,11 +202,17 @@ def _resolve(spec: str, tracking_uri: str | None) -> _Found:
     raise _fail(spec, "is neither reference:sac/42, a SAC run folder nor an MLflow run id")
 
 
-def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None = None) -> WarmStart:
-    """The start `spec` names, checked against the learner's layout; ConfigError in one
-    sentence for anything that cannot start this learner."""
+def load_warm_start(
+    spec: str, sac: SacLearnerConfig, agent: AgentConfig, tracking_uri: str | None = None
+) -> WarmStart:
+    """The start `spec` names, checked against the learner's layout and the run's robot;
+    ConfigError in one sentence for anything that cannot start this learner."""
     start = _resolve(spec, tracking_uri)
     actor, critics = start.actor, start.critics
+    actor_sizes = (int(actor["obs_dim"]), int(actor["act_dim"]))
+    mismatch = robot_mismatch(actor_sizes, actor.get(LAYOUT), agent)
+    if mismatch is not None:
+        raise _fail(spec, f"{mismatch[0]} (algo.sac_init=null starts cold)")
     mine = (list(sac.hidden), sac.activation)
     for what, spec_of in (("actor", actor), ("critics", critics)):
         theirs = ([int(n) for n in spec_of["hidden"]], spec_of["activation"])
@@ -215,7 +223,8 @@ def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None =
                 f"{mine[0]} and algo.sac.activation={mine[1]}: a warm start loads "
                 f"the weights as they are, so they must match",
             )
-    sizes = [OBS_DIM + ACT_DIM, *mine[0], 1]
+    obs_dim, act_dim = robot_sizes(agent)
+    sizes = [obs_dim + act_dim, *mine[0], 1]
     expected = {
         **{f"weights.{i}": (2, a, b) for i, (a, b) in enumerate(zip(sizes, sizes[1:]))},
         **{f"biases.{i}": (2, 1, b) for i, b in enumerate(sizes[1:])},
@@ -225,7 +234,7 @@ def load_warm_start(spec: str, sac: SacLearnerConfig, tracking_uri: str | None =
         raise _fail(
             spec,
             f"has critics whose weights {got} are not twin Q networks of "
-            f"{OBS_DIM} observations and {ACT_DIM} actions",
+            f"{obs_dim} observations and {act_dim} actions",
         )
     return WarmStart(
         spec,

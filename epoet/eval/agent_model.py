@@ -18,7 +18,8 @@ from epoet.eval.trained_run import Policy
 
 
 class PolicyModel:
-    """pyfunc's `predict`: a batch of observations (n, 53) to actions (n, 18) float64. MLflow
+    """pyfunc's `predict`: a batch of observations (n, obs) to actions (n, act) float64 (the
+    hexapod's 53 and 18; the model's signature says its robot's). MLflow
     hands it the observations as a DataFrame of the signature's double columns (the caller's
     array, float32 or float64, converted)."""
 

@@ -6,6 +6,8 @@ scale) and, when there is one, the MLflow run to log results to. Two policy form
 - ES parameters (`.npz` with `theta` and `layer_sizes`): ePOET's and ePOET-SAC's pool agents,
   `policies/env<N>.npz` (with their `score`); a run's agent is the pool's best by score;
 - exported torch policies (`policy.pt`, `epoet.rl.policy_file`): PPO, SAC and VMPO.
+Each records the robot it was trained on (epoet.rollout.agent_files), which must be the robot
+it runs with: the run's, or for a bare policy file `agent=<robot>`.
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ from epoet.core.files import atomic_write, savez
 from epoet.core.lifecycle import end_with
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
-from epoet.envs.hexapod_env import HexapodEnv
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.eval.agents import AgentError, AgentSource, TrainedRun, resolve_run
 from epoet.eval.config import EvaluateConfig
 from epoet.eval.keys import (
@@ -117,7 +117,7 @@ class Task:
 _cache: dict[str, Any] = {}  # per worker process: the env and policy, built once
 
 
-def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
+def _env_and_policy(task: Task) -> tuple[TerrainEnv, Any]:
     key = repr((task.agent, task.agent_cfg, task.terrain_cfg))
     if _cache.get("key") != key:
         if "env" in _cache:
@@ -130,7 +130,7 @@ def _env_and_policy(task: Task) -> tuple[HexapodEnv, Any]:
 
             torch.set_num_threads(1)
         _cache.update(
-            key=key, env=HexapodEnv(task.agent_cfg, task.terrain_cfg), policy=task.agent.load()
+            key=key, env=TerrainEnv(task.agent_cfg, task.terrain_cfg), policy=task.agent.load()
         )
     return _cache["env"], _cache["policy"]
 

@@ -192,7 +192,7 @@ def record(
 ) -> Video:
     """One episode of the run's agent on the terrain (on `course`, as evaluation runs it, when
     it is a suite terrain), every frame (captioned, see `Film`) into the mp4."""
-    from epoet.envs.hexapod_env import HexapodEnv  # imports mujoco: after open_gl
+    from epoet.envs.terrain_env import TerrainEnv  # imports mujoco: after open_gl
     from epoet.eval.suite import terrain_config_for
 
     agent = run.agent_config(cfg.agent)
@@ -201,7 +201,7 @@ def record(
     if cfg.steps is not None:
         agent = dataclasses.replace(agent, max_episode_steps=cfg.steps)
     path = Path(cfg.out) if cfg.out else Path(VIDEOS) / f"{_slug(run.label)}_{_slug(name)}.mp4"
-    env = HexapodEnv(agent=agent, terrain=terrain_config_for([terrain]))
+    env = TerrainEnv(agent=agent, terrain=terrain_config_for([terrain]))
     policy = run.agent.load()
     fps = 1.0 / agent.timestep
     steps = agent.max_episode_steps
@@ -243,6 +243,7 @@ def main(argv: list[str] | None = None) -> None:
         imageio = require_imageio()
         assert cfg.run is not None and cfg.terrain is not None  # required: RenderConfig checks
         run = resolve_run(cfg.run, cfg.tracking.uri)  # checked before GL is proven
+        run.agent_config(cfg.agent)  # the robot the policy was trained on: checked before GL
         open_gl()
     except (
         ConfigError,

@@ -11,7 +11,6 @@ import numpy as np
 
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import patch_variance
-from epoet.envs.spawn import FOOTPRINT
 
 # 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
 SUITE_FORMAT = "epoet-suite/2"
@@ -34,7 +33,13 @@ class Course:
 
     @classmethod
     def of(cls, agent: AgentConfig, episode_ratio: float) -> Course:
-        return cls(agent.start_x, agent.finish_x, FOOTPRINT, agent.max_episode_steps, episode_ratio)
+        return cls(
+            agent.start_x,
+            agent.finish_x,
+            agent.spawn_footprint,
+            agent.max_episode_steps,
+            episode_ratio,
+        )
 
     def scale(self, agent: AgentConfig) -> float:
         """The course's share an agent trained on shorter episodes walks (1 at full length)."""

@@ -13,7 +13,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from epoet.envs.config import AgentConfig
-from epoet.rollout.agent_files import read_es_policy, read_torch_policy
+from epoet.rollout.agent_files import check_robot, read_es_policy, read_torch_policy
 from epoet.rollout.policy import forward
 
 if TYPE_CHECKING:
@@ -30,8 +30,8 @@ class AgentSource:
     path: Path
 
     def check(self) -> None:
-        """AgentError unless the file is a usable policy for the task; cheap, and imports no
-        MuJoCo, so commands check it before any other work."""
+        """AgentError unless the file is a usable policy; cheap, and imports no MuJoCo, so
+        commands check it before any other work."""
         if self.kind == "es":
             read_es_policy(self.path)
         else:
@@ -64,11 +64,19 @@ class TrainedRun:
         return None if self.stored is None else self.stored.run_id
 
     def agent_config(self, default: AgentConfig) -> AgentConfig:
-        """The episode rules the agent was trained with (a bare policy file: `default`)."""
+        """The robot and episode rules the agent was trained with (a bare policy file:
+        `default`); AgentError unless its file was trained on that robot (cheap, no MuJoCo)."""
         if self.config is None:
-            return default
-        merged = OmegaConf.merge(OmegaConf.structured(AgentConfig), self.config["agent"])
-        return cast(AgentConfig, OmegaConf.to_object(merged))  # the structured schema's type
+            agent = default
+        else:
+            from epoet.config import saved_agent  # Hydra: not for the MLflow model's loader
+
+            merged = OmegaConf.merge(
+                OmegaConf.structured(AgentConfig), saved_agent(self.config["agent"])
+            )
+            agent = cast(AgentConfig, OmegaConf.to_object(merged))  # the schema's type
+        check_robot(self.agent.path, self.agent.kind, agent)
+        return agent
 
     @property
     def score_scale(self) -> float:

@@ -34,7 +34,7 @@ from epoet.poet.pairs import Environment, Pair, Pool, Thresholds, annecs, best_b
 from epoet.poet.reproduction import reproduce
 from epoet.poet.service import Service
 from epoet.poet.transfer import transfer
-from epoet.rollout.agent_files import ES_POLICIES
+from epoet.rollout.agent_files import ES_POLICIES, LAYOUT, layout_array
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import init_params, policy_sizes
@@ -219,14 +219,11 @@ class EPOET:
     def evaluate_pairs(self, t: int) -> dict[str, float]:
         """Each active agent's score on its own environment this iteration."""
         service, active = self.service, self.pool.active
-        scores = service.scores(
-            [
-                service.eval_request(
-                    service.terrain(p.env, t), p.theta[None], Key.EVAL, p.env.index, t
-                )
-                for p in active
-            ]
-        )
+        requests = [
+            service.eval_request(service.terrain(p.env, t), p.theta[None], Key.EVAL, p.env.index, t)
+            for p in active
+        ]
+        scores = service.scores(requests)
         metrics: dict[str, float] = {}
         for pair, score in zip(active, scores):
             self.pool.record(pair, float(score[0]))
@@ -234,8 +231,7 @@ class EPOET:
         return metrics
 
     def transfer(self, t: int) -> int:
-        """The transfer step (transfer.py); returns the agents replaced, counted in
-        `transfers`."""
+        """The transfer step (transfer.py); returns the agents replaced (`transfers`)."""
         return len(self.transfer_moves(t))
 
     def transfer_moves(self, t: int) -> dict[int, int]:
@@ -257,6 +253,15 @@ class EPOET:
         self.elapsed += elapsed
         self.cpu_time += self.cpu_meter.lap()  # since the last iteration: its checkpoint too
         score = max(p.score for p in self.pool.active)
+        if self.best_score < self.pool.thresholds.repro <= score:
+            # The run's first walker (on 2000-step episodes the paper's "solved"): its cost.
+            metrics.update(
+                {
+                    "walker/cpu_time": self.cpu_time,
+                    "walker/elapsed": self.elapsed,
+                    "walker/env_steps": float(self.service.env_steps),
+                }
+            )
         self.best_score = max(self.best_score, score)
         metrics.update(timer.metrics())
         metrics.update(best_by_lineage(self.pool.active, self.lineage))
@@ -314,6 +319,7 @@ class EPOET:
                             "final_theta": final,
                             "final_score": pair.score,
                             "layer_sizes": np.array(self.layer_sizes),
+                            LAYOUT: layout_array(self.service.evaluator.layout),
                             "status": status,
                             "generation": pair.env.generation,
                             "parent": -1 if pair.env.parent is None else pair.env.parent,
@@ -390,5 +396,5 @@ def loop_settings(cfg: Config) -> dict[str, Any]:
         "n_pairs": budget.n_pairs,
         "eval_episodes": budget.eval_episodes,
         "score_scale": budget.score_scale,
-        "layer_sizes": policy_sizes(PoetConfig.of(cfg).es.hidden),
+        "layer_sizes": policy_sizes(cfg.agent, PoetConfig.of(cfg).es.hidden),
     }

@@ -18,7 +18,9 @@ from epoet.tracking import Tracker
 
 
 def layer_sizes(cfg: Config) -> tuple[int, ...]:
-    return policy_sizes(PoetConfig.of(cfg).es.hidden)
+    """The ES policy's sizes, derived here only: the evaluator takes them, the loop reads them
+    from it."""
+    return policy_sizes(cfg.agent, PoetConfig.of(cfg).es.hidden)
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:

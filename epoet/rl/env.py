@@ -1,8 +1,8 @@
-"""The hexapod task as the baselines' TorchRL env: its construction, the run's seeds, the running
+"""The robot's task as the baselines' TorchRL env: its construction, the run's seeds, the running
 observation normaliser, the statistics of the episodes a batch ended and the deterministic
 policy's evaluation.
 
-    HexapodEnv --GymWrapper--> TransformedEnv(DoubleToFloat, [ObservationNorm, Clip], RewardSum,
+    TerrainEnv --GymWrapper--> TransformedEnv(DoubleToFloat, [ObservationNorm, Clip], RewardSum,
     StepCounter)
 
 Decisions (the paper's tables do not fix them):
@@ -47,7 +47,7 @@ from torchrl.envs.utils import set_exploration_type
 from torchrl.modules import ProbabilisticActor
 
 from epoet.config import Config
-from epoet.envs.hexapod_env import HexapodEnv
+from epoet.envs.terrain_env import TerrainEnv
 
 OBS = "observation"
 OBS_NORM = "observation_norm"
@@ -96,8 +96,9 @@ class _FinishedReader(BaseInfoDictReader):
 def make_env(
     cfg: Config, *, obs_norm: bool, seed: int, resample_terrain: bool = True
 ) -> TransformedEnv:
-    """The hexapod task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode
-    (`resample_terrain=False`: the terrain last given to `hexapod(env).set_terrain`, ePOET-SAC).
+    """The robot's task as a TorchRL env: a fresh terrain from `cfg.terrain` every episode
+    (`resample_terrain=False`: the terrain last given to `terrain_env(env).set_terrain`,
+    ePOET-SAC).
 
     Episodes last at most agent.max_episode_steps (= budget.episode_steps). Adds
     `episode_reward` (RewardSum) and `step_count` (StepCounter) for episode statistics and, with
@@ -106,7 +107,7 @@ def make_env(
     wrappers out of the per-step path.
     """
     base = GymWrapper(
-        HexapodEnv(agent=cfg.agent, terrain=cfg.terrain, resample_terrain=resample_terrain)
+        TerrainEnv(agent=cfg.agent, terrain=cfg.terrain, resample_terrain=resample_terrain)
     )
     base.set_info_dict_reader(_FinishedReader())
     transforms: list = [DoubleToFloat()]
@@ -128,7 +129,7 @@ def make_env(
     return env
 
 
-def hexapod(env: EnvBase) -> HexapodEnv:
+def terrain_env(env: EnvBase) -> TerrainEnv:
     """The gymnasium env inside a TorchRL env (its RNG and episode counter are run state)."""
     inner = env.base_env if isinstance(env, TransformedEnv) else env
     return inner._env
@@ -219,7 +220,7 @@ def evaluate(
         set_exploration_type(ExplorationType.DETERMINISTIC),
     ):
         env.set_seed(seed)
-        hexapod(env).episodes = episode_index
+        terrain_env(env).episodes = episode_index
         for _ in range(episodes):
             td = env.rollout(max_steps, policy=actor)
             returns.append(float(td["next", "reward"].sum()))

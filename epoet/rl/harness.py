@@ -53,9 +53,9 @@ from epoet.rl.env import (
     Seeds,
     episode_metrics,
     evaluate,
-    hexapod,
     make_env,
     obs_norm_of,
+    terrain_env,
 )
 from epoet.rl.policy_file import POLICY_FILE, export_policy
 from epoet.run_state import report_stop, save_run_state, take_snapshots
@@ -169,7 +169,7 @@ class TrainResult:
 
 
 def _rng_state(env: EnvBase) -> dict[str, Any]:
-    gym_env = hexapod(env)
+    gym_env = terrain_env(env)
     return {
         "torch": torch.get_rng_state(),
         "numpy": np.random.get_state(),
@@ -183,7 +183,7 @@ def _set_rng_state(env: EnvBase, state: dict[str, Any]) -> None:
     torch.set_rng_state(state["torch"])
     np.random.set_state(state["numpy"])
     random.setstate(state["python"])
-    gym_env = hexapod(env)
+    gym_env = terrain_env(env)
     gym_env.np_random.bit_generator.state = state["env"]
     gym_env.episodes = state["env_episodes"]
 
@@ -299,7 +299,7 @@ class Harness:
                 "env_steps": state.frames,
                 "elapsed": state.wall_time,
                 "cpu_time": state.cpu_time,
-                "max_height": max_height_at(self.cfg.terrain, hexapod(self.env).episodes),
+                "max_height": max_height_at(self.cfg.terrain, terrain_env(self.env).episodes),
             }
         )
         self.tracker.log_metrics(state.frames, metrics)
@@ -328,7 +328,7 @@ class Harness:
             actor,
             self.cfg.budget.eval_episodes,
             self.seeds.eval,
-            hexapod(self.env).episodes,
+            terrain_env(self.env).episodes,
             self.cfg.budget.episode_steps,
         )
         state.last_eval_frames = state.frames

@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from epoet.core.files import atomic_write
-from epoet.rollout.agent_files import POLICY_FORMAT, read_torch_policy
+from epoet.rollout.agent_files import LAYOUT, POLICY_FORMAT, read_torch_policy
 
 if TYPE_CHECKING:
     from torchrl.envs import EnvBase
@@ -43,7 +43,8 @@ def export_policy(
     is written as a raw-observation policy, the standardisation folded into the first layer
     (W / std, b - W mean / std), as ePOET's ES agents are.
     """
-    from epoet.rl.env import OBS, OBS_CLIP, obs_norm_of
+    from epoet.envs.spaces import layout_of
+    from epoet.rl.env import OBS, OBS_CLIP, obs_norm_of, terrain_env
     from epoet.rl.nets import ObsStandardize
 
     norm = obs_norm_of(env)
@@ -64,6 +65,7 @@ def export_policy(
         "obs_scale": None if norm is None else norm.scale.detach().clone(),
         "obs_clip": None if norm is None else OBS_CLIP,
         "state_dict": weights,
+        LAYOUT: layout_of(terrain_env(env).agent_cfg),
     }
     with atomic_write(path) as file:  # a killed run never leaves half a policy
         torch.save(spec, file)

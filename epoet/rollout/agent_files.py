@@ -1,18 +1,25 @@
 """The two agent file formats a rollout can run, read and checked: ES parameters (an .npz of
 `theta` and `layer_sizes`) and exported torch policies (`policy.pt`, written by
 epoet.rl.policy_file). Evaluation (epoet.eval.agents) and the torch policy's loader both check
-files here, so a bad file gets the same one-line error everywhere."""
+files here, so a bad file gets the same one-line error everywhere.
+
+Both record the layout of the robot they were trained on (`layout`: epoet.envs.spaces.layout_of;
+in an .npz as JSON text), which `check_robot` holds against the robot they are run with. A file
+from before robots were parts records none: it is the hexapod's.
+"""
 
 from __future__ import annotations
 
+import json
 import zipfile
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.envs.config import HEXAPOD, AgentConfig
+from epoet.envs.spaces import layout_of, robot_sizes
 from epoet.rl.config import RL_ACTIVATIONS
 from epoet.rollout.policy import num_params
 
@@ -21,6 +28,7 @@ ES_POLICIES = "policies"
 
 
 POLICY_FORMAT = "epoet-policy/1"
+LAYOUT = "layout"  # the key of the recorded robot layout in both formats
 
 
 class AgentError(ValueError):
@@ -29,30 +37,19 @@ class AgentError(ValueError):
 
 VALID = {
     "es": "an .npz of ES parameters (theta: the flat finite parameter vector, layer_sizes: "
-    "{obs}, ..., {act})",
+    "its observations, hidden sizes and actions)",
     "torch": f"a {TORCH_POLICY} that a PPO, SAC or VMPO run exported",
 }
 
 
 def bad_agent(path: Path, kind: str, problem: str) -> AgentError:
     """One sentence: the file, what is wrong with it and what a valid one is."""
-    return AgentError(
-        f"{path} {problem}: a valid agent file is {VALID[kind].format(obs=OBS_DIM, act=ACT_DIM)}."
-    )
+    return AgentError(f"{path} {problem}: a valid agent file is {VALID[kind]}.")
 
 
-def check_network(
-    path: Path, kind: str, sizes: Sequence[int], params: Iterable[tuple[str, np.ndarray]]
-) -> None:
-    """The check every policy format shares: it maps the task's observations to its actions
-    and all its parameters are finite (NaN weights would act NaN and crash the episode)."""
-    if sizes[0] != OBS_DIM or sizes[-1] != ACT_DIM:
-        raise bad_agent(
-            path,
-            kind,
-            f"maps {sizes[0]} observations to {sizes[-1]} actions, but "
-            f"the task has {OBS_DIM} observations and {ACT_DIM} actions",
-        )
+def check_network(path: Path, kind: str, params: Iterable[tuple[str, np.ndarray]]) -> None:
+    """The check every policy format shares: all its parameters are finite (NaN weights would
+    act NaN and crash the episode)."""
     for name, values in params:
         if not np.isfinite(values).all():
             raise bad_agent(path, kind, f"has non-finite parameters (NaN or inf) in {name}")
@@ -78,7 +75,6 @@ def read_es_policy(path: Path) -> tuple[np.ndarray, tuple[int, ...]]:
             f"has layer_sizes {sizes.tolist()}, not a list of at least two positive integers",
         )
     sizes_tuple = tuple(int(n) for n in sizes)
-    check_network(path, "es", sizes_tuple, [])
     if theta.ndim != 1 or theta.dtype.kind not in "fiu" or len(theta) != num_params(sizes_tuple):
         raise bad_agent(
             path,
@@ -88,7 +84,7 @@ def read_es_policy(path: Path) -> tuple[np.ndarray, tuple[int, ...]]:
             f"{num_params(sizes_tuple)} numbers",
         )
     theta = theta.astype(np.float64)
-    check_network(path, "es", sizes_tuple, [("theta", theta)])
+    check_network(path, "es", [("theta", theta)])
     return theta, sizes_tuple
 
 
@@ -136,9 +132,64 @@ def read_torch_policy(path: Path) -> dict[str, Any]:
             f"obs_scale of shape ({sizes[0]},) with an obs_clip",
         )
     check_network(
-        path,
-        "torch",
-        sizes,
-        [(k, v.detach().double().numpy()) for k, v in [*weights.items(), *norm]],
+        path, "torch", [(k, v.detach().double().numpy()) for k, v in [*weights.items(), *norm]]
     )
     return spec
+
+
+def layout_array(layout: dict[str, Any]) -> np.ndarray:
+    """A robot layout as an .npz agent file records it (JSON text: no pickle to load)."""
+    return np.array(json.dumps(layout))
+
+
+def recorded_layout(path: Path, kind: str) -> tuple[tuple[int, int], dict[str, Any] | None]:
+    """A checked policy file's observation and action sizes and the layout it records (None:
+    none, the hexapod's)."""
+    if kind == "torch":
+        spec = read_torch_policy(path)
+        return (int(spec["obs_dim"]), int(spec["act_dim"])), spec.get(LAYOUT)
+    _, layer_sizes = read_es_policy(path)
+    with np.load(path, allow_pickle=False) as data:
+        text = str(data[LAYOUT]) if LAYOUT in data else None
+    try:
+        layout = None if text is None else json.loads(text)
+    except ValueError:
+        raise bad_agent(path, kind, f"has a {LAYOUT} that is not JSON text") from None
+    return (layer_sizes[0], layer_sizes[-1]), layout
+
+
+def robot_mismatch(
+    sizes: tuple[int, int], layout: dict[str, Any] | None, agent: AgentConfig
+) -> tuple[str, bool] | None:
+    """Why a policy of these observation and action sizes, recording `layout`, cannot run on
+    `agent`'s robot, and whether it names another robot (None: it can run)."""
+    robot = HEXAPOD if layout is None else layout.get("robot")
+    if robot != agent.name:
+        return f"was trained on the {robot}, not on the {agent.name}", True
+    if layout is not None and layout != layout_of(agent):
+        return (
+            f"was trained on a {robot} whose observation or action layout (its joints or "
+            f"feet) differs from agent={agent.name}'s",
+            True,
+        )
+    want = robot_sizes(agent)
+    if sizes != want:
+        return (
+            f"maps {sizes[0]} observations to {sizes[1]} actions, but the {agent.name} has "
+            f"{want[0]} observations and {want[1]} actions",
+            False,
+        )
+    return None
+
+
+def check_robot(path: Path, kind: str, agent: AgentConfig) -> None:
+    """AgentError unless the file was trained on `agent`'s robot, with its layout and sizes."""
+    mismatch = robot_mismatch(*recorded_layout(path, kind), agent)
+    if mismatch is None:
+        return
+    problem, other_robot = mismatch
+    if not other_robot:
+        raise bad_agent(path, kind, problem)
+    raise AgentError(
+        f"{path} {problem}: it runs on the robot it records (for a policy file: agent=<robot>)."
+    )

@@ -6,8 +6,8 @@ slot steps with its episode's copy (`Batch.set_models`), so slots on different t
 by side and a job stream may mix terrains freely: a worker never drains its slots at the boundary
 between two populations. Per control step the engine makes one batched policy call (each slot its
 own parameters), writes the targets into the batch's ctrl rows, steps every running slot in one C
-call, and computes reward, termination and the next observation for the whole batch with
-`HexapodTask`, reading the batch's bound qpos/qvel/sensordata arrays in place. Policy, task and
+call, and computes reward, termination and the next observation for the whole batch with the
+robot's `Task`, reading the batch's bound qpos/qvel/sensordata arrays in place. Policy, task and
 bookkeeping are compiled (numba), one call each over all rows: no Python runs per slot within a
 step, and the time outside MuJoCo is a small share of a step (bench/epoet_iteration.py).
 
@@ -38,7 +38,7 @@ from numba import njit
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import Ground, build_model, layout, targets_rows
 from epoet.envs.spawn import spawn
-from epoet.envs.task import ACT_DIM, OBS_DIM, EpisodeState, HexapodTask
+from epoet.envs.task import EpisodeState, Task
 from epoet.rollout.policy import forward_rows, num_params, sizes_array
 from epoet.terrain.config import TerrainConfig
 from epoet.terrain.terrain import TerrainLike
@@ -198,21 +198,24 @@ class RolloutEngine:
     def __init__(
         self, agent: AgentConfig, terrain: TerrainConfig, batch: int, layer_sizes: Sequence[int]
     ) -> None:
-        """`batch` robots step together (`workers.batch`); `layer_sizes` is the policy's."""
+        """`batch` robots (the agent config's) step together (`workers.batch`); `layer_sizes`
+        is the policy's."""
         if batch < 1:
             raise ValueError(f"batch must be >= 1, got {batch}.")
         self.agent = agent
         self.batch = int(batch)
         self.layer_sizes = tuple(layer_sizes)
-        if self.layer_sizes[0] != OBS_DIM or self.layer_sizes[-1] != ACT_DIM:
+        self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
+        self.layout = layout(self.model)
+        self.task = Task(agent, self.layout, Ground(self.model).half_x)
+        obs_dim, act_dim = self.task.obs_dim, self.task.act_dim
+        if self.layer_sizes[0] != obs_dim or self.layer_sizes[-1] != act_dim:
             raise ValueError(
-                f"layer_sizes must map {OBS_DIM} observations to {ACT_DIM} "
-                f"actions, got {self.layer_sizes}."
+                f"layer_sizes must map the {agent.name}'s {obs_dim} observations to its "
+                f"{act_dim} actions, got {self.layer_sizes}."
             )
         self.num_params = num_params(self.layer_sizes)
         self._sizes = sizes_array(self.layer_sizes)
-        self.model = build_model(agent, terrain)  # the template each terrain's copy is made of
-        self.task = HexapodTask(agent, layout(self.model), Ground(self.model).half_x)
         self._fields: list[_Field] = []
         m, b = self.model, self.batch
         # nthread=1: a worker process is one core's worth of work; the pool runs one per core.
@@ -221,7 +224,7 @@ class RolloutEngine:
         self._qpos, self._qvel = self._sims.bind("qpos"), self._sims.bind("qvel")
         self._ctrl, self._sensor = self._sims.bind("ctrl"), self._sims.bind("sensordata")
         self._spawn_data = mujoco.MjData(m)  # episodes settle here, then move into their slot
-        self._obs, self._actions = np.zeros((b, OBS_DIM)), np.zeros((b, ACT_DIM))
+        self._obs, self._actions = np.zeros((b, obs_dim)), np.zeros((b, act_dim))
         self._params = np.zeros((b, self.num_params))  # each slot's policy parameters
         self._slot_model = [self.model] * b  # the model (terrain) each slot steps with
 
@@ -285,7 +288,7 @@ class RolloutEngine:
         )
         qpos, qvel, sensor = self._qpos[:width], self._qvel[:width], self._sensor[:width]
         obs, ctrl, actions = self._obs[:width], self._ctrl[:width], self._actions[:width]
-        params = self._params[:width]
+        params, lay = self._params[:width], self.layout
         done = np.zeros(width, dtype=bool)
         results: list[tuple[int, float, int, bool]] = []
 
@@ -295,7 +298,8 @@ class RolloutEngine:
             # Two calls, not one compiled function calling both: numba's on-disk cache would not
             # notice an edit to a function from another module inside it.
             forward_rows(params, self._sizes, obs, actions)
-            targets_rows(actions, ctrl)  # idle slots get targets too; they never step
+            # idle slots get controls too; they never step
+            targets_rows(actions, lay.ctrl_low, lay.ctrl_span, lay.ctrl_index, ctrl)
             self._sims.step(active, stage=_STAGE_VEL)
             if len(recorded):
                 before = obs[recorded].astype(np.float32)
@@ -341,7 +345,12 @@ class RolloutEngine:
             field = self._fields[terrain]
             self._slot_model[i] = field.model
             spawn(
-                field.model, self._spawn_data, field.ground, self.agent, np.random.default_rng(seed)
+                field.model,
+                self._spawn_data,
+                field.ground,
+                self.agent,
+                self.layout,
+                np.random.default_rng(seed),
             )
             mujoco.mj_getState(field.model, self._spawn_data, self._sims.state[i], _INTEGRATION)
             self._params[i] = params

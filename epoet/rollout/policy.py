@@ -7,7 +7,7 @@ seed and a checkpoint round-trips exactly (the matmuls are small; float32 would 
 Flat layout, for layer sizes (n_0, n_1, ..., n_L): for each layer l = 1..L in order, first the
 weight matrix W_l of shape (n_{l-1}, n_l) in C order, then the bias b_l of shape (n_l,).
 A layer computes h_l = tanh(h_{l-1} @ W_l + b_l); tanh is applied on every layer including the
-output, so actions lie in [-1, 1] as the hexapod's actuators expect (docs/reference.md).
+output, so actions lie in [-1, 1], the range the task maps onto every actuator's ctrlrange.
 One compiled function (`forward_rows`) computes it for the engine's batches and for `forward`.
 """
 
@@ -19,14 +19,16 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.envs.config import AgentConfig
+from epoet.envs.spaces import robot_sizes
 
 INIT_STD = 0.1
 
 
-def policy_sizes(hidden: Sequence[int]) -> tuple[int, ...]:
-    """The task's policy sizes: observations -> `hidden` (algo.es.hidden) -> actions."""
-    return (OBS_DIM, *(int(h) for h in hidden), ACT_DIM)
+def policy_sizes(agent: AgentConfig, hidden: Sequence[int]) -> tuple[int, ...]:
+    """The robot's policy sizes: its observations -> `hidden` (algo.es.hidden) -> its actions."""
+    obs_dim, act_dim = robot_sizes(agent)
+    return (obs_dim, *(int(h) for h in hidden), act_dim)
 
 
 def _check_sizes(layer_sizes: Sequence[int]) -> tuple[int, ...]:
@@ -49,7 +51,7 @@ def _layer_slices(layer_sizes: Sequence[int]) -> list[tuple[int, int, int, int]]
 
 
 def num_params(layer_sizes: Sequence[int]) -> int:
-    """Length of the flat parameter vector (4538 for 53 -> 40 -> 40 -> 18)."""
+    """Length of the flat parameter vector (the hexapod's 53 -> 40 -> 40 -> 18: 4538)."""
     sizes = _check_sizes(layer_sizes)
     return sum(n_in * n_out + n_out for n_in, n_out in zip(sizes[:-1], sizes[1:]))
 

@@ -41,6 +41,8 @@ def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
     """`reference:<run>/<agent>` as a TrainedRun; AgentError naming the shipped agents if
     there is no such agent."""
     from epoet.config import load
+    from epoet.envs.config import HEXAPOD
+    from epoet.envs.spaces import robot_sizes
     from epoet.eval.trained_run import AgentSource, TrainedRun
     from epoet.rollout.agent_files import AgentError
 
@@ -53,21 +55,25 @@ def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
         )
     source = AgentSource(entry["kind"], FOLDER / entry["file"])
     source.check()
-    paper = load(["budget=paper"])  # how the authors trained: RK4, 2000-step episodes
+    # how the authors trained: their hexapod, RK4, 2000-step episodes
+    paper = load(["budget=paper", f"agent={HEXAPOD}"])
     config = {
         "agent": dataclasses.asdict(paper.agent),
         "budget": {"score_scale": paper.budget.score_scale},
     }
-    stored = _stored_run(name, entry, source.path, tracking_uri)
+    stored = _stored_run(name, entry, source.path, robot_sizes(paper.agent), tracking_uri)
     return TrainedRun(source, spec, stored, entry["algo"], name.split("/", 1)[1], config, None)
 
 
 def _stored_run(
-    name: str, entry: dict[str, Any], path: Path, tracking_uri: str | None
+    name: str,
+    entry: dict[str, Any],
+    path: Path,
+    sizes: tuple[int, int],
+    tracking_uri: str | None,
 ) -> StoredRun:
-    """The agent's run in the experiment `reference`, made (with its MLflow model) on first
-    use."""
-    from epoet.envs.spaces import ACT_DIM, OBS_DIM
+    """The agent's run in the experiment `reference`, made (with its MLflow model of `sizes`
+    observations and actions) on first use."""
     from epoet.tracking import MlflowTracker, StoredRun, open_store, resolve_tracking_uri
 
     uri = resolve_tracking_uri(tracking_uri)
@@ -91,5 +97,5 @@ def _stored_run(
                 "budget": "paper",
             },
         )
-        tracker.log_agent(path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)
+        tracker.log_agent(path, "epoet.eval.agent_model", *sizes)
     return StoredRun.open(run_id, uri)

@@ -43,8 +43,10 @@ from epoet.core.schema import ConfigError
 from epoet.eval.config import ReferenceConfig
 from epoet.eval.reference import FOLDER, MANIFEST
 from epoet.eval.reference.layout import (
+    ACT_DIM,
     CONTACTS,
     LAYOUT,
+    OBS_DIM,
     es_theta,
     fold_critic_input,
     fold_input,
@@ -56,7 +58,7 @@ from epoet.eval.reference.terrain import EVAL_HEIGHT, render
 from epoet.eval.suite import load_suite
 from epoet.eval.suite_format import SUITE_FORMAT, level_of, quantize
 from epoet.rollout.agent_files import POLICY_FORMAT
-from epoet.rollout.policy import num_params, policy_sizes
+from epoet.rollout.policy import num_params
 
 COMMAND = KeyValueCommand("reference", __doc__)
 
@@ -72,7 +74,7 @@ TORCH_RUNS = {"ppo/0": ("tanh", True), "sac/42": ("relu", False), "vmpo/42": ("t
 CRITIC_RUNS = ("sac/42",)  # their twin Q networks too (model_qf1_best.pth, model_qf2_best.pth)
 CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.rl.sac_loss), plus provenance
 _LAYERS = ("base.seq_fcs.0", "base.seq_fcs.2", "seq_append_fcs.0")
-ES_HIDDEN = (40, 40)
+ES_SIZES = (OBS_DIM, 40, 40, ACT_DIM)  # their ES agents' MLP (docs/reference.md)
 GENOMES = f"{MODELS}/cppngenomes/cppngenomes_b"
 NORM_EPS = 1e-4  # their normaliser divides by sqrt(var) + 1e-4
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed, so a conversion is the same bytes every time
@@ -115,16 +117,16 @@ def _es_agent(path: Path) -> tuple[np.ndarray, float]:
         raise ReferenceFileError(
             f"{path} is not a niche agent ([theta, score] JSON): {err}."
         ) from None
-    if theta.shape != (num_params(policy_sizes(ES_HIDDEN)),):
+    if theta.shape != (num_params(ES_SIZES),):
         raise ReferenceFileError(
             f"{path} holds {theta.size} parameters, not the "
-            f"{num_params(policy_sizes(ES_HIDDEN))} of a 53-40-40-18 agent."
+            f"{num_params(ES_SIZES)} of a {'-'.join(map(str, ES_SIZES))} agent."
         )
     return theta, score
 
 
 def convert_es(source: Path, files: dict[str, bytes], agents: dict[str, Any]) -> None:
-    sizes = policy_sizes(ES_HIDDEN)
+    sizes = ES_SIZES
     for run, (folder, algo) in ES_RUNS.items():
         found = sorted((source / MODELS / folder).glob(f"{run}.*.best.json"))
         if not found:
@@ -191,7 +193,7 @@ def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any])
             norm_path = folder / "model" / "_obs_normalizer_best.pkl"
             mean, var, clip = read_normaliser(norm_path)
             loc, scale = mean, np.sqrt(var) + NORM_EPS
-            contact = np.clip((0.0 - loc) / scale, -clip, clip)[-6:]
+            contact = np.clip((0.0 - loc) / scale, -clip, clip)[CONTACTS]
         w0, b0 = fold_input(first, biases[0], contact)
         w2, b2 = fold_output_rows(last, biases[2])
         if normalised:  # the normaliser in epoet's order; contacts read as 0 (weight 0 anyway)
@@ -208,7 +210,7 @@ def convert_torch(source: Path, files: dict[str, bytes], agents: dict[str, Any])
         spec = {
             "format": POLICY_FORMAT,
             "obs_dim": int(w0.shape[1]),
-            "act_dim": 18,
+            "act_dim": ACT_DIM,
             "hidden": [int(first.shape[0]), int(second.shape[0])],
             "activation": activation,
             "obs_loc": _f32(loc) if normalised else None,

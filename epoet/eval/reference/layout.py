@@ -1,8 +1,8 @@
 """The authors' observation and action layout, and how a converted agent absorbs it.
 
 The reference lists the legs of its observation in its body-tree order (fl, ml, fr, mr, rr, rl)
-and of its action in its actuator order (fl, fr, rr, rl, mr, ml); epoet uses fl, fr, ml, mr, rl,
-rr for both (epoet.envs.model.LEGS). Its six contact flags were always 0 (reference defect 1,
+and of its action in its actuator order (fl, fr, rr, rl, mr, ml); epoet's hexapod uses fl, fr,
+ml, mr, rl, rr for both (`LEGS`, the order of conf/agent/hexapod.yaml's joints). Its six contact flags were always 0 (reference defect 1,
 docs/reference.md), so its agents never learned to read them.
 
 A converted agent takes epoet's observation and gives epoet's action: the permutation is folded
@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from epoet.envs.model import LEGS, SEGMENTS
-from epoet.envs.spaces import ACT_DIM, OBS_DIM
+from epoet.envs.spaces import observation_size
 
+LEGS = ("fl", "fr", "ml", "mr", "rl", "rr")  # epoet's hexapod: its joints <leg>_<segment> ...
+SEGMENTS = ("coxa", "femur", "tibia")  # ... and its feet <leg>_tibia, in this order
 OBS_LEGS = ("fl", "ml", "fr", "mr", "rr", "rl")  # the reference's body-tree order
 ACT_LEGS = ("fl", "fr", "rr", "rl", "mr", "ml")  # the reference's actuator order
 LAYOUT = {
@@ -29,6 +30,8 @@ LAYOUT = {
 }
 
 _JOINTS = len(LEGS) * len(SEGMENTS)
+ACT_DIM = _JOINTS  # the hexapod's sizes, by epoet.envs.spaces' rule
+OBS_DIM = observation_size(_JOINTS, len(LEGS))
 CONTACTS = np.arange(OBS_DIM - len(LEGS), OBS_DIM)  # epoet's contact inputs (the last six)
 
 

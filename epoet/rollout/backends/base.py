@@ -17,10 +17,12 @@ import itertools
 import sys
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
+from epoet.envs.config import AgentConfig
+from epoet.envs.spaces import layout_of
 from epoet.rollout.engine import Episodes, Job, merge_episodes
 from epoet.rollout.policy import num_params
 from epoet.rollout.populations import Population, Request
@@ -56,6 +58,8 @@ class Evaluator(Protocol):
 
     workers: int
     restarts: int  # worker losses survived so far (each restarted the workers)
+    layer_sizes: tuple[int, ...]  # the policy's: the robot's observations ... its actions
+    layout: dict[str, Any]  # the robot's, as its agent files record it
 
     def run(self, requests: Sequence[Request]) -> list[Episodes]: ...
 
@@ -71,7 +75,9 @@ class Backend(ABC):
 
     workers: int
 
-    def __init__(self, layer_sizes: Sequence[int]) -> None:
+    def __init__(self, agent: AgentConfig, layer_sizes: Sequence[int]) -> None:
+        self.layer_sizes = tuple(int(n) for n in layer_sizes)
+        self.layout = layout_of(agent)
         self.num_params = num_params(layer_sizes)
         self.restarts = 0
 

@@ -101,7 +101,7 @@ class PoolEvaluator(Backend):
         batch: int,
         layer_sizes: Sequence[int],
     ) -> None:
-        super().__init__(layer_sizes)
+        super().__init__(agent, layer_sizes)
         if workers < 2:
             raise ValueError(f"a process pool needs workers >= 2, got {workers}.")
         self.workers = int(workers)

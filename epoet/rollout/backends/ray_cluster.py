@@ -221,7 +221,7 @@ class RayEvaluator(Backend):
     ) -> None:
         if ray is None:
             raise RuntimeError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
-        super().__init__(layer_sizes)
+        super().__init__(agent, layer_sizes)
         self._owns_ray = not ray.is_initialized()
         if self._owns_ray:
             # ray.init replaces the SIGTERM handler with sys.exit, which would end a run on

@@ -19,7 +19,7 @@ class SerialEvaluator(Backend):
     def __init__(
         self, agent: AgentConfig, terrain_cfg: TerrainConfig, batch: int, layer_sizes: Sequence[int]
     ) -> None:
-        super().__init__(layer_sizes)
+        super().__init__(agent, layer_sizes)
         self.engine = RolloutEngine(agent, terrain_cfg, batch, layer_sizes)
 
     def _run(self, requests: Sequence[Request]) -> list[Episodes]:

@@ -18,7 +18,7 @@ from epoet.epoet_sac.runner import warm_start_of
 from epoet.poet.keys import Key
 from epoet.poet.runner import layer_sizes
 from epoet.rollout.evaluators import make_evaluator
-from epoet.rl.env import hexapod
+from epoet.rl.env import terrain_env
 from epoet.rl.nets import step_if_finite
 
 mode, lr, n = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
@@ -29,7 +29,7 @@ with make_evaluator(cfg.agent, cfg.terrain, 1, 8, layer_sizes(cfg)) as ev:
     terrain = loop.service.terrain(pair.env, 0)
     seeds = loop.service.seeds(3, Key.EVAL, 0, 0)
     print("start", loop.exchange.actor_score(terrain, seeds))
-    hexapod(loop.sac_env).set_terrain(terrain)
+    terrain_env(loop.sac_env).set_terrain(terrain)
     torch.manual_seed(0)
     data = loop.collect(int(sys.argv[4]) if len(sys.argv) > 4 else 4000, 123, explore=True)
     print("collected return", data["next", "episode_reward"][data["next","done"]].tolist())
