@@ -13,8 +13,9 @@ published agents in the reference records (docs/results/reference).
 
 Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
 success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment
-steps and against CPU hours) and, where the records hold ePOET-SAC runs, joins.md (what their
-joins did to the pool: analysis.joins).
+steps and against CPU hours), comparisons.md where they hold two algorithms or more (P(X > Y)
+at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what their joins
+did to the pool: analysis.joins).
 
 Examples:
 
@@ -24,6 +25,7 @@ Examples:
 
 from __future__ import annotations
 
+import itertools
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,7 +41,15 @@ import pandas as pd  # noqa: E402
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.joins import joins_table  # noqa: E402
 from analysis.records import EPISODES, read_records  # noqa: E402
-from analysis.stats import CONFIDENCE, REPS, SEED, iqm, rliable, seeded  # noqa: E402
+from analysis.stats import (  # noqa: E402
+    CONFIDENCE,
+    REPS,
+    SEED,
+    iqm,
+    poi_interval,
+    rliable,
+    seeded,
+)
 from analysis.store import (  # noqa: E402
     AnalysisError,
     in_order,
@@ -135,6 +145,30 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     )
 
 
+def comparisons(table: pd.DataFrame) -> pd.DataFrame:
+    """P(X > Y), rliable's probability of improvement, with its 95 % interval over runs and
+    terrains, for every pair of algorithms at every mark both reached, each run read by its best
+    agent (X after Y in table order, so the paper's claims read as P > 0.5)."""
+    rows = []
+    for minutes, at in table[table.reading == "best"].groupby("minutes"):
+        matrices = {
+            algo: np.stack([t.to_numpy() for t in runs.terrains])
+            for algo, runs in at.groupby("algo")
+        }
+        for y, x in itertools.combinations(in_order(matrices), 2):
+            point, low, high = poi_interval(matrices[x], matrices[y])
+            rows.append(
+                {
+                    "minutes": minutes,
+                    "x": x,
+                    "y": y,
+                    "runs": f"{len(matrices[x])} / {len(matrices[y])}",
+                    "P(X > Y)": f"{point:.2f} [{low:.2f}, {high:.2f}]",
+                }
+            )
+    return pd.DataFrame(rows)
+
+
 def reference_lines(suite: str, folder: Path = REFERENCE) -> dict[str, float]:
     """Mean success of each algorithm's published agents on the suite (their records)."""
     rates: dict[str, list[float]] = {}
@@ -216,7 +250,8 @@ def curves_from_records(records: Path) -> pd.DataFrame:
 
 
 def write(records: Path, suite: str, out: Path) -> list[Path]:
-    frame = summary(compute_table(records, suite))  # a bad records folder writes nothing
+    table = compute_table(records, suite)  # a bad records folder writes nothing
+    frame = summary(table)
     curves = curves_from_records(records)
     references = reference_lines(suite)
     out.mkdir(parents=True, exist_ok=True)
@@ -237,6 +272,13 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
         f"stratified-bootstrap interval)\n\n{to_markdown(shown)}\n\n" + "\n".join(notes) + "\n"
     )
     paths = [out / "success_vs_compute.csv", out / "success_vs_compute.md"]
+    compared = comparisons(table)
+    if not compared.empty:
+        (out / "comparisons.md").write_text(
+            f"P(X > Y) on suite {suite} at each CPU-time mark (the runs' best agents)\n\n"
+            f"{to_markdown(compared)}\n"
+        )
+        paths.append(out / "comparisons.md")
     joins = joins_table(records, suite)
     if not joins.empty:
         (out / "joins.md").write_text(

@@ -91,3 +91,29 @@ def test_success_against_compute_is_drawn_from_records_alone(
         assert (figs / name).stat().st_size > 0
     curves = pd.read_csv(figs / "learning_curves.csv")
     assert set(curves.axis) == {"env_steps", "cpu_time"}
+
+
+def test_comparisons_pair_the_algorithms_at_the_marks_both_reached() -> None:
+    """P(X > Y) per mark with X after Y in table order, from the best agents only; a mark one
+    algorithm never reached has no row."""
+    from analysis.compute import comparisons
+
+    rows = [
+        {"algo": algo, "seed": seed, "minutes": minutes, "reading": reading, "terrains": terrains}
+        for algo, minutes_reached in (("ppo", (15.0,)), ("epoet", (15.0, 30.0)))
+        for minutes in minutes_reached
+        for seed in ("1", "2")
+        for reading, terrains in (
+            ("best", pd.Series([1.0 if algo == "epoet" else 0.0] * 4)),
+            ("niches", pd.Series([0.0] * 4)),  # not read
+        )
+    ]
+    assert comparisons(pd.DataFrame(rows)).to_dict("records") == [
+        {
+            "minutes": 15.0,
+            "x": "epoet",
+            "y": "ppo",
+            "runs": "2 / 2",
+            "P(X > Y)": "1.00 [1.00, 1.00]",
+        }
+    ]
