@@ -29,7 +29,6 @@ JOIN_KEYS = (
     "join/mapped_score",
     "replaced",
     "transfers/from_joined",
-    "admitted",
 )
 
 
