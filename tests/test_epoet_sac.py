@@ -26,6 +26,7 @@ from epoet.poet.keys import Key
 from epoet.poet.runner import layer_sizes
 from epoet.rl.env import episode_metrics, terrain_env
 from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
+from epoet.rollout.agent_files import read_es_policy, recorded_layout
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.policy import forward
 from epoet.run import run
@@ -164,6 +165,15 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
     assert decisions >= 2
     assert len(poet.exchange.replaced) == sum(_metric(client, run_id, "replaced").values())
     archived = {(a.env, a.iteration) for a in poet.exchange.replaced}
+    # each replaced agent is kept as an ES policy file that records the robot it ran on
+    folder = tmp_path / "run" / "replaced"
+    assert sorted(p.name for p in folder.glob("*.npz")) == sorted(
+        f"env{env}_it{it}.npz" for env, it in archived
+    )
+    for agent in poet.exchange.replaced:
+        path = folder / f"env{agent.env}_it{agent.iteration}.npz"
+        np.testing.assert_array_equal(read_es_policy(path)[0], agent.theta)
+        assert recorded_layout(path, "es")[1] == poet.service.evaluator.layout
     for key in keys:
         env = int(key.split("/")[1].removesuffix("_replaced")[3:])
         for step, replaced in _metric(client, run_id, key).items():

@@ -19,11 +19,10 @@ from hydra.core.config_store import ConfigStore
 
 from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
-from epoet.core.files import atomic_write, savez
 from epoet.core.schema import positive
 from epoet.envs.spaces import layout_of
 from epoet.registry import register as register_record
-from epoet.rollout.agent_files import ES_POLICIES, LAYOUT, layout_array
+from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import num_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
@@ -84,9 +83,8 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
             metrics = {"score": float(episodes.returns[e]), "best_score": state["best"]}
             tracker.log_metrics(state["step"], {**metrics, "frames": state["frames"]})
             state["step"] += 1
-    with atomic_write(run_dir / ES_POLICIES / "env0.npz") as file:
-        arrays = {"theta": state["theta"], "score": state["best"], "layer_sizes": sizes}
-        savez(file, {**arrays, LAYOUT: layout_array(layout_of(cfg.agent))})  # the robot's
+    policy = run_dir / ES_POLICIES / "env0.npz"
+    write_es_policy(policy, state["theta"], state["best"], sizes, layout_of(cfg.agent))
     state["rng"] = rng.bit_generator.state
     save_run_state(run_dir, tracker, cfg, {"toy": state})
     return state["best"]

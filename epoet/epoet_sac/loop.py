@@ -21,7 +21,6 @@ from tensordict import TensorDict
 from torchrl.envs import EnvBase
 
 from epoet.config import Config
-from epoet.core.files import savez
 from epoet.core.timing import PhaseTimer
 from epoet.epoet_sac.bridge import ReplacedAgent
 from epoet.epoet_sac.collect import collect, es_transitions
@@ -36,7 +35,7 @@ from epoet.rl.env import episode_metrics, make_env, terrain_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
 from epoet.rl.sac import SacLearner
-from epoet.rollout.agent_files import LAYOUT, layout_array
+from epoet.rollout.agent_files import write_es_policy
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.terrain import Terrain, make_terrain
@@ -360,16 +359,14 @@ class EpoetSac(EPOET):
         if self.exchange.replaced:
             folder = run_dir / "replaced"
             folder.mkdir(exist_ok=True)
-            layout = layout_array(self.service.evaluator.layout)
             for agent in self.exchange.replaced:
-                arrays = {
-                    "theta": agent.theta,
-                    "score": np.float64(agent.score),
-                    "layer_sizes": np.array(self.service.layer_sizes),
-                    LAYOUT: layout,
-                }
-                with open(folder / f"env{agent.env}_it{agent.iteration}.npz", "wb") as file:
-                    savez(file, arrays)
+                write_es_policy(
+                    folder / f"env{agent.env}_it{agent.iteration}.npz",
+                    agent.theta,
+                    agent.score,
+                    self.service.layer_sizes,
+                    self.service.evaluator.layout,
+                )
             tracker.log_artifact(folder, "replaced")
 
     def close(self) -> None:

@@ -26,7 +26,6 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple, cast
 import numpy as np
 
 from epoet.core.clock import CpuMeter
-from epoet.core.files import atomic_write, savez
 from epoet.core.timing import PhaseTimer
 from epoet.poet.config import PoetConfig
 from epoet.poet.keys import Key
@@ -34,7 +33,7 @@ from epoet.poet.pairs import Environment, Pair, Pool, Thresholds, annecs, best_b
 from epoet.poet.reproduction import reproduce
 from epoet.poet.service import Service
 from epoet.poet.transfer import transfer
-from epoet.rollout.agent_files import ES_POLICIES, LAYOUT, layout_array
+from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import init_params, policy_sizes
@@ -307,24 +306,20 @@ class EPOET:
                 final = self.service.policy(pair.theta)
                 best = pair.best_theta if pair.best_theta is not None else final
                 chosen = (best, pair.best_score) if choice == "best" else (final, pair.score)
-                with atomic_write(folder / ES_POLICIES / f"env{pair.env.index}.npz") as file:
-                    savez(
-                        file,
-                        {
-                            "theta": chosen[0],
-                            "score": chosen[1],
-                            "choice": choice,
-                            "best_theta": best,
-                            "best_score": pair.best_score,
-                            "final_theta": final,
-                            "final_score": pair.score,
-                            "layer_sizes": np.array(self.layer_sizes),
-                            LAYOUT: layout_array(self.service.evaluator.layout),
-                            "status": status,
-                            "generation": pair.env.generation,
-                            "parent": -1 if pair.env.parent is None else pair.env.parent,
-                        },
-                    )
+                write_es_policy(
+                    folder / ES_POLICIES / f"env{pair.env.index}.npz",
+                    *chosen,
+                    self.layer_sizes,
+                    self.service.evaluator.layout,
+                    choice=choice,
+                    best_theta=best,
+                    best_score=pair.best_score,
+                    final_theta=final,
+                    final_score=pair.score,
+                    status=status,
+                    generation=pair.env.generation,
+                    parent=-1 if pair.env.parent is None else pair.env.parent,
+                )
         return folder
 
     def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:

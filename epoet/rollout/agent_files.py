@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import json
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from epoet.core.files import atomic_write, savez
 from epoet.envs.config import HEXAPOD, AgentConfig
 from epoet.envs.spaces import layout_of, robot_sizes
 from epoet.rl.config import RL_ACTIVATIONS
@@ -140,6 +141,28 @@ def read_torch_policy(path: Path) -> dict[str, Any]:
 def layout_array(layout: dict[str, Any]) -> np.ndarray:
     """A robot layout as an .npz agent file records it (JSON text: no pickle to load)."""
     return np.array(json.dumps(layout))
+
+
+def write_es_policy(
+    path: Path,
+    theta: np.ndarray,
+    score: float,
+    layer_sizes: Sequence[int],
+    layout: dict[str, Any],
+    **extra: Any,
+) -> Path:
+    """An ES agent file as `read_es_policy` and `recorded_layout` read it (theta, its score, the
+    layer sizes, the robot's layout), with `extra` arrays beside them (a run's bookkeeping),
+    written atomically: the one writer of the format, whichever algorithm trained the agent."""
+    arrays = {
+        "theta": theta,
+        "score": np.float64(score),
+        "layer_sizes": np.array(layer_sizes),
+        LAYOUT: layout_array(layout),
+    }
+    with atomic_write(path) as file:
+        savez(file, {**arrays, **extra})
+    return path
 
 
 def recorded_layout(path: Path, kind: str) -> tuple[tuple[int, int], dict[str, Any] | None]:
