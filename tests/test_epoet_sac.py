@@ -17,6 +17,7 @@ from conftest import subset_suite
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
+from epoet.envs.spaces import layout_of
 from epoet.epoet_sac.bridge import distill_into_actor
 from epoet.epoet_sac.keys import SacKey
 from epoet.epoet_sac.loop import EpoetSac
@@ -173,7 +174,7 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
     for agent in poet.exchange.replaced:
         path = folder / f"env{agent.env}_it{agent.iteration}.npz"
         np.testing.assert_array_equal(read_es_policy(path)[0], agent.theta)
-        assert recorded_layout(path, "es")[1] == poet.service.evaluator.layout
+        assert recorded_layout(path, "es")[1] == layout_of(poet.service.evaluator.agent)
     for key in keys:
         env = int(key.split("/")[1].removesuffix("_replaced")[3:])
         for step, replaced in _metric(client, run_id, key).items():

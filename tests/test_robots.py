@@ -5,6 +5,7 @@ robot is refused in one sentence."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -146,6 +147,8 @@ def test_an_agent_file_runs_only_on_the_robot_it_records(tmp_path: Path) -> None
         check_robot(_agent_file(tmp_path / "moved.npz", (31, 8, 8), moved), "es", ant)
     authors = FOLDER / manifest()["agents"]["poet_hexA8/flat"]["file"]
     check_robot(authors, "es", hexapod)
+    paper = dataclasses.replace(hexapod, integrator="rk4")  # they record no integrator
+    assert resolve_run(str(authors)).agent_config(paper).integrator == "rk4"
     with pytest.raises(AgentError, match="trained on the hexapod, not on the ant"):
         check_robot(authors, "es", ant)
 
@@ -181,6 +184,12 @@ def test_every_algorithm_trains_the_ant_and_its_agent_is_evaluated_and_served(
     assert found is not None
     trained = resolve_run(str(folder), mlflow_uri)
     assert trained.agent_config(load([]).agent).name == "ant"
+    # the bare agent file runs with the integrator it was trained with, not evaluation's RK4
+    trained_with = load(["agent=ant", "budget=smoke"]).agent.integrator
+    evaluation_default = dataclasses.replace(load(["agent=ant"]).agent, integrator="rk4")
+    assert trained_with != "rk4"
+    bare = resolve_run(str(found[0].path))
+    assert bare.agent_config(evaluation_default).integrator == trained_with
     run_id = load_checkpoint(folder / "checkpoint.pkl")["run_id"]
     record = mlflow.MlflowClient(mlflow_uri).get_run(run_id).data
     assert record.tags["agent"] == "ant" and "suite/shipped/success_rate" in record.metrics

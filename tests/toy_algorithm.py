@@ -20,7 +20,6 @@ from hydra.core.config_store import ConfigStore
 from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import positive
-from epoet.envs.spaces import layout_of
 from epoet.registry import register as register_record
 from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
 from epoet.rollout.evaluators import evaluator_for
@@ -84,7 +83,7 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
             tracker.log_metrics(state["step"], {**metrics, "frames": state["frames"]})
             state["step"] += 1
     policy = run_dir / ES_POLICIES / "env0.npz"
-    write_es_policy(policy, state["theta"], state["best"], sizes, layout_of(cfg.agent))
+    write_es_policy(policy, state["theta"], state["best"], sizes, cfg.agent)
     state["rng"] = rng.bit_generator.state
     save_run_state(run_dir, tracker, cfg, {"toy": state})
     return state["best"]

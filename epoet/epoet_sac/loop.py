@@ -365,7 +365,7 @@ class EpoetSac(EPOET):
                     agent.theta,
                     agent.score,
                     self.service.layer_sizes,
-                    self.service.evaluator.layout,
+                    self.service.evaluator.agent,
                 )
             tracker.log_artifact(folder, "replaced")
 

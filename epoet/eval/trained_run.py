@@ -5,7 +5,7 @@ known of the run that trained it (`TrainedRun`)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -13,7 +13,12 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from epoet.envs.config import AgentConfig
-from epoet.rollout.agent_files import check_robot, read_es_policy, read_torch_policy
+from epoet.rollout.agent_files import (
+    check_robot,
+    read_es_policy,
+    read_torch_policy,
+    recorded_integrator,
+)
 from epoet.rollout.policy import forward
 
 if TYPE_CHECKING:
@@ -65,9 +70,11 @@ class TrainedRun:
 
     def agent_config(self, default: AgentConfig) -> AgentConfig:
         """The robot and episode rules the agent was trained with (a bare policy file:
-        `default`); AgentError unless its file was trained on that robot (cheap, no MuJoCo)."""
+        `default`, with the integrator the file records); AgentError unless its file was
+        trained on that robot (cheap, no MuJoCo)."""
         if self.config is None:
-            agent = default
+            integrator = recorded_integrator(self.agent.path, self.agent.kind)
+            agent = default if integrator is None else replace(default, integrator=integrator)
         else:
             from epoet.config import saved_agent  # Hydra: not for the MLflow model's loader
 

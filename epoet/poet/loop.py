@@ -310,7 +310,7 @@ class EPOET:
                     folder / ES_POLICIES / f"env{pair.env.index}.npz",
                     *chosen,
                     self.layer_sizes,
-                    self.service.evaluator.layout,
+                    self.service.evaluator.agent,
                     choice=choice,
                     best_theta=best,
                     best_score=pair.best_score,

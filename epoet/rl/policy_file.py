@@ -16,7 +16,7 @@ import torch
 from torch import nn
 
 from epoet.core.files import atomic_write
-from epoet.rollout.agent_files import LAYOUT, POLICY_FORMAT, read_torch_policy
+from epoet.rollout.agent_files import INTEGRATOR, LAYOUT, POLICY_FORMAT, read_torch_policy
 
 if TYPE_CHECKING:
     from torchrl.envs import EnvBase
@@ -66,6 +66,7 @@ def export_policy(
         "obs_clip": None if norm is None else OBS_CLIP,
         "state_dict": weights,
         LAYOUT: layout_of(terrain_env(env).agent_cfg),
+        INTEGRATOR: terrain_env(env).agent_cfg.integrator,
     }
     with atomic_write(path) as file:  # a killed run never leaves half a policy
         torch.save(spec, file)

@@ -5,7 +5,10 @@ files here, so a bad file gets the same one-line error everywhere.
 
 Both record the layout of the robot they were trained on (`layout`: epoet.envs.spaces.layout_of;
 in an .npz as JSON text), which `check_robot` holds against the robot they are run with. A file
-from before robots were parts records none: it is the hexapod's.
+from before robots were parts records none: it is the hexapod's. Both also record the physics
+integrator they were trained with (`integrator`), which a bare file is run with: a gait learned
+under one integrator can fall over under another (the ant's does). A file that records none
+(the authors' agents, trained with the paper's RK4) runs with `agent.integrator`.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ ES_POLICIES = "policies"
 
 POLICY_FORMAT = "epoet-policy/1"
 LAYOUT = "layout"  # the key of the recorded robot layout in both formats
+INTEGRATOR = "integrator"  # the key of the recorded physics integrator in both formats
 
 
 class AgentError(ValueError):
@@ -148,17 +152,19 @@ def write_es_policy(
     theta: np.ndarray,
     score: float,
     layer_sizes: Sequence[int],
-    layout: dict[str, Any],
+    agent: AgentConfig,
     **extra: Any,
 ) -> Path:
     """An ES agent file as `read_es_policy` and `recorded_layout` read it (theta, its score, the
-    layer sizes, the robot's layout), with `extra` arrays beside them (a run's bookkeeping),
-    written atomically: the one writer of the format, whichever algorithm trained the agent."""
+    layer sizes, the layout and integrator of the robot it was trained on), with `extra` arrays
+    beside them (a run's bookkeeping), written atomically: the one writer of the format,
+    whichever algorithm trained the agent."""
     arrays = {
         "theta": theta,
         "score": np.float64(score),
         "layer_sizes": np.array(layer_sizes),
-        LAYOUT: layout_array(layout),
+        LAYOUT: layout_array(layout_of(agent)),
+        INTEGRATOR: np.array(agent.integrator),
     }
     with atomic_write(path) as file:
         savez(file, {**arrays, **extra})
@@ -179,6 +185,17 @@ def recorded_layout(path: Path, kind: str) -> tuple[tuple[int, int], dict[str, A
     except ValueError:
         raise bad_agent(path, kind, f"has a {LAYOUT} that is not JSON text") from None
     return (layer_sizes[0], layer_sizes[-1]), layout
+
+
+def recorded_integrator(path: Path, kind: str) -> str | None:
+    """The physics integrator a checked policy file was trained with (None: it records none)."""
+    if kind == "torch":
+        recorded = read_torch_policy(path).get(INTEGRATOR)
+    else:
+        read_es_policy(path)
+        with np.load(path, allow_pickle=False) as data:
+            recorded = str(data[INTEGRATOR]) if INTEGRATOR in data else None
+    return None if recorded is None else str(recorded)
 
 
 def robot_mismatch(

@@ -17,12 +17,11 @@ import itertools
 import sys
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
-from typing import Any, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from epoet.envs.config import AgentConfig
-from epoet.envs.spaces import layout_of
 from epoet.rollout.engine import Episodes, Job, merge_episodes
 from epoet.rollout.policy import num_params
 from epoet.rollout.populations import Population, Request
@@ -59,7 +58,7 @@ class Evaluator(Protocol):
     workers: int
     restarts: int  # worker losses survived so far (each restarted the workers)
     layer_sizes: tuple[int, ...]  # the policy's: the robot's observations ... its actions
-    layout: dict[str, Any]  # the robot's, as its agent files record it
+    agent: AgentConfig  # the robot and physics its episodes run, as agent files record them
 
     def run(self, requests: Sequence[Request]) -> list[Episodes]: ...
 
@@ -77,7 +76,7 @@ class Backend(ABC):
 
     def __init__(self, agent: AgentConfig, layer_sizes: Sequence[int]) -> None:
         self.layer_sizes = tuple(int(n) for n in layer_sizes)
-        self.layout = layout_of(agent)
+        self.agent = agent
         self.num_params = num_params(layer_sizes)
         self.restarts = 0
 
