@@ -325,7 +325,8 @@ def evaluate_run(
     print(
         f"evaluating {run.label} on {len(suite.terrains)} terrains x {cfg.episodes} "
         f"episodes of suite {suite.name} ({suite.folder}), {workers} processes; course "
-        f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps"
+        f"{rules.finish_x - rules.start_x:.2f} m in at most {rules.max_episode_steps} steps; "
+        f"the {rules.name} with the {rules.integrator} integrator"
         f"\n  writing to {folder.absolute()}/{'' if cfg.out else ' (out=<folder> to choose)'}",
         flush=True,
     )
