@@ -142,11 +142,6 @@ def read_torch_policy(path: Path) -> dict[str, Any]:
     return spec
 
 
-def layout_array(layout: dict[str, Any]) -> np.ndarray:
-    """A robot layout as an .npz agent file records it (JSON text: no pickle to load)."""
-    return np.array(json.dumps(layout))
-
-
 def write_es_policy(
     path: Path,
     theta: np.ndarray,
@@ -163,7 +158,7 @@ def write_es_policy(
         "theta": theta,
         "score": np.float64(score),
         "layer_sizes": np.array(layer_sizes),
-        LAYOUT: layout_array(layout_of(agent)),
+        LAYOUT: np.array(json.dumps(layout_of(agent))),  # JSON text: no pickle to load
         INTEGRATOR: np.array(agent.integrator),
     }
     with atomic_write(path) as file:
