@@ -31,6 +31,10 @@ from epoet.eval.suite import LEVELS, SHIPPED, load_suite
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# The module's first test also pays for the `make paper` fixture (every algorithm trained and
+# evaluated), which outlasts the default timeout when training runs share the cores.
+pytestmark = pytest.mark.timeout(900)
+
 
 def small_suite(folder: Path) -> Path:
     """The shipped suite's first terrain of each level, in the same format."""
