@@ -41,6 +41,10 @@ CANDIDATES: dict[str, list[str]] = {
     "obs_norm+lr=0.02": ["algo.es.obs_norm_episodes=1", "algo.es.lr=0.02"],
     "obs_norm+no_progress_steps=200": ["algo.es.obs_norm_episodes=1",
                                        "agent.no_progress_steps=200"],
+    # the paper's population (256 mirrored pairs) against the budget's 48, on the relief the
+    # rows above ran on (S fixed at 0.1 m, the budget's schedule then): compare steps
+    "obs_norm+n_pairs=256": ["algo.es.obs_norm_episodes=1", "budget.n_pairs=256",
+                             "budget.max_height_step=0.0"],
 }
 OUT = Path(__file__).parent / "walker_screen.jsonl"
 
