@@ -379,3 +379,55 @@ def test_gallery_bad_value_exits_non_zero_with_one_line(tmp_path):
     proc = run_gallery("terrain=unknown", cwd=tmp_path)
     assert proc.returncode != 0 and len(proc.stderr.strip().splitlines()) == 1
     assert "terrain/unknown" in proc.stderr
+
+
+# ---------------------------------------------------------------- the reference's rendering
+
+
+def _course_centre(terrain) -> np.ndarray:
+    """Heights along the course centre: the five rows around y = 0, columns 80-180."""
+    return terrain.heightmap[98:103, 80:180].mean(axis=0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_reference_rendering_has_the_step_and_the_clean_one_does_not(seed):
+    """`terrain.rendering=reference` puts the reference's step where its CPPN window ends
+    (column 120, 6.7 m past the spawn): the largest height change along the course centre is
+    there; the clean rendering of the same genome and bowl has no step there."""
+    reference = make_terrain(replace(CPPN, rendering="reference"), seed, iteration=90)
+    clean = make_terrain(CPPN, seed, iteration=90)
+    assert reference.max_height == clean.max_height == 1.0  # the niche's S from the schedule
+    steps = np.abs(np.diff(_course_centre(reference)))
+    assert abs(80 + int(steps.argmax()) - 120) <= 2
+    clean_steps = np.abs(np.diff(_course_centre(clean)))
+    assert abs(80 + int(clean_steps.argmax()) - 120) > 2
+    assert clean_steps[38:43].max() < steps.max() / 2
+
+
+def test_the_reference_rendering_drifts_beyond_its_window():
+    """Beyond column 120 the reference reads no CPPN: each row drifts to the same constant, so
+    two genomes on the same bowl differ inside the window and barely beyond it; rendered clean,
+    they differ on both sides."""
+    a, b = (
+        mutate_genome(new_genome(CPPN.cppn, s), CPPN.cppn, CPPN.mutation, s, cppn_inputs(CPPN))
+        for s in (4, 5)
+    )
+
+    def window_and_beyond(cfg):
+        gap = np.abs(
+            make_terrain(cfg, 7, 90, genome=a).heightmap
+            - make_terrain(cfg, 7, 90, genome=b).heightmap
+        )
+        return gap[:, 20:110].mean(), gap[:, 160:].mean()
+
+    inside, beyond = window_and_beyond(replace(CPPN, rendering="reference"))
+    assert beyond < inside / 5
+    inside, beyond = window_and_beyond(CPPN)
+    assert beyond > inside / 5
+
+
+def test_the_reference_rendering_is_refused_off_its_field():
+    with pytest.raises(ConfigError, match="terrain.rendering=reference is defined on"):
+        validate(compose(["terrain.rendering=reference", "terrain.grid=100"]))
+    with pytest.raises(ConfigError, match="terrain.rendering must be"):
+        validate(compose(["terrain.rendering=fancy"]))

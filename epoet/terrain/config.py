@@ -138,6 +138,12 @@ class MutationConfig:
         non_negative(self, "min_genome_distance", "min_range", "min_variance")
 
 
+RENDERINGS = ("clean", "reference")  # terrain.rendering: how a CPPN environment becomes heights
+# The field the reference's rendering is defined on (reference_rendering.py): 200 x 200 samples
+# over 40 m, 5 per metre.
+REFERENCE_GRID, REFERENCE_SIZE = 200, 40.0
+
+
 @dataclass
 class TerrainConfig:
     """The heightfield: extent, resolution, the bowl part, the CPPN part and the height schedule."""
@@ -152,6 +158,9 @@ class TerrainConfig:
     max_height_step: float  # +S per iteration (paper)
     max_height_limit: float  # cap on S (reference)
     bowl_weight: float  # heightmap = w bowl + (1 - w) CPPN; 1.0 = bowl only
+    rendering: (
+        str  # clean | reference: a CPPN environment's heights (cppn.py, reference_rendering.py)
+    )
     cppn_scale: float  # CPPN input units per metre (the reference's feature size)
     cppn_origin: list[float]  # (x, y) metres where the CPPN's input is (0, 0)
     bump_grid: int
@@ -178,6 +187,23 @@ class TerrainConfig:
             len(self.cppn_origin) == 2,
             f"terrain.cppn_origin must be [x, y] metres, got {list(self.cppn_origin)}.",
         )
+        check(
+            self.rendering in RENDERINGS,
+            f"terrain.rendering must be {' or '.join(map(repr, RENDERINGS))}, "
+            f"got {self.rendering!r}.",
+        )
+        if self.rendering == "reference":
+            check(
+                self.kind != "bowl",
+                "terrain.rendering=reference renders CPPN environments; terrain.kind=bowl has "
+                "none (use terrain.rendering=clean).",
+            )
+            check(
+                (self.grid, self.size) == (REFERENCE_GRID, REFERENCE_SIZE),
+                f"terrain.rendering=reference is defined on the reference's field, "
+                f"terrain.grid={REFERENCE_GRID} and terrain.size={REFERENCE_SIZE:g}; got "
+                f"{self.grid} and {self.size:g}.",
+            )
         check(
             self.max_height <= self.max_height_limit,
             f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "

@@ -30,6 +30,7 @@ import neat
 import numpy as np
 from neat.graphs import feed_forward_layers
 
+from epoet.terrain import reference_rendering
 from epoet.terrain.bowl import bowl_of
 from epoet.terrain.config import (
     CppnConfig,
@@ -314,6 +315,14 @@ def mix(bowl: np.ndarray, cppn: np.ndarray, bowl_weight: float) -> np.ndarray:
     return normalize(bowl_weight * normalize(bowl) + (1.0 - bowl_weight) * normalize(cppn))
 
 
+def render_reference(genome: neat.DefaultGenome, seed: int, max_height: float) -> np.ndarray:
+    """`genome` as the reference rendered it (reference_rendering.py: the CPPN read in a window,
+    each row drifting beyond it, the step where it ends), at relief S = `max_height`."""
+    return reference_rendering.render(
+        evaluate(genome, *reference_rendering.reference_inputs()), seed, max_height
+    )
+
+
 class CppnGenerator:
     """`terrain.kind=cppn`: the bowl mixed with a CPPN genome's heights (`bowl_weight`); children
     are valid mutations of the genome (`mutate_genome`)."""
@@ -333,6 +342,8 @@ class CppnGenerator:
     def render(
         self, cfg: TerrainConfig, genome: neat.DefaultGenome, seed: int, max_height: float
     ) -> np.ndarray:
+        if cfg.rendering == "reference":
+            return render_reference(genome, seed, max_height)
         cppn = evaluate(genome, *cppn_inputs(cfg))
         if not np.all(np.isfinite(cppn)):
             raise ValueError(

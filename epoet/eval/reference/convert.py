@@ -54,7 +54,8 @@ from epoet.eval.reference.layout import (
     observation_source,
 )
 from epoet.eval.reference.pickles import ReferenceFileError, read_genome, read_normaliser, to_neat
-from epoet.eval.reference.terrain import EVAL_HEIGHT, render
+from epoet.terrain.cppn import render_reference
+from epoet.terrain.reference_rendering import EVAL_HEIGHT
 from epoet.eval.suite import load_suite
 from epoet.eval.suite_format import SUITE_FORMAT, level_of, quantize
 from epoet.rollout.agent_files import POLICY_FORMAT
@@ -297,7 +298,7 @@ def convert_suite(source: Path, files: dict[str, bytes]) -> dict[str, Any]:
         name = f"r{k // 8}c{k % 8}"
         genome = read_genome(path)
         genomes[name] = {"source": str(path.relative_to(source)), **genome}
-        heights[name] = quantize(render(to_neat(genome), seed=k))
+        heights[name] = quantize(render_reference(to_neat(genome), k, EVAL_HEIGHT))
         rough = course.roughness(heights[name] / 65535.0, EVAL_HEIGHT**2, 40.0)
         entries.append(
             {
@@ -320,7 +321,7 @@ def convert_suite(source: Path, files: dict[str, bytes]) -> dict[str, Any]:
         "size": 40.0,
         "grid": 200,
         "course": vars(course),
-        "origin": f"{REPOSITORY} {GENOMES}, rendered by epoet.eval.reference.terrain",
+        "origin": f"{REPOSITORY} {GENOMES}, rendered by epoet.terrain.reference_rendering",
         "terrains": entries,
     }
     files["genomes.json"] = (json.dumps(genomes, indent=1) + "\n").encode()

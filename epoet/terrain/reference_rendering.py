@@ -1,4 +1,6 @@
-"""The reference's evaluation terrain, rendered as its environment renders one at reset.
+"""The reference's rendering of a CPPN terrain, as its environment rendered one at every reset:
+what the authors' agents trained on (`terrain.rendering=reference`) and what their evaluation
+terrains are (`suite=paper`, epoet/eval/reference/convert.py).
 
 docs/reference.md ("Terrain") has the arithmetic; in short, on the 200 x 200 hfield (5 samples
 per metre, sample (row r, column c) at reference x = c/5 - 17, y = r/5 - 20):
@@ -11,11 +13,12 @@ per metre, sample (row r, column c) at reference x = c/5 - 17, y = r/5 - 20):
   of U(0.15, 1) bumps zoomed cubically) to [0, S], mixed 0.3 bowl + 0.7 CPPN and normalised to
   [0, S] again.
 The reference drew the bowl from numpy's global generator at each reset; here each terrain
-draws it from its own seed, so the suite is a fixed set of heightmaps.
+draws it from its own seed, so a terrain is a function of its genome, seed and S.
 
 S: the reference's hfield elevation starts at 1 m and grows 0.001 per reset; its heights, in
-[0, S], were then scaled by S again (defect 2), so their relief was S^2. At the S = 1 m used
-here the two agree: heights in [0, 1], 1 standing for 1 m (docs/fidelity.md).
+[0, S], were then scaled by S again (defect 2), so their relief was S^2. Here the heights are
+in [0, 1] and 1 stands for S metres: the relief is S, at every S (docs/fidelity.md). At the
+S = 1 m of the paper suite the two agree.
 """
 
 from __future__ import annotations
@@ -26,11 +29,10 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
-from epoet.terrain.cppn import evaluate
+from epoet.terrain.config import REFERENCE_GRID as GRID
+from epoet.terrain.config import REFERENCE_SIZE as SIZE
 from epoet.terrain.terrain import normalize
 
-GRID = 200  # samples per side
-SIZE = 40.0  # metres per side
 PER_METRE = 5  # samples per metre (the reference's get_local_cor)
 OFFSET = (17.0, 20.0)  # reference metres from the hfield's first column / row to x = y = 0
 WINDOW = 120  # columns read from the CPPN (TERRAIN_STARTPAD)
@@ -42,13 +44,13 @@ BUMPS, BUMP_LOW = 20, 0.15
 EVAL_HEIGHT = 1.0  # S at evaluation, metres (module docstring)
 
 
-def cppn_window(genome: object) -> np.ndarray:
-    """The CPPN's value at each sample's reference coordinates, (row, column)."""
+def reference_inputs() -> tuple[np.ndarray, np.ndarray]:
+    """The CPPN's (x, y) inputs at each sample's reference coordinates, (row, column)."""
     steps = np.arange(GRID) / PER_METRE
     x = (steps - OFFSET[0] - CENTRE) * math.pi / CENTRE
     y = (steps - OFFSET[1] - CENTRE) * math.pi / CENTRE
     xs, ys = np.meshgrid(x, y, indexing="xy")
-    return evaluate(genome, xs, ys)
+    return xs, ys
 
 
 @njit(cache=True)
@@ -71,9 +73,9 @@ def _drift(cppn: np.ndarray, height: float) -> np.ndarray:
     return out
 
 
-def cppn_part(genome: object, height: float) -> np.ndarray:
-    """The CPPN part of the terrain, in [0.2, S]."""
-    return normalize(_drift(cppn_window(genome), height)) * (height - CPPN_FLOOR) + CPPN_FLOOR
+def cppn_part(cppn: np.ndarray, height: float) -> np.ndarray:
+    """The CPPN part of the terrain, in [0.2, S], from the CPPN's values at `reference_inputs`."""
+    return normalize(_drift(cppn, height)) * (height - CPPN_FLOOR) + CPPN_FLOOR
 
 
 def bowl_part(rng: np.random.Generator, height: float) -> np.ndarray:
@@ -86,9 +88,10 @@ def bowl_part(rng: np.random.Generator, height: float) -> np.ndarray:
     return normalize(bowl * bumps) * height
 
 
-def render(genome: object, seed: int, height: float = EVAL_HEIGHT) -> np.ndarray:
-    """The evaluation terrain's heights in [0, 1] (1 standing for `height` metres at S = 1)."""
+def render(cppn: np.ndarray, seed: int, height: float = EVAL_HEIGHT) -> np.ndarray:
+    """The terrain's (200, 200) heights in [0, 1], 1 standing for S = `height` metres, from the
+    CPPN's values at `reference_inputs` (cppn.py `render_reference` evaluates a genome there)."""
     mixed = BOWL_WEIGHT * bowl_part(np.random.default_rng(seed), height) + (
         1.0 - BOWL_WEIGHT
-    ) * cppn_part(genome, height)
+    ) * cppn_part(cppn, height)
     return normalize(mixed)
