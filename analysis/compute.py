@@ -63,7 +63,11 @@ from epoet.eval.keys import PAPER_NAME  # noqa: E402
 from epoet.registry import algorithm  # noqa: E402
 
 REFERENCE = Path(__file__).resolve().parent.parent / "docs" / "results" / "reference"
-READINGS = {"best": "the run's best agent", "niches": "mean over its niche agents"}
+READINGS = {
+    "best": "the run's exported agent",
+    "own": "the niche agent with the best score on its own terrain",
+    "niches": "mean over its niche agents",
+}
 
 
 def success_matrix(record: Path, snapshot: str, agents: Sequence[str], suite: str) -> pd.Series:
@@ -84,7 +88,11 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
             if evaluation is None:
                 continue
             folder = Path(records) / info["record"]
-            readings = {"best": [snap["best_agent"]], "niches": sorted(evaluation["agents"])}
+            readings = {
+                "best": [snap["best_agent"]],
+                **({"own": [snap["own_agent"]]} if "own_agent" in snap else {}),
+                "niches": sorted(a for a in evaluation["agents"] if a.startswith("env")),
+            }
             for reading, agents in readings.items():
                 terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
                 rows.append(

@@ -36,7 +36,8 @@ from epoet.eval.config import (
     SuiteConfig,
 )
 from epoet.registry import algorithms
-from epoet.terrain.config import TerrainConfig
+from epoet.rollout.selection import SelectionConfig
+from epoet.terrain.config import REFERENCE_GRID, REFERENCE_SIZE, TerrainConfig
 from epoet.tracking.config import TrackingConfig
 
 
@@ -151,7 +152,8 @@ class Config:
     seed: int  # seeds everything the run draws
     checkpoint_every: int  # ES iterations, or collector batches (baselines), per checkpoint
     snapshot_cpu_minutes: list[float]  # CPU minutes of training at which the agents are saved
-    agent_choice: str  # best | final: which parameters of each pair a run exports
+    agent_choice: str  # best | final: which parameters of each pair its file holds first
+    selection: SelectionConfig  # which agent a run exports: held-out terrains or its own rule
     evaluate: bool  # evaluate the exported agent on the shipped suite at the end
     resume: Optional[str]  # a run folder or checkpoint file to continue; auto: this
     # job's own folder if it has a checkpoint
@@ -174,6 +176,15 @@ class Config:
             self.agent.max_episode_steps == self.budget.episode_steps,
             f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
             f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.",
+        )
+        field = (self.terrain.grid, self.terrain.size)
+        check(
+            self.selection.terrains == 0
+            or self.selection.rendering == "clean"
+            or field == (REFERENCE_GRID, REFERENCE_SIZE),
+            f"selection.rendering=reference renders the held-out terrains on the reference's "
+            f"field, terrain.grid={REFERENCE_GRID} and terrain.size={REFERENCE_SIZE:g}; got "
+            f"{field[0]} and {field[1]:g} (or set selection.rendering=clean).",
         )
         self.algo.check_run(self)  # what the algorithm needs of the other settings
 

@@ -52,7 +52,8 @@ from epoet.eval.config import EvaluateConfig
 from epoet.eval.evaluate import evaluate, evaluation_pool, write_results
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import Suite, load_suite
-from epoet.rollout.agent_files import ES_POLICIES, TORCH_POLICY
+from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, TORCH_POLICY
+from epoet.rollout.selection import CHOICE_FILE
 from epoet.run_state import SNAPSHOT_INFO, SNAPSHOTS
 from epoet.tracking.provenance import git_commit
 from pipeline.records import command_of, iso, load_of, write_json
@@ -74,10 +75,33 @@ CURVE_KEYS = (
 )
 
 
+def niches_of(snapshot: Path) -> list[Path]:
+    """A pool's niche agents, in admission order (none for a baseline)."""
+    return sorted((snapshot / ES_POLICIES).glob("env*.npz"), key=lambda p: int(p.stem[3:]))
+
+
 def agents_of(snapshot: Path) -> list[Path]:
-    """A snapshot's agent files: a pool's every niche agent, or a baseline's policy."""
-    pool = sorted((snapshot / ES_POLICIES).glob("env*.npz"), key=lambda p: int(p.stem[3:]))
+    """A snapshot's agent files: a pool's every niche agent and the one the run exported (when
+    it chose one: `selection`), or a baseline's policy."""
+    exported = snapshot / ES_POLICIES / EXPORTED_AGENT
+    pool = niches_of(snapshot) + ([exported] if exported.is_file() else [])
     return pool or [snapshot / TORCH_POLICY]
+
+
+def files_of(snapshot: Path) -> list[Path]:
+    """What a record keeps of a snapshot's agents: their files and the run's choice record."""
+    choice = snapshot / ES_POLICIES / CHOICE_FILE
+    return agents_of(snapshot) + ([choice] if choice.is_file() else [])
+
+
+def own_choice(snapshot: Path) -> str | None:
+    """The niche agent the run's own rule picks (the best score on its own terrain): its file's
+    stem; None for a baseline."""
+    choice = snapshot / ES_POLICIES / CHOICE_FILE
+    if choice.is_file():
+        return str(json.loads(choice.read_text())["own"]).split("/")[0]
+    found = policy_in(snapshot)
+    return found[1] if found and found[0].kind == "es" else None
 
 
 def snapshots_of(run_dir: Path) -> list[tuple[float, Path]]:
@@ -112,7 +136,7 @@ def evaluate_snapshot(
     """Every agent of the snapshot on every suite (those not evaluated before), its files copied
     into the record; returns the snapshot's entry of run.json."""
     target = record / snapshot.name
-    for path in [*agents_of(snapshot), snapshot / SNAPSHOT_INFO]:
+    for path in [*files_of(snapshot), snapshot / SNAPSHOT_INFO]:
         copy = target / path.relative_to(snapshot)
         if not copy.exists():
             with atomic_write(copy) as file:
@@ -120,7 +144,15 @@ def evaluate_snapshot(
     info = json.loads((snapshot / SNAPSHOT_INFO).read_text())
     best, _ = policy_in(snapshot) or (None, None)
     assert best is not None  # a snapshot holds its agents (take_snapshots writes them first)
-    entry: dict[str, Any] = {**info, "best_agent": best.path.stem, "evaluations": {}}
+    own = own_choice(snapshot)
+    choice = snapshot / ES_POLICIES / CHOICE_FILE
+    entry: dict[str, Any] = {
+        **info,
+        "best_agent": best.path.stem,
+        **({"own_agent": own} if own else {}),
+        **({"choice": json.loads(choice.read_text())} if choice.is_file() else {}),
+        "evaluations": {},
+    }
     for suite in suites:
         rates = {}
         for path in agents_of(snapshot):
@@ -146,15 +178,16 @@ def evaluate_snapshot(
                 )
                 (out / "actions.npz").unlink()  # the t-SNE samples: not kept in records
             rates[path.stem] = json.loads((out / SUMMARY).read_text())
-        summaries = list(rates.values())
+        niches = [rates[p.stem] for p in niches_of(snapshot)] or list(rates.values())
         key = f"suite/{suite.name}/success_rate"
         entry["evaluations"][suite.name] = {
             "fingerprint": suite.fingerprint,
-            "course_scale": summaries[0]["course_scale"],
+            "course_scale": niches[0]["course_scale"],
             "episodes_per_terrain": cfg.episodes,
             "commit": rates[best.path.stem].get("commit"),
-            "success_rate": rates[best.path.stem][key],
-            "success_rate_mean": sum(s[key] for s in summaries) / len(summaries),
+            "success_rate": rates[best.path.stem][key],  # the exported agent's
+            **({"success_rate_own": rates[own][key]} if own else {}),
+            "success_rate_mean": sum(s[key] for s in niches) / len(niches),
             "agents": {name: s[key] for name, s in rates.items()},
         }
     return entry
@@ -220,7 +253,7 @@ def export_run(
         last = list(snapshots.values())[-1]
         folder = record / f"cpu{last['cpu_minutes']:g}"
         shutil.rmtree(record / ES_POLICIES, ignore_errors=True)  # an earlier snapshot's pool
-        for path in agents_of(folder):
+        for path in files_of(folder):
             with atomic_write(record / path.relative_to(folder)) as file:
                 file.write(path.read_bytes())
         for suite, entry in last["evaluations"].items():

@@ -25,7 +25,13 @@ from omegaconf import OmegaConf
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from epoet.eval.trained_run import AgentSource, TrainedRun
-from epoet.rollout.agent_files import ES_POLICIES, TORCH_POLICY, AgentError, bad_agent
+from epoet.rollout.agent_files import (
+    ES_POLICIES,
+    EXPORTED_AGENT,
+    TORCH_POLICY,
+    AgentError,
+    bad_agent,
+)
 from epoet.tracking import TrackingError
 
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -34,8 +40,12 @@ RECORD_CONFIG = "config.yaml"  # a record's resolved run config (docs/results/RE
 
 
 def policy_in(folder: Path) -> tuple[AgentSource, str] | None:
-    """A run folder's exported agent and its name: the best pool agent (highest score) or the
-    exported torch policy; None if it has neither."""
+    """A run folder's exported agent and its name: the pool agent the run chose (`agent.npz`,
+    epoet/poet/exported_agent.py), else (a run from before the choice, or one still training
+    towards its first snapshot) the best pool agent (highest score), or the exported torch
+    policy; None if it has none."""
+    if (folder / ES_POLICIES / EXPORTED_AGENT).is_file():
+        return AgentSource("es", folder / ES_POLICIES / EXPORTED_AGENT), "agent"
     pool = sorted((folder / ES_POLICIES).glob("env*.npz"))  # none if the folder is absent
     if pool:
         scores = {}

@@ -10,6 +10,7 @@ from typing import Any, cast
 from epoet.config import Config, PoetBudgetConfig
 from epoet.core.lifecycle import raise_if_stopped, stop_requested
 from epoet.poet.config import PoetConfig
+from epoet.poet.exported_agent import export_agent
 from epoet.poet.loop import EPOET
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import policy_sizes
@@ -56,6 +57,17 @@ def train_loop(
     def save_agents(folder: Path) -> Path:
         return loop.save_agents(folder, cfg.agent_choice)
 
+    def export(folder: Path) -> None:
+        """The pool's agents and the one the run exports (`selection`)."""
+        save_agents(folder)
+        record = export_agent(loop, folder, cfg)
+        print(
+            f"[{cfg.algo.name}] exports {record['exported']} (held-out choice: "
+            f"{record.get('validation', 'none')}, own-terrain choice: {record['own']}; "
+            f"{record['cpu_s']:.0f} CPU s)",
+            flush=True,
+        )
+
     while not done():
         metrics = loop.run_iteration()
         if evaluator.restarts > restarts:  # a worker died; the iteration ran unchanged
@@ -68,7 +80,7 @@ def train_loop(
             run_dir,
             cfg.snapshot_cpu_minutes,
             loop.cpu_time,
-            save_agents,
+            export,
             {**info, "iteration": loop.iteration},
         ):
             print(f"[{cfg.algo.name}] snapshot of the pool at {minutes} CPU minutes", flush=True)
@@ -86,6 +98,7 @@ def train_loop(
         loop.elapsed,
         loop.cpu_time,
     )
+    export(run_dir)
     loop.log_artifacts(run_dir, tracker, cfg.agent_choice)
 
 

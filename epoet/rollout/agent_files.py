@@ -29,6 +29,9 @@ from epoet.rollout.policy import num_params
 
 TORCH_POLICY = "policy.pt"
 ES_POLICIES = "policies"
+EXPORTED_AGENT = (
+    "agent.npz"  # in policies/: the pool's agent a run exports (poet/exported_agent.py)
+)
 
 
 POLICY_FORMAT = "epoet-policy/1"

@@ -30,7 +30,6 @@ from numba import njit
 from scipy import ndimage
 
 from epoet.terrain.config import REFERENCE_GRID as GRID
-from epoet.terrain.config import REFERENCE_SIZE as SIZE
 from epoet.terrain.terrain import normalize
 
 PER_METRE = 5  # samples per metre (the reference's get_local_cor)
