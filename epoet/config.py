@@ -37,7 +37,7 @@ from epoet.eval.config import (
 )
 from epoet.registry import algorithms
 from epoet.rollout.selection import SelectionConfig
-from epoet.terrain.config import REFERENCE_GRID, REFERENCE_SIZE, TerrainConfig
+from epoet.terrain.config import REFERENCE_SIZE, TerrainConfig
 from epoet.tracking.config import TrackingConfig
 
 
@@ -177,14 +177,13 @@ class Config:
             f"agent.max_episode_steps ({self.agent.max_episode_steps}) follows "
             f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.",
         )
-        field = (self.terrain.grid, self.terrain.size)
         check(
             self.selection.terrains == 0
             or self.selection.rendering == "clean"
-            or field == (REFERENCE_GRID, REFERENCE_SIZE),
+            or self.terrain.size == REFERENCE_SIZE,
             f"selection.rendering=reference renders the held-out terrains on the reference's "
-            f"field, terrain.grid={REFERENCE_GRID} and terrain.size={REFERENCE_SIZE:g}; got "
-            f"{field[0]} and {field[1]:g} (or set selection.rendering=clean).",
+            f"field, terrain.size={REFERENCE_SIZE:g} metres; got {self.terrain.size:g} (or set "
+            f"selection.rendering=clean).",
         )
         self.algo.check_run(self)  # what the algorithm needs of the other settings
 

@@ -428,6 +428,14 @@ def test_the_reference_rendering_drifts_beyond_its_window():
 
 def test_the_reference_rendering_is_refused_off_its_field():
     with pytest.raises(ConfigError, match="terrain.rendering=reference is defined on"):
-        validate(compose(["terrain.rendering=reference", "terrain.grid=100"]))
+        validate(compose(["terrain.rendering=reference", "terrain.size=30"]))
+
+
+def test_the_reference_rendering_on_another_grid_is_the_same_terrain_resampled():
+    fine = make_terrain(replace(CPPN, rendering="reference"), 2, iteration=90)
+    coarse = make_terrain(replace(CPPN, rendering="reference", grid=100), 2, iteration=90)
+    assert coarse.heightmap.shape == (100, 100)
+    at = np.round(np.linspace(0, 199, 100)).astype(int)
+    assert np.abs(coarse.heightmap - fine.heightmap[np.ix_(at, at)]).mean() < 0.02
     with pytest.raises(ConfigError, match="terrain.rendering must be"):
         validate(compose(["terrain.rendering=fancy"]))

@@ -29,10 +29,12 @@ from dataclasses import fields
 import neat
 import numpy as np
 from neat.graphs import feed_forward_layers
+from scipy import ndimage
 
 from epoet.terrain import reference_rendering
 from epoet.terrain.bowl import bowl_of
 from epoet.terrain.config import (
+    REFERENCE_GRID,
     CppnConfig,
     MutationConfig,
     MutationError,
@@ -315,12 +317,20 @@ def mix(bowl: np.ndarray, cppn: np.ndarray, bowl_weight: float) -> np.ndarray:
     return normalize(bowl_weight * normalize(bowl) + (1.0 - bowl_weight) * normalize(cppn))
 
 
-def render_reference(genome: neat.DefaultGenome, seed: int, max_height: float) -> np.ndarray:
+def render_reference(
+    genome: neat.DefaultGenome, seed: int, max_height: float, grid: int = REFERENCE_GRID
+) -> np.ndarray:
     """`genome` as the reference rendered it (reference_rendering.py: the CPPN read in a window,
-    each row drifting beyond it, the step where it ends), at relief S = `max_height`."""
-    return reference_rendering.render(
+    each row drifting beyond it, the step where it ends), at relief S = `max_height`, on the
+    reference's 200 x 200 samples, resampled (linearly, corner to corner) to `grid` per side."""
+    heights = reference_rendering.render(
         evaluate(genome, *reference_rendering.reference_inputs()), seed, max_height
     )
+    if grid == REFERENCE_GRID:
+        return heights
+    at = np.linspace(0.0, REFERENCE_GRID - 1.0, grid)
+    rows, cols = np.meshgrid(at, at, indexing="ij")
+    return np.clip(ndimage.map_coordinates(heights, [rows, cols], order=1), 0.0, 1.0)
 
 
 class CppnGenerator:
@@ -343,7 +353,7 @@ class CppnGenerator:
         self, cfg: TerrainConfig, genome: neat.DefaultGenome, seed: int, max_height: float
     ) -> np.ndarray:
         if cfg.rendering == "reference":
-            return render_reference(genome, seed, max_height)
+            return render_reference(genome, seed, max_height, cfg.grid)
         cppn = evaluate(genome, *cppn_inputs(cfg))
         if not np.all(np.isfinite(cppn)):
             raise ValueError(
