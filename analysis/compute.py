@@ -1,21 +1,23 @@
 """`python -m analysis.compute --records docs/results/<name> [--suite paper]`: success against
 compute, and the learning curves, from records alone (pipeline.compute writes them).
 
-For each algorithm and CPU-time mark (the runs' `snapshot_cpu_minutes`): the IQM over runs and
-terrains of the success of each run's agent at that mark, with its 95 % stratified-bootstrap
-interval (analysis.stats: terrains, and runs within them, drawn with replacement). The
-interval of an algorithm at a mark is a function of its own runs only: each is bootstrapped
-alone, seeded by `analysis.stats.SEED`. Two readings of an ePOET pool, where they differ: the
-run's best agent (the pool's best on its own environment) and the mean over its niche agents
-(the success of a niche agent drawn at random, as the authors' agents are counted one by one).
-The authors' agents are the horizontal references: the mean success of each algorithm's
-published agents in the reference records (docs/results/reference).
+For each algorithm and CPU-time mark (the runs' `snapshot_cpu_minutes`), first the paper's
+statistic: the mean success over the suite's terrains of each run's agent at that mark, each
+seed's value and the mean over seeds with its 95 % t interval (analysis.mean_success: the suite
+is fixed, the seeds are the draw). Then, secondary, the IQM over runs and terrains with its
+stratified-bootstrap interval (analysis.stats), which trims away the easy and hard terrains of
+a near-binary score. Readings of an ePOET pool: the run's exported agent (`selection`: chosen
+on held-out terrains, or by the run's own rule), the niche with the best score on its own
+terrain where the record holds that choice apart, and the mean over its niche agents. The
+authors' agents are the horizontal references, in the same statistic: the mean success of each
+algorithm's published agents in the reference records (docs/results/reference).
 
 Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
 success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment
-steps and against CPU hours), comparisons.md where they hold two algorithms or more (P(X > Y)
-at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what their joins
-did to the pool: analysis.joins).
+steps and against CPU hours), comparisons.md where they hold two algorithms or more (the
+paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
+ties ceiling, at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what
+their joins did to the pool: analysis.joins).
 
 Examples:
 
@@ -40,15 +42,22 @@ import pandas as pd  # noqa: E402
 
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.joins import joins_table  # noqa: E402
+from analysis.mean_success import (  # noqa: E402
+    difference_interval,
+    mean_interval,
+    ties_ceiling,
+)
 from analysis.records import EPISODES, read_records  # noqa: E402
 from analysis.stats import (  # noqa: E402
     CONFIDENCE,
     REPS,
     SEED,
+    canonical,
     iqm,
     poi_interval,
     rliable,
     seeded,
+    stable_seed,
 )
 from analysis.store import (  # noqa: E402
     AnalysisError,
@@ -88,10 +97,11 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
             if evaluation is None:
                 continue
             folder = Path(records) / info["record"]
+            niches = sorted(a for a in evaluation["agents"] if a.startswith("env"))
             readings = {
                 "best": [snap["best_agent"]],
                 **({"own": [snap["own_agent"]]} if "own_agent" in snap else {}),
-                "niches": sorted(a for a in evaluation["agents"] if a.startswith("env")),
+                "niches": niches or [snap["best_agent"]],  # a baseline's one policy
             }
             for reading, agents in readings.items():
                 terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
@@ -115,9 +125,9 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
 
 
 def iqm_interval(matrix: np.ndarray, reps: int = REPS, seed: int = SEED) -> tuple[float, ...]:
-    """IQM of a (runs, terrains) matrix and its 95 % stratified-bootstrap interval, from this
-    matrix alone."""
-    with seeded(seed):
+    """IQM of a (runs, terrains) matrix and its 95 % stratified-bootstrap interval, seeded by
+    this matrix's scores alone."""
+    with seeded(stable_seed(seed, canonical(matrix))):
         points, intervals = rliable()[0].get_interval_estimates(
             {"x": matrix}, iqm, task_bootstrap=True, reps=reps, confidence_interval_size=CONFIDENCE
         )
@@ -125,14 +135,16 @@ def iqm_interval(matrix: np.ndarray, reps: int = REPS, seed: int = SEED) -> tupl
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:
-    """Per algorithm, mark and reading: runs, the seeds' success rates, mean CPU hours, IQM and
-    its interval (ePOET's niche reading only where the pool held more than one agent)."""
+    """Per algorithm, mark and reading: runs, the seeds' mean successes, mean CPU hours, the
+    mean over seeds with its t interval, then the IQM with its interval (ePOET's niche reading
+    only where the pool held more than one agent)."""
     out = []
     for (algo, minutes, reading), rows in table.groupby(["algo", "minutes", "reading"]):
         if reading == "niches" and algorithm(algo).family is not Family.POOL:
             continue
         matrix = np.stack([t.to_numpy() for t in rows.terrains])
-        point, low, high = iqm_interval(matrix)
+        mean, low, high = mean_interval(rows.success)
+        point, iqm_low, iqm_high = iqm_interval(matrix)
         out.append(
             {
                 "algo": algo,
@@ -141,9 +153,12 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
                 "runs": len(rows),
                 "cpu_hours": rows.cpu_hours.mean(),
                 "seeds": " ".join(f"s{s}:{v:.1%}" for s, v in zip(rows.seed, rows.success)),
-                "iqm": point,
+                "mean": mean,
                 "ci_low": low,
                 "ci_high": high,
+                "iqm": point,
+                "iqm_low": iqm_low,
+                "iqm_high": iqm_high,
             }
         )
     frame = pd.DataFrame(out)
@@ -154,9 +169,10 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
 
 
 def comparisons(table: pd.DataFrame) -> pd.DataFrame:
-    """P(X > Y), rliable's probability of improvement, with its 95 % interval over runs and
-    terrains, for every pair of algorithms at every mark both reached, each run read by its best
-    agent (X after Y in table order, so the paper's claims read as P > 0.5)."""
+    """For every pair of algorithms at every mark both reached, each run read by its exported
+    agent (X after Y in table order, so the paper's claims read as positive): the difference of
+    mean success X - Y on the same terrains with its 95 % interval over seeds, and P(X > Y),
+    rliable's probability of improvement, with its interval and its ties ceiling."""
     rows = []
     for minutes, at in table[table.reading == "best"].groupby("minutes"):
         matrices = {
@@ -164,6 +180,7 @@ def comparisons(table: pd.DataFrame) -> pd.DataFrame:
             for algo, runs in at.groupby("algo")
         }
         for y, x in itertools.combinations(in_order(matrices), 2):
+            diff, diff_low, diff_high = difference_interval(matrices[x], matrices[y])
             point, low, high = poi_interval(matrices[x], matrices[y])
             rows.append(
                 {
@@ -171,7 +188,10 @@ def comparisons(table: pd.DataFrame) -> pd.DataFrame:
                     "x": x,
                     "y": y,
                     "runs": f"{len(matrices[x])} / {len(matrices[y])}",
+                    "X - Y (mean success, pts)": f"{100 * diff:+.1f} "
+                    f"[{100 * diff_low:+.1f}, {100 * diff_high:+.1f}]",
                     "P(X > Y)": f"{point:.2f} [{low:.2f}, {high:.2f}]",
+                    "P ceiling (ties)": f"{ties_ceiling(matrices[x], matrices[y]):.2f}",
                 }
             )
     return pd.DataFrame(rows)
@@ -198,10 +218,11 @@ def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Pa
             if rows.empty:
                 continue
             label = name if reading == "best" else f"{name} ({READINGS[reading]})"
+            low, high = rows.ci_low.fillna(rows["mean"]), rows.ci_high.fillna(rows["mean"])
             ax.errorbar(
                 rows.cpu_hours,
-                100 * rows.iqm,
-                yerr=[100 * (rows.iqm - rows.ci_low), 100 * (rows.ci_high - rows.iqm)],
+                100 * rows["mean"],
+                yerr=[100 * (rows["mean"] - low), 100 * (high - rows["mean"])],
                 fmt=style,
                 color=color,
                 capsize=3,
@@ -221,7 +242,7 @@ def plot(frame: pd.DataFrame, references: dict[str, float], suite: str, path: Pa
             ha="right",
             va="bottom",
         )
-    ax.set_ylabel(f"success on suite {suite} (%), IQM, 95 % CI")
+    ax.set_ylabel(f"success on suite {suite} (%): mean over seeds, 95 % t interval")
     ax.set_ylim(0, 100)
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
@@ -257,6 +278,13 @@ def curves_from_records(records: Path) -> pd.DataFrame:
     return pd.concat(frames, ignore_index=True)
 
 
+def interval(point: float, low: float, high: float) -> str:
+    """A percentage with its interval (none where there is no interval: one run)."""
+    if np.isnan(low):
+        return f"{100 * point:.1f}"
+    return f"{100 * point:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
+
+
 def write(records: Path, suite: str, out: Path) -> list[Path]:
     table = compute_table(records, suite)  # a bad records folder writes nothing
     frame = summary(table)
@@ -265,25 +293,27 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "success_vs_compute.csv", index=False)
     shown = frame.assign(
-        iqm=[
-            f"{100 * r.iqm:.1f} [{100 * r.ci_low:.1f}, {100 * r.ci_high:.1f}]"
-            for r in frame.itertuples()
-        ],
+        mean=[interval(r.mean, r.ci_low, r.ci_high) for r in frame.itertuples()],
+        iqm=[interval(r.iqm, r.iqm_low, r.iqm_high) for r in frame.itertuples()],
         cpu_hours=frame.cpu_hours.round(2),
         reading=frame.reading.map(READINGS),
-    ).drop(columns=["ci_low", "ci_high"])
+    ).drop(columns=["ci_low", "ci_high", "iqm_low", "iqm_high"])
     notes = [
         f"- authors' {a}: {v:.1%} (mean over their published agents)" for a, v in references.items()
     ]
     (out / "success_vs_compute.md").write_text(
-        f"Success on suite {suite} against CPU hours (IQM over runs x terrains, 95 % "
-        f"stratified-bootstrap interval)\n\n{to_markdown(shown)}\n\n" + "\n".join(notes) + "\n"
+        f"Success on suite {suite} against CPU hours: mean success over its terrains, each "
+        f"seed's and the mean over seeds with its 95 % t interval (the paper's statistic); "
+        f"secondary, the IQM over runs x terrains with its 95 % stratified-bootstrap "
+        f"interval\n\n{to_markdown(shown)}\n\n" + "\n".join(notes) + "\n"
     )
     paths = [out / "success_vs_compute.csv", out / "success_vs_compute.md"]
     compared = comparisons(table)
     if not compared.empty:
         (out / "comparisons.md").write_text(
-            f"P(X > Y) on suite {suite} at each CPU-time mark (the runs' best agents)\n\n"
+            f"Algorithms compared on suite {suite} at each CPU-time mark (the runs' exported "
+            f"agents): X - Y in mean success with its 95 % interval over seeds; P(X > Y) with "
+            f"its interval and the largest value its ties allow\n\n"
             f"{to_markdown(compared)}\n"
         )
         paths.append(out / "comparisons.md")

@@ -218,6 +218,33 @@ def checkpoint_of(run_dir: Path) -> dict[str, Any]:
         raise AnalysisError(f"{run_dir} is not a run folder with a checkpoint: {err}") from None
 
 
+def promote_latest(record: Path, snapshots: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """Make the latest snapshot's exported agent stand for the record (its agent files and
+    evaluations at the record's top level, an earlier snapshot's removed); returns run.json's
+    `evaluations`."""
+    evaluations: dict[str, Any] = {}
+    if snapshots:
+        last = list(snapshots.values())[-1]
+        folder = record / f"cpu{last['cpu_minutes']:g}"
+        shutil.rmtree(record / ES_POLICIES, ignore_errors=True)  # an earlier snapshot's pool
+        for path in files_of(folder):
+            with atomic_write(record / path.relative_to(folder)) as file:
+                file.write(path.read_bytes())
+        for suite, entry in last["evaluations"].items():
+            for name in (SUMMARY, EPISODES):
+                with atomic_write(record / suite / name) as file:
+                    file.write((folder / last["best_agent"] / suite / name).read_bytes())
+            evaluations[suite] = {
+                **{k: entry[k] for k in ("fingerprint", "course_scale", "episodes_per_terrain")},
+                "success_rate": entry["success_rate"],
+                "commit": entry["commit"],
+                "snapshot": f"cpu{last['cpu_minutes']:g}",
+            }
+    for stale in suites_on_disk(record) - evaluations.keys():  # an earlier snapshot's
+        shutil.rmtree(record / stale)
+    return evaluations
+
+
 def export_run(
     run_dir: Path,
     out: Path,
@@ -248,26 +275,7 @@ def export_run(
         file.write(curves_of(client, state["run_id"]).to_csv().encode())
     with atomic_write(record / RECORD_CONFIG) as file:
         file.write(yaml.safe_dump(config, sort_keys=False).encode())
-    evaluations = {}
-    if snapshots:  # the latest snapshot's best agent stands for the record
-        last = list(snapshots.values())[-1]
-        folder = record / f"cpu{last['cpu_minutes']:g}"
-        shutil.rmtree(record / ES_POLICIES, ignore_errors=True)  # an earlier snapshot's pool
-        for path in files_of(folder):
-            with atomic_write(record / path.relative_to(folder)) as file:
-                file.write(path.read_bytes())
-        for suite, entry in last["evaluations"].items():
-            for name in (SUMMARY, EPISODES):
-                with atomic_write(record / suite / name) as file:
-                    file.write((folder / last["best_agent"] / suite / name).read_bytes())
-            evaluations[suite] = {
-                **{k: entry[k] for k in ("fingerprint", "course_scale", "episodes_per_terrain")},
-                "success_rate": entry["success_rate"],
-                "commit": entry["commit"],
-                "snapshot": f"cpu{last['cpu_minutes']:g}",
-            }
-    for stale in suites_on_disk(record) - evaluations.keys():  # an earlier snapshot's
-        shutil.rmtree(record / stale)
+    evaluations = promote_latest(record, snapshots)
     overrides = run_dir / ".hydra" / "overrides.yaml"
     command = (
         {

@@ -12,10 +12,10 @@ import pytest
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.eval.agents import policy_in
-from epoet.poet.exported_agent import candidates, export_agent
+from epoet.eval.reference import FOLDER
+from epoet.poet.exported_agent import candidates, export_agent, niches_of
 from epoet.poet.loop import EPOET
 from epoet.poet.pairs import Environment
-from epoet.eval.reference import FOLDER
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, read_es_policy
 from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.selection import CHOICE_FILE, held_out_terrains, rank
@@ -82,7 +82,7 @@ def test_candidates_are_every_niches_best_and_distinct_last_parameters():
     loop = pool_with_a_misleading_own_score(run_config())
     pair = loop.pool.active[1]
     pair.es.reset(pair.theta + 0.1)  # its last parameters move away from its best
-    names, thetas, scores = candidates(loop)
+    names, thetas, scores = candidates(niches_of(loop))
     assert names == ["env0/best", "env1/best", "env1/final"]
     assert thetas.shape == (3, pair.theta.size) and scores[:2] == [5000.0, 10.0]
 

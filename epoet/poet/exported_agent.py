@@ -10,9 +10,10 @@ before held-out terrains), so tables can be made from either.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -21,30 +22,60 @@ from epoet.rollout.selection import es_held_out, write_choice
 
 if TYPE_CHECKING:
     from epoet.config import Config
+    from epoet.envs.config import AgentConfig
     from epoet.poet.loop import EPOET
 
 
-def candidates(loop: EPOET) -> tuple[list[str], np.ndarray, list[float]]:
-    """Every niche's best and last raw-observation parameters (a pair whose last is its best
-    counts once), their names (`env<N>/best`, `env<N>/final`) and own-terrain scores."""
-    names, thetas, scores = [], [], []
+class Niche(NamedTuple):
+    """What a niche offers as candidates: its best and its last parameters with their scores."""
+
+    index: int
+    best: np.ndarray
+    best_score: float
+    final: np.ndarray
+    final_score: float
+
+
+def niches_of(loop: EPOET) -> list[Niche]:
+    """Every pair of the pool (active and archived) as raw-observation parameters."""
+    niches = []
     for pair in loop.pool.pairs:
         final = loop.service.policy(pair.theta)
         best = pair.best_theta if pair.best_theta is not None else final
-        for which, theta, score in (("best", best, pair.best_score), ("final", final, pair.score)):
-            if which == "final" and np.array_equal(theta, best):
+        niches.append(Niche(pair.env.index, best, pair.best_score, final, pair.score))
+    return niches
+
+
+def candidates(niches: Iterable[Niche]) -> tuple[list[str], np.ndarray, list[float]]:
+    """Every niche's best and last parameters (a niche whose last is its best counts once),
+    their names (`env<N>/best`, `env<N>/final`) and own-terrain scores."""
+    names, thetas, scores = [], [], []
+    for niche in niches:
+        for which, theta, score in (
+            ("best", niche.best, niche.best_score),
+            ("final", niche.final, niche.final_score),
+        ):
+            if which == "final" and np.array_equal(theta, niche.best):
                 continue
-            names.append(f"env{pair.env.index}/{which}")
+            names.append(f"env{niche.index}/{which}")
             thetas.append(theta)
             scores.append(float(score))
     return names, np.stack(thetas), scores
 
 
-def export_agent(loop: EPOET, folder: Path, cfg: Config) -> dict[str, Any]:
-    """Choose the run's agent, write it and the choice record into `folder`/policies/; returns
-    the record."""
+def choose(
+    folder: Path,
+    niches: Iterable[Niche],
+    cfg: Config,
+    agent: AgentConfig,
+    layer_sizes: Sequence[int],
+    **info: Any,
+) -> dict[str, Any]:
+    """Choose among the niches' candidates by `cfg.selection` (on the run's held-out terrains,
+    `cfg.seed`'s), write the exported agent and the choice record (with `info`) into
+    `folder`/policies/; returns the record."""
     started = time.process_time()
-    names, thetas, scores = candidates(loop)
+    names, thetas, scores = candidates(niches)
     # The run's own rule: the best score on its own terrain, the earlier niche on a tie.
     own = names[max(range(len(names)), key=lambda k: (scores[k], -k))]
     record: dict[str, Any] = {"rule": cfg.selection.rule, "own": own}
@@ -52,11 +83,11 @@ def export_agent(loop: EPOET, folder: Path, cfg: Config) -> dict[str, Any]:
         held_out = es_held_out(
             thetas,
             names,
-            loop.service.evaluator.agent,
-            loop.service.terrain_cfg,
+            agent,
+            cfg.terrain,
             cfg.selection,
-            loop.service.run_seed,
-            loop.layer_sizes,
+            cfg.seed,
+            layer_sizes,
             cfg.workers.batch,
             cfg.budget.score_scale,
         )
@@ -65,7 +96,7 @@ def export_agent(loop: EPOET, folder: Path, cfg: Config) -> dict[str, Any]:
     k = names.index(exported)
     record.update(
         exported=exported,
-        iteration=loop.iteration,
+        **info,
         selection=asdict(cfg.selection),
         cpu_s=time.process_time() - started,
     )
@@ -73,9 +104,15 @@ def export_agent(loop: EPOET, folder: Path, cfg: Config) -> dict[str, Any]:
         folder / ES_POLICIES / EXPORTED_AGENT,
         thetas[k],
         scores[k],
-        loop.layer_sizes,
-        loop.service.evaluator.agent,
+        layer_sizes,
+        agent,
         choice=exported,
     )
     write_choice(folder / ES_POLICIES, record)
     return record
+
+
+def export_agent(loop: EPOET, folder: Path, cfg: Config) -> dict[str, Any]:
+    """Choose the run's agent among its pool's, at iteration `loop.iteration`."""
+    agent = loop.service.evaluator.agent
+    return choose(folder, niches_of(loop), cfg, agent, loop.layer_sizes, iteration=loop.iteration)
