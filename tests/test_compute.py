@@ -85,8 +85,17 @@ def test_success_against_compute_is_drawn_from_records_alone(
     )
     figs = tmp_path / "fig" / "records" / "suite"  # <out>/<records folder name>/<suite name>
     table = pd.read_csv(figs / "success_vs_compute.csv")
-    assert sorted(set(zip(table.algo, table.reading))) == [("epoet", "best"), ("epoet", "niches")]
+    assert sorted(set(zip(table.algo, table.reading))) == [
+        ("epoet", "best"),  # the exported agent (chosen on held-out terrains)
+        ("epoet", "niches"),
+        ("epoet", "own"),  # the pool's best on its own terrain
+    ]
     assert list(table[table.reading == "best"].minutes) == [1e-6, 1e-5]
+    assert list(table.columns[6:9]) == ["mean", "ci_low", "ci_high"]  # the paper's statistic first
+    record = json.loads((out / "epoet_s0" / "run.json").read_text())
+    for snapshot in record["snapshots"].values():
+        assert snapshot["best_agent"] == "agent" and snapshot["choice"]["rule"] == "validation"
+        assert "success_rate_own" in snapshot["evaluations"][suite.name]
     for name in ("success_vs_compute.png", "success_vs_compute.md", "learning_curves.png"):
         assert (figs / name).stat().st_size > 0
     curves = pd.read_csv(figs / "learning_curves.csv")
@@ -114,6 +123,8 @@ def test_comparisons_pair_the_algorithms_at_the_marks_both_reached() -> None:
             "x": "epoet",
             "y": "ppo",
             "runs": "2 / 2",
+            "X - Y (mean success, pts)": "+100.0 [+100.0, +100.0]",
             "P(X > Y)": "1.00 [1.00, 1.00]",
+            "P ceiling (ties)": "1.00",
         }
     ]
