@@ -23,13 +23,14 @@ class EsConfig:
     sigma_floor: float
     l2_coeff: float
     obs_norm_episodes: int  # 0: raw observations; k: standardised, stats from k per pair
+    terrain_variants: int  # terrains an ES step spreads its mirrored pairs over (1: the niche's)
 
     def __post_init__(self) -> None:
         check(
             len(self.hidden) > 0 and all(h > 0 for h in self.hidden),
             f"algo.es.hidden must be a non-empty list of positive sizes, got {self.hidden}.",
         )
-        positive(self, "lr", "lr_floor", "sigma", "sigma_floor")
+        positive(self, "lr", "lr_floor", "sigma", "sigma_floor", "terrain_variants")
         non_negative(self, "l2_coeff", "obs_norm_episodes")
         for name in ("lr_decay", "sigma_decay"):
             value = getattr(self, name)

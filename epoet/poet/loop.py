@@ -37,7 +37,6 @@ from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import init_params, policy_sizes
-from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import max_height_at
 from epoet.terrain.config import TerrainConfig
 
@@ -177,25 +176,15 @@ class EPOET:
         episodes come back with its episodes."""
         service, active = self.service, self.pool.active
         noise = [pair.es.sample_seeds() for pair in active]
-        standardizer = service.standardizer()
         if service.obs_norm is not None:
             record = max(record, self.cfg.es.obs_norm_episodes)
-        requests = [
-            Request(
-                service.terrain(pair.env, t),
-                Mirrored.of(
-                    pair.theta,
-                    seeds,
-                    pair.es.sigma,
-                    service.seeds(len(seeds), Key.ES_SPAWN, pair.env.index, t),
-                    standardizer,
-                ),
-                record=record,
-            )
+        steps = [
+            service.es_requests(pair.env, t, pair.theta, seeds, pair.es.sigma, record)
             for pair, seeds in zip(active, noise)
         ]
         metrics: dict[str, float] = {}
-        results = service.run(requests)
+        flat = iter(service.run([request for step in steps for request in step]))
+        results = [service.merge_variants([next(flat) for _ in step]) for step in steps]
         for pair, seeds, episodes in zip(active, noise, results):
             n = len(seeds)
             stats = pair.es.tell(seeds, episodes.returns[:n], episodes.returns[n:])

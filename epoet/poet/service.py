@@ -166,6 +166,56 @@ class Service:
             terrain, Agents.of(self.policy(thetas), self.seeds(self.eval_episodes, key, *ids))
         )
 
+    def es_requests(
+        self,
+        env: Environment,
+        t: int,
+        theta: np.ndarray,
+        noise: np.ndarray,
+        sigma: float,
+        record: int,
+    ) -> list[Request]:
+        """One ES step of the pair on `env` at iteration t: its mirrored pairs spread in order over
+        `terrain_variants` terrains (the first: the niche's own), each pair's two episodes on one
+        terrain from one start; the transitions of the step's first `record` episodes recorded
+        (`merge_variants` puts them back in the step's order)."""
+        spawn = self.seeds(len(noise), Key.ES_SPAWN, env.index, t)
+        chunks = np.array_split(np.arange(len(noise)), self.es_cfg.terrain_variants)
+        if record > 2 * len(chunks[0]):
+            raise ValueError(
+                f"{record} recorded episodes do not fit the first terrain variant's "
+                f"{2 * len(chunks[0])}: use fewer algo.es.terrain_variants."
+            )
+        return [
+            Request(
+                self.terrain(env, t)
+                if v == 0
+                else self.make_terrain(env, self.seed(Key.VARIANT_BOWL, env.index, t, v), t),
+                Mirrored.of(theta, noise[c], sigma, spawn[c], self.standardizer()),
+                record=record if v == 0 else 0,
+            )
+            for v, c in enumerate(chunks)
+        ]
+
+    @staticmethod
+    def merge_variants(parts: list[Episodes]) -> Episodes:
+        """One ES step's episodes from its variants' (`es_requests`), in the step's mirrored
+        order: every variant's + episodes, then every variant's - episodes."""
+        if len(parts) == 1:
+            return parts[0]
+        halves = [len(p.returns) // 2 for p in parts]
+        fields = []
+        for name in ("returns", "lengths", "finished"):
+            arrays = [getattr(p, name) for p in parts]
+            plus = [a[:h] for a, h in zip(arrays, halves)]
+            minus = [a[h:] for a, h in zip(arrays, halves)]
+            fields.append(np.concatenate(plus + minus))
+        recorded = parts[0].transitions
+        if recorded is not None:  # the first variant's episode e is the step's e or n + e - m
+            local, m, n = recorded["episode"], halves[0], sum(halves)
+            recorded = {**recorded, "episode": np.where(local < m, local, n + local - m)}
+        return Episodes(*fields, transitions=recorded)
+
     def scores(self, requests: list[Request]) -> list[np.ndarray]:
         """Mean return of each agent of each evaluation request."""
         return [e.returns.mean(axis=1) for e in self.run(requests)]
