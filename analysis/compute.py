@@ -14,7 +14,8 @@ algorithm's published agents in the reference records (docs/results/reference).
 
 Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
 success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment
-steps and against CPU hours), comparisons.md where they hold two algorithms or more (the
+steps and against CPU hours), levels.md (per level, and where the failed medium episodes stop: analysis.levels),
+comparisons.md where they hold two algorithms or more (the
 paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
 ties ceiling, at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what
 their joins did to the pool: analysis.joins).
@@ -42,6 +43,7 @@ import pandas as pd  # noqa: E402
 
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.joins import joins_table  # noqa: E402
+from analysis.levels import AT_STEP, level_summary, level_table  # noqa: E402
 from analysis.mean_success import (  # noqa: E402
     difference_interval,
     mean_interval,
@@ -317,6 +319,15 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
             f"{to_markdown(compared)}\n"
         )
         paths.append(out / "comparisons.md")
+    levels = level_summary(level_table(records, suite))
+    (out / "levels.md").write_text(
+        f"Per level on suite {suite}, the runs' exported agents, mean over seeds: success per "
+        f"level; on the medium terrains, the share of episodes that end at the reference "
+        f"renderer's step ({AT_STEP[0]:g}-{AT_STEP[1]:g} m past the spawn, not finished), "
+        f"that share among the failed episodes, and their mean forward distance\n\n"
+        f"{to_markdown(levels.round(3))}\n"
+    )
+    paths.append(out / "levels.md")
     joins = joins_table(records, suite)
     if not joins.empty:
         (out / "joins.md").write_text(

@@ -52,8 +52,8 @@ from epoet.eval.config import EvaluateConfig
 from epoet.eval.evaluate import evaluate, evaluation_pool, write_results
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import Suite, load_suite
-from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, TORCH_POLICY
-from epoet.rollout.selection import CHOICE_FILE
+from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, LAST_POLICY, TORCH_POLICY
+from epoet.rollout.selection import CHOICE_FILE, LAST
 from epoet.run_state import SNAPSHOT_INFO, SNAPSHOTS
 from epoet.tracking.provenance import git_commit
 from pipeline.records import command_of, iso, load_of, write_json
@@ -82,24 +82,35 @@ def niches_of(snapshot: Path) -> list[Path]:
 
 def agents_of(snapshot: Path) -> list[Path]:
     """A snapshot's agent files: a pool's every niche agent and the one the run exported (when
-    it chose one: `selection`), or a baseline's policy."""
+    it chose one: `selection`), or a baseline's exported policy and its last where they differ."""
     exported = snapshot / ES_POLICIES / EXPORTED_AGENT
     pool = niches_of(snapshot) + ([exported] if exported.is_file() else [])
-    return pool or [snapshot / TORCH_POLICY]
+    last = snapshot / LAST_POLICY
+    return pool or [snapshot / TORCH_POLICY, *([last] if last.is_file() else [])]
+
+
+def choice_of(snapshot: Path) -> Path | None:
+    """The snapshot's choice record (a pool's beside its agents, a baseline's beside its
+    policy); None for a run from before runs chose their agent."""
+    found = [p for p in (snapshot / ES_POLICIES, snapshot) if (p / CHOICE_FILE).is_file()]
+    return found[0] / CHOICE_FILE if found else None
 
 
 def files_of(snapshot: Path) -> list[Path]:
     """What a record keeps of a snapshot's agents: their files and the run's choice record."""
-    choice = snapshot / ES_POLICIES / CHOICE_FILE
-    return agents_of(snapshot) + ([choice] if choice.is_file() else [])
+    choice = choice_of(snapshot)
+    return agents_of(snapshot) + ([choice] if choice else [])
 
 
 def own_choice(snapshot: Path) -> str | None:
-    """The niche agent the run's own rule picks (the best score on its own terrain): its file's
-    stem; None for a baseline."""
-    choice = snapshot / ES_POLICIES / CHOICE_FILE
-    if choice.is_file():
-        return str(json.loads(choice.read_text())["own"]).split("/")[0]
+    """The agent file (its stem) the run's own rule picks: a pool's best score on its own
+    terrain, a baseline's last policy; None for a baseline from before the choice."""
+    choice = choice_of(snapshot)
+    if choice is not None:
+        own = str(json.loads(choice.read_text())["own"])
+        if own == LAST:
+            return Path(LAST_POLICY).stem if (snapshot / LAST_POLICY).is_file() else "policy"
+        return own.split("/")[0]
     found = policy_in(snapshot)
     return found[1] if found and found[0].kind == "es" else None
 
@@ -145,12 +156,12 @@ def evaluate_snapshot(
     best, _ = policy_in(snapshot) or (None, None)
     assert best is not None  # a snapshot holds its agents (take_snapshots writes them first)
     own = own_choice(snapshot)
-    choice = snapshot / ES_POLICIES / CHOICE_FILE
+    choice = choice_of(snapshot)
     entry: dict[str, Any] = {
         **info,
         "best_agent": best.path.stem,
         **({"own_agent": own} if own else {}),
-        **({"choice": json.loads(choice.read_text())} if choice.is_file() else {}),
+        **({"choice": json.loads(choice.read_text())} if choice else {}),
         "evaluations": {},
     }
     for suite in suites:

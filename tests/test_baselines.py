@@ -6,6 +6,7 @@ sqlite store in tmp_path); sizes are tiny: 30-step episodes, batches of 60 frame
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +24,12 @@ from epoet.config import validate
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.rl import sac
+from epoet.rl.candidates import CANDIDATES
 from epoet.rl.env import RunningObsNorm, make_env, obs_norm_of, terrain_env
 from epoet.rl.harness import batch_plan
 from epoet.rl.policy_file import load_policy
+from epoet.rollout.agent_files import LAST_POLICY
+from epoet.rollout.selection import CHOICE_FILE, LAST
 from epoet.run import run
 from epoet.tracking import MlflowTracker
 
@@ -86,10 +90,17 @@ def test_smoke_run_logs_to_mlflow_and_exports_a_rebuildable_policy(algo, store, 
     ] == [0, 120, 240]
     assert "policy.pt" in {a.path for a in store.list_artifacts(mlflow_run.info.run_id)}
 
-    # the exported policy, rebuilt with plain torch, acts as the trained actor
+    # the run's last policy, rebuilt with plain torch, acts as the trained actor; the exported
+    # one is the policy the run chose (`selection`), kept from its evaluation point
+    choice = json.loads((tmp_path / "run" / CHOICE_FILE).read_text())
+    last = result.policy_path
+    if choice["exported"] != LAST:
+        kept = tmp_path / "run" / CANDIDATES / f"{choice['exported']}.pt"
+        assert result.policy_path.read_bytes() == kept.read_bytes()
+        last = tmp_path / "run" / LAST_POLICY
     checkpoint = load_checkpoint(tmp_path / "run")
     td = deterministic_rollout(raw, result.learner.actor, checkpoint)
-    act = load_policy(result.policy_path)
+    act = load_policy(last)
     actions = td["action"].numpy()
     assert actions.std(0).max() > 1e-3  # the check below compares actions that vary
     np.testing.assert_allclose(act(td["observation"].numpy()), actions, atol=1e-5)

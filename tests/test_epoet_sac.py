@@ -114,8 +114,10 @@ def test_the_laptop_budget_holds_two_joins() -> None:
 
 
 def test_the_keys_of_sacs_steps_are_numbered_after_epoets() -> None:
-    """Its keyed streams are none of ePOET's (epoet_sac/keys.py continues poet/keys.py)."""
-    assert min(SacKey) == max(Key) + 1
+    """Its keyed streams are none of ePOET's (epoet_sac/keys.py continues poet/keys.py's first
+    keys; ePOET's later keys are numbered above SacKey's)."""
+    assert min(SacKey) == Key.ADMIT_SPAWN + 1
+    assert all(k < min(SacKey) or k > max(SacKey) for k in Key)
     assert len({*map(int, Key), *map(int, SacKey)}) == len(Key) + len(SacKey)
 
 

@@ -119,3 +119,32 @@ def test_held_out_terrains_are_a_function_of_the_run_seed_and_never_the_training
 def test_bad_selections_are_refused_at_start_up(override, message):
     with pytest.raises(ConfigError, match=message):
         load([override])
+
+
+def test_a_baseline_whose_last_policy_is_worse_than_an_earlier_one_exports_the_earlier(tmp_path):
+    """The authors' PPO policy kept at an evaluation point, then a last policy that stands
+    still: the run exports the kept one, the last beside it, both choices recorded."""
+    import torch
+
+    from epoet.rl.candidates import CANDIDATES, Candidates
+    from epoet.rl.policy_file import POLICY_FILE
+    from epoet.rollout.agent_files import LAST_POLICY
+
+    cfg = load(["algo=ppo", "budget=paper", "budget.episode_steps=60", "selection.terrains=2"])
+    walker = FOLDER / "agents" / "ppo" / "0.pt"
+    candidates = Candidates(cfg, tmp_path)
+    candidates.keep(1000, lambda path: path.write_bytes(walker.read_bytes()))
+    spec = torch.load(walker, weights_only=True)
+    spec["state_dict"] = {k: torch.zeros_like(v) for k, v in spec["state_dict"].items()}
+    torch.save(spec, tmp_path / POLICY_FILE)  # the run's last policy: all zeros
+    record = candidates.export(tmp_path)
+    assert record["own"] == "last" and record["validation"] == record["exported"] == "frames1000"
+    assert (tmp_path / POLICY_FILE).read_bytes() == walker.read_bytes()
+    assert (
+        torch.load(tmp_path / LAST_POLICY, weights_only=True)["state_dict"]["0.weight"].abs().sum()
+        == 0
+    )
+    assert (tmp_path / CHOICE_FILE).is_file()
+    # the kept policy's held-out result is cached: a later choice walks only the last again
+    cached = json.loads((tmp_path / CANDIDATES / "held_out.json").read_text())
+    assert list(cached) == ["frames1000"]

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 class Niche(NamedTuple):
     """What a niche offers as candidates: its best and its last parameters with their scores."""
 
-    index: int
+    env: int  # its environment's index
     best: np.ndarray
     best_score: float
     final: np.ndarray
@@ -57,7 +57,7 @@ def candidates(niches: Iterable[Niche]) -> tuple[list[str], np.ndarray, list[flo
         ):
             if which == "final" and np.array_equal(theta, niche.best):
                 continue
-            names.append(f"env{niche.index}/{which}")
+            names.append(f"env{niche.env}/{which}")
             thetas.append(theta)
             scores.append(float(score))
     return names, np.stack(thetas), scores

@@ -214,7 +214,7 @@ class Service:
         if recorded is not None:  # the first variant's episode e is the step's e or n + e - m
             local, m, n = recorded["episode"], halves[0], sum(halves)
             recorded = {**recorded, "episode": np.where(local < m, local, n + local - m)}
-        return Episodes(*fields, transitions=recorded)
+        return Episodes(fields[0], fields[1], fields[2], recorded)
 
     def scores(self, requests: list[Request]) -> list[np.ndarray]:
         """Mean return of each agent of each evaluation request."""

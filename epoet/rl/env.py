@@ -232,3 +232,24 @@ def evaluate(
         "length_mean": float(np.mean(lengths)),
         "finish_rate": float(np.mean(finished)),
     }
+
+
+def rng_state(env: EnvBase) -> dict[str, Any]:
+    """Every random stream a baseline's training draws from, for an exact resume."""
+    gym_env = terrain_env(env)
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+        "env": gym_env.np_random.bit_generator.state,
+        "env_episodes": gym_env.episodes,
+    }
+
+
+def set_rng_state(env: EnvBase, state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+    gym_env = terrain_env(env)
+    gym_env.np_random.bit_generator.state = state["env"]
+    gym_env.episodes = state["env_episodes"]

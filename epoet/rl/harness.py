@@ -28,14 +28,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import random
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
-import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.collectors import Collector
@@ -47,6 +45,7 @@ from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.clock import CpuMeter
 from epoet.core.compute import default_workers
 from epoet.core.lifecycle import stop_requested
+from epoet.rl.candidates import Candidates
 from epoet.rl.config import RlConfig, SacConfig
 from epoet.rl.env import (
     RunningObsNorm,
@@ -55,6 +54,8 @@ from epoet.rl.env import (
     evaluate,
     make_env,
     obs_norm_of,
+    rng_state,
+    set_rng_state,
     terrain_env,
 )
 from epoet.rl.policy_file import POLICY_FILE, export_policy
@@ -168,26 +169,6 @@ class TrainResult:
     learner: Any
 
 
-def _rng_state(env: EnvBase) -> dict[str, Any]:
-    gym_env = terrain_env(env)
-    return {
-        "torch": torch.get_rng_state(),
-        "numpy": np.random.get_state(),
-        "python": random.getstate(),
-        "env": gym_env.np_random.bit_generator.state,
-        "env_episodes": gym_env.episodes,
-    }
-
-
-def _set_rng_state(env: EnvBase, state: dict[str, Any]) -> None:
-    torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
-    random.setstate(state["python"])
-    gym_env = terrain_env(env)
-    gym_env.np_random.bit_generator.state = state["env"]
-    gym_env.episodes = state["env_episodes"]
-
-
 class Harness:
     """Seeds, the training and evaluation envs, counters, tracking, checkpoints and progress of
     one baseline run. Metrics go to the tracker at step = frames: `train/*` (episode return and
@@ -213,6 +194,7 @@ class Harness:
         self.actor: ProbabilisticActor | None = None
         self.progress: tqdm | None = None
         self.cpu_meter = CpuMeter()
+        self.candidates = Candidates(cfg, run_dir)  # the policies it may export (`selection`)
         if resume is None:
             tracker.log_dict(dataclasses.asdict(self.seeds), "seeds.json")
 
@@ -242,7 +224,7 @@ class Harness:
             learner.load_state_dict(self.resume["learner"])
             if self.obs_stats is not None:
                 self.obs_stats.load_state_dict(self.resume["obs_norm"])
-            _set_rng_state(self.env, self.resume["rng"])
+            set_rng_state(self.env, self.resume["rng"])
             collector.reset()
         self.progress = tqdm(
             total=self.plan.total_frames,
@@ -310,7 +292,7 @@ class Harness:
             self.run_dir,
             self.cfg.snapshot_cpu_minutes,
             state.cpu_time,
-            self.export_policy,
+            self.export_agent,
             {**info, "frames": float(state.frames)},
         ):
             self.progress.write(f"[{self.cfg.algo.name}] snapshot at {minutes} CPU minutes")
@@ -332,6 +314,7 @@ class Harness:
             self.cfg.budget.episode_steps,
         )
         state.last_eval_frames = state.frames
+        self.candidates.keep(state.frames, self.write_policy)
         state.best_score = max(state.best_score, state.last_eval["return_mean"])
         while state.next_eval <= state.frames:
             state.next_eval += cast(BaselineBudgetConfig, self.cfg.budget).eval_every
@@ -350,11 +333,19 @@ class Harness:
             f"finish={state.last_eval['finish_rate']:.2f}"
         )
 
-    def export_policy(self, folder: Path) -> Path:
-        """The actor as a policy file in `folder` (epoet.rl.policy_file)."""
+    def write_policy(self, path: Path) -> Path:
+        """The actor as a policy file (epoet.rl.policy_file)."""
         assert self.actor is not None  # given to `start`
-        return export_policy(
-            folder / POLICY_FILE, self.actor, self.env, self.algo.hidden, self.algo.activation
+        return export_policy(path, self.actor, self.env, self.algo.hidden, self.algo.activation)
+
+    def export_agent(self, folder: Path) -> None:
+        """The policy the run exports into `folder` (`selection`: epoet.rl.candidates)."""
+        self.write_policy(folder / POLICY_FILE)
+        record = self.candidates.export(folder)
+        assert self.progress is not None  # opened before the first batch
+        self.progress.write(
+            f"[{self.cfg.algo.name}] exports the policy of {record['exported']} (held-out "
+            f"choice: {record.get('validation', 'none')}; {record['cpu_s']:.0f} CPU s)"
         )
 
     def checkpoint(self, learner: Learner) -> None:
@@ -368,11 +359,11 @@ class Harness:
                 "loop": dataclasses.asdict(self.state),
                 "learner": learner.state_dict(),
                 "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
-                "rng": _rng_state(self.env),
+                "rng": rng_state(self.env),
                 "seeds": dataclasses.asdict(self.seeds),
             },
         )
-        self.export_policy(self.run_dir)
+        self.write_policy(self.run_dir / POLICY_FILE)
 
     def finish(self, learner: Learner) -> TrainResult:
         """Log the last evaluation as `final/*`, checkpoint, export the policy, say why the run
@@ -380,7 +371,8 @@ class Harness:
         self.tracker.log_metrics(
             self.state.frames, {f"final/{k}": v for k, v in self.state.last_eval.items()}
         )
-        self.checkpoint(learner)  # exports the policy too
+        self.checkpoint(learner)
+        self.export_agent(self.run_dir)
         policy_path = self.run_dir / POLICY_FILE
         self.tracker.log_artifact(policy_path)
         report_stop(

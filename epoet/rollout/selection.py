@@ -17,7 +17,7 @@ are children of a separate ePOET run, rendered at the relief and with the render
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -36,6 +36,7 @@ from epoet.terrain.config import RENDERINGS, MutationError, TerrainConfig
 # from every keyed stream of a run's training (epoet.poet.keys numbers those from 0).
 HELD_OUT_STREAM = 1000
 RULES = ("validation", "own")
+LAST = "last"  # a baseline's own rule: its last policy (epoet/rl/candidates.py)
 CHOICE_FILE = "choice.json"  # beside an exported agent: both choices and every candidate's record
 SOLVED = 2000.0  # the paper's success: the finish line and a return of at least this x the
 # budget's score scale (the suites' `solve_score`)
@@ -113,14 +114,22 @@ def rank(names: Sequence[str], solved: np.ndarray, returns: np.ndarray) -> dict[
     each: per candidate its solved share and mean return, and the chosen one's name."""
     share = solved.reshape(len(names), -1).mean(axis=1)
     mean = returns.reshape(len(names), -1).mean(axis=1)
-    best = max(range(len(names)), key=lambda k: (share[k], mean[k], -k))
-    return {
-        "chosen": names[best],
-        "candidates": {
-            name: {"solved": float(s), "mean_return": float(m)}
-            for name, s, m in zip(names, share, mean)
-        },
+    candidates = {
+        name: {"solved": float(s), "mean_return": float(m)}
+        for name, s, m in zip(names, share, mean)
     }
+    return {"chosen": best_of(candidates), "candidates": candidates}
+
+
+def best_of(candidates: dict[str, dict[str, float]]) -> str:
+    """The candidate that solves most held-out episodes; ties go to the higher mean return, then
+    to the earlier candidate (insertion order)."""
+    names = list(candidates)
+    k = max(
+        range(len(names)),
+        key=lambda k: (candidates[names[k]]["solved"], candidates[names[k]]["mean_return"], -k),
+    )
+    return names[k]
 
 
 def es_held_out(
@@ -149,6 +158,46 @@ def es_held_out(
         episodes = evaluator.run(requests)
     solved = np.stack([e.finished & (e.returns >= SOLVED * score_scale) for e in episodes], axis=1)
     returns = np.stack([e.returns for e in episodes], axis=1)
+    return rank(names, solved, returns)
+
+
+def policy_held_out(
+    policies: Sequence[Callable[[np.ndarray], np.ndarray]],
+    names: Sequence[str],
+    agent: AgentConfig,
+    terrain_cfg: TerrainConfig,
+    sel: SelectionConfig,
+    run_seed: int,
+    score_scale: float,
+) -> dict[str, Any]:
+    """Policies (`act(obs) -> action`: a baseline's exported ones) on the held-out terrains, one
+    step at a time in this process, with the evaluation's episode length."""
+    from epoet.envs.terrain_env import TerrainEnv  # MuJoCo's gym env, for policies only
+
+    rules = replace(agent, max_episode_steps=round(sel.episode_ratio * agent.max_episode_steps))
+    terrains = held_out_terrains(terrain_cfg, sel, run_seed)
+    shape = (len(policies), len(terrains), sel.episodes)
+    solved, returns = np.zeros(shape, dtype=bool), np.zeros(shape)
+    env = TerrainEnv(rules, terrain_cfg)
+    try:
+        for i, terrain in enumerate(terrains):
+            env.set_terrain(terrain)
+            starts = stream(run_seed, i, 1).generate_state(sel.episodes)
+            for k, act in enumerate(policies):
+                for e, start in enumerate(starts):
+                    obs, info = env.reset(seed=int(start))
+                    done, total = False, 0.0
+                    while not done:
+                        action = np.asarray(act(obs), dtype=np.float64)
+                        if not np.isfinite(action).all():  # a diverged policy fails here
+                            break
+                        obs, reward, terminated, truncated, info = env.step(action)
+                        total += reward
+                        done = terminated or truncated
+                    returns[k, i, e] = total
+                    solved[k, i, e] = bool(info.get("finished")) and total >= SOLVED * score_scale
+    finally:
+        env.close()
     return rank(names, solved, returns)
 
 
