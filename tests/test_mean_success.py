@@ -35,3 +35,34 @@ def test_terrains_every_run_ties_on_cap_the_probability_of_improvement():
     # terrains 0 (all solved) and 1 (all failed) are tied: (4 - 2 / 2) / 4
     assert ties_ceiling(x, y) == pytest.approx(0.75)
     assert ties_ceiling(np.eye(3), np.eye(3)[::-1]) == 1.0
+
+
+def test_the_level_table_counts_medium_episodes_that_stop_at_the_step(tmp_path):
+    """Four medium episodes (a solved one, two failed at 6 m and 7 m, one failed at 12 m) and
+    one easy one: half the medium episodes, two thirds of the failed, end at the step."""
+    import json
+
+    import pandas as pd
+
+    from analysis.levels import level_summary, level_table
+    from analysis.records import EPISODES, FORMAT, RUN_FILE
+
+    record = tmp_path / "epoet_s1"
+    folder = record / "cpu60" / "agent" / "paper"
+    folder.mkdir(parents=True)
+    pd.DataFrame(
+        {
+            "level": ["medium"] * 4 + ["easy"],
+            "finished": [True, False, False, False, True],
+            "solved": [True, False, False, False, True],
+            "forward_distance": [22.0, 6.0, 7.0, 12.0, 22.0],
+        }
+    ).to_csv(folder / EPISODES, index=False)
+    run = {"format": FORMAT, "algo": "epoet", "seed": "1", "started": "2026-01-01T00:00:00Z"}
+    run["snapshots"] = {"60": {"best_agent": "agent", "evaluations": {"paper": {}}}}
+    (record / RUN_FILE).write_text(json.dumps(run))
+    [row] = level_table(tmp_path, "paper").to_dict("records")
+    assert row["easy"] == 1.0 and row["medium"] == 0.25
+    assert row["medium at step"] == 0.5 and row["failed medium at step"] == pytest.approx(2 / 3)
+    assert row["failed medium distance (m)"] == pytest.approx(25 / 3)
+    assert level_summary(level_table(tmp_path, "paper")).runs.tolist() == [1]
