@@ -1,4 +1,4 @@
-"""The agent an ePOET (or ePOET-SAC) run exports as its own, `policies/agent.npz`, beside the
+"""The agent an ePOET run (or a run of a loop that extends it) exports as its own, `policies/agent.npz`, beside the
 pool's niche agents: chosen among every niche's best and last parameters by `selection`
 (epoet/rollout/selection.py), at every CPU-time snapshot and at the end of the run.
 

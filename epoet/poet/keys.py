@@ -27,5 +27,5 @@ class Key(IntEnum):
     ADMIT = 15  # (iteration, slot, candidate + 1 or 0 for direct transfers)
     ADMIT_NOISE = 16  # (iteration, slot, candidate)
     ADMIT_SPAWN = 17  # (iteration, slot, candidate)
-    # numbered after ePOET-SAC's keys (epoet_sac/keys.py), which continue from 18
+    # numbered above the keys of loops that extend ePOET's, which continue from 18
     VARIANT_BOWL = 40  # (env, iteration, variant): the bowl of an ES step's terrain variant

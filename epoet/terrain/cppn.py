@@ -31,7 +31,8 @@ import numpy as np
 from neat.graphs import feed_forward_layers
 from scipy import ndimage
 
-from epoet.terrain import reference_rendering
+from epoet.terrain.reference_rendering import reference_inputs
+from epoet.terrain.reference_rendering import render as reference_render
 from epoet.terrain.bowl import bowl_of
 from epoet.terrain.config import (
     REFERENCE_GRID,
@@ -323,9 +324,7 @@ def render_reference(
     """`genome` as the reference rendered it (reference_rendering.py: the CPPN read in a window,
     each row drifting beyond it, the step where it ends), at relief S = `max_height`, on the
     reference's 200 x 200 samples, resampled (linearly, corner to corner) to `grid` per side."""
-    heights = reference_rendering.render(
-        evaluate(genome, *reference_rendering.reference_inputs()), seed, max_height
-    )
+    heights = reference_render(evaluate(genome, *reference_inputs()), seed, max_height)
     if grid == REFERENCE_GRID:
         return heights
     at = np.linspace(0.0, REFERENCE_GRID - 1.0, grid)
