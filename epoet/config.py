@@ -11,7 +11,6 @@ which runs each `__post_init__` range check before any work starts; every failur
 
 from __future__ import annotations
 
-import importlib.util
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
@@ -36,6 +35,7 @@ from epoet.eval.config import (
     SuiteConfig,
 )
 from epoet.registry import algorithms
+from epoet.rollout.config import WorkersConfig
 from epoet.terrain.config import TerrainConfig
 from epoet.tracking.config import TrackingConfig
 
@@ -104,35 +104,6 @@ class BaselineBudgetConfig(BudgetConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         positive(self, "frames", "eval_every")
-
-
-@dataclass
-class WorkersConfig:
-    """Where ES rollouts run: `local` is a process pool on this machine, `ray` a Ray cluster."""
-
-    KEY: ClassVar[str] = "workers"
-
-    backend: str
-    num: Optional[int]  # None: one worker per available core (Ray: per cluster CPU)
-    batch: int  # robots per process (fits the cache: bench/rollout_throughput)
-    address: Optional[str] = None  # ray: a running cluster's address; None starts a local Ray
-
-    def __post_init__(self) -> None:
-        check(
-            self.backend in ("local", "ray"),
-            f"workers.backend must be 'local' or 'ray', got {self.backend!r}.",
-        )
-        check(self.num is None or self.num > 0, f"workers.num must be > 0, got {self.num}.")
-        positive(self, "batch")
-        check(
-            self.address is None or self.backend == "ray",
-            "workers.address is the Ray cluster to join, so it needs workers=ray.",
-        )
-        check(
-            self.backend != "ray" or importlib.util.find_spec("ray") is not None,
-            "workers=ray needs Ray, the 'distributed' extra: "
-            "pip install -c constraints.txt -e '.[distributed]'.",
-        )
 
 
 @dataclass

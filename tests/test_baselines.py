@@ -25,7 +25,7 @@ from epoet.core.schema import ConfigError
 from epoet.rl import sac
 from epoet.rl.env import RunningObsNorm, make_env, obs_norm_of, terrain_env
 from epoet.rl.harness import batch_plan
-from epoet.rl.policy_file import load_policy
+from epoet.rollout.torch_policy import load_policy
 from epoet.run import run
 from epoet.tracking import MlflowTracker
 
