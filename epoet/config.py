@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any, ClassVar, Optional, cast
@@ -256,38 +256,6 @@ def _typed_keys(message: str, cfg: DictConfig) -> str:
     return message
 
 
-def task_configs(
-    agent: Any = None, terrain: Any = None, robot: str = "hexapod"
-) -> tuple[AgentConfig, TerrainConfig]:
-    """A robot's task configs for code that builds an env outside a run (gym.make, notebooks,
-    tests): dataclasses as they are; dicts or DictConfigs as overrides of the paper budget's
-    agent (conf/agent/<robot>.yaml) and of the terrain file their `kind` names (or a kind's
-    name), range-checked."""
-    if isinstance(agent, AgentConfig) and isinstance(terrain, TerrainConfig):
-        return agent, terrain
-    terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
-    kind = terrain.get("kind", "bowl")
-    base = compose(
-        [
-            "budget=paper",
-            f"agent={robot}",
-            f"terrain={kind}"
-            if (CONF_DIR / "terrain" / f"{kind}.yaml").exists()
-            else "terrain=bowl",
-        ]
-    )
-    OmegaConf.resolve(base)  # agent.max_episode_steps interpolates the budget's episode length
-
-    def build(value: Any, node: DictConfig, schema: type) -> Any:
-        return (
-            value
-            if isinstance(value, schema)
-            else OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
-        )
-
-    return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
-
-
 @cache
 def _robot_body(robot: str) -> dict[str, Any]:
     agent = validate(compose([f"agent={robot}"])).agent
@@ -300,16 +268,6 @@ def saved_agent(agent: Mapping[str, Any]) -> dict[str, Any]:
     if "mjcf" in agent:
         return dict(agent)
     return {**_robot_body(HEXAPOD), **agent}
-
-
-def _plain(value: Any) -> dict:
-    if value is None:
-        return {}
-    if isinstance(value, DictConfig):
-        return cast(dict, OmegaConf.to_container(value, resolve=True))  # a DictConfig's: a dict
-    if isinstance(value, TerrainConfig):  # a dataclass terrain with a dict agent
-        return asdict(value)
-    return dict(value)
 
 
 def load(overrides: Sequence[str] = ()) -> Config:

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from epoet.config import compose, load, validate
-from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.eval import suite as suite_module
 from epoet.eval.suite import SHIPPED, SuiteError, example_terrain, load_suite
 from epoet.eval.suite_format import LEVELS, Course, level_of, quantize
@@ -163,7 +163,7 @@ def test_evaluation_runs_the_suites_course_scaled_to_the_episode():
 def _walk(rules, speed: float) -> tuple[bool, float]:
     """(finished, return) of a robot gliding straight along +x at `speed` (level, no lateral
     motion), through the task's real reward and episode rules, until the episode ends."""
-    env = HexapodEnv(rules, load(["budget=paper"]).terrain)
+    env = TerrainEnv(rules, load(["budget=paper"]).terrain)
     task = HexapodTask(rules, layout(env.model), 20.0)
     qpos, qvel, sd = np.zeros((1, 25)), np.zeros((1, 24)), np.zeros((1, 24))
     qpos[0, :4] = rules.start_x, 0.0, 0.2, 1.0
