@@ -1,7 +1,8 @@
-"""The root config of a training run, the registration of every schema (the run's and those of
-the commands around a trained agent, epoet/eval/config.py), and composition. Values live in the
-YAML files; each wing's schema lives beside its code (envs/, terrain/, es/, poet/, epoet_sac/,
-rl/, tracking/, eval/ config.py) and holds types and range checks, nothing else.
+"""The root config of a training run, the registration of the schemas, and composition. Values
+live in the YAML files; each folder's schema lives beside its code (envs/, terrain/, rollout/,
+es/, poet/, epoet_sac/, rl/, tracking/, eval/ config.py) and holds types and range checks,
+nothing else. The commands around a trained agent register their own schemas
+(`register_command`, called by epoet.cli.KeyValueCommand), so this module names none of them.
 
 Hydra's ConfigStore registers each dataclass as the schema of its YAML file, so a typo or a wrong
 type fails at composition. `validate` builds the dataclass tree with `OmegaConf.to_object`,
@@ -27,13 +28,6 @@ from omegaconf import DictConfig, OmegaConf
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import ConfigError, check, positive
 from epoet.envs.config import BODY_KEYS, HEXAPOD, AgentConfig
-from epoet.eval.config import (
-    EvaluateConfig,
-    GalleryConfig,
-    ReferenceConfig,
-    RenderConfig,
-    SuiteConfig,
-)
 from epoet.registry import algorithms
 from epoet.rollout.config import WorkersConfig
 from epoet.terrain.config import TerrainConfig
@@ -162,23 +156,12 @@ FAMILY_BUDGETS: dict[Family, type[BudgetConfig]] = {
     Family.BASELINE: BaselineBudgetConfig,
 }
 
-# conf/<name>.yaml -> the schema of `python -m epoet.eval.<name>` (epoet.cli.KeyValueCommand)
-COMMAND_SCHEMAS: dict[str, type] = {
-    "gallery": GalleryConfig,
-    "suite": SuiteConfig,
-    "evaluate": EvaluateConfig,
-    "render": RenderConfig,
-    "reference": ReferenceConfig,
-}
-
 
 def register_configs() -> None:
     """Make each dataclass the schema of its YAML file (type checks at composition), and give
     every algorithm (its record) the two nodes composition reads it from."""
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
-    for name, schema in COMMAND_SCHEMAS.items():
-        cs.store(name=f"{name}_schema", node=schema)
     cs.store(group="agent", name="agent_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
@@ -206,6 +189,12 @@ def register_algorithm(cs: ConfigStore, record: Algorithm) -> None:
         {f"optional /algo_budget/{record.name}": "${budget}"},
     ]
     cs.store(group="algo_budget", name=record.name, node={"defaults": defaults}, package="_global_")
+
+
+def register_command(name: str, schema: type) -> None:
+    """The schema of a command's conf/<name>.yaml (`<name>_schema`), registered by the command
+    itself (epoet.cli.KeyValueCommand), so composition keeps no list of the commands above it."""
+    ConfigStore.instance().store(name=f"{name}_schema", node=schema)
 
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"

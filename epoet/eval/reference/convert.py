@@ -54,14 +54,14 @@ from epoet.eval.reference.layout import (
     observation_source,
 )
 from epoet.eval.reference.pickles import ReferenceFileError, read_genome, read_normaliser, to_neat
-from epoet.terrain.cppn import render_reference
-from epoet.terrain.reference_rendering import EVAL_HEIGHT
 from epoet.eval.suite import load_suite
 from epoet.eval.suite_format import SUITE_FORMAT, level_of, quantize
 from epoet.rollout.agent_files import POLICY_FORMAT
 from epoet.rollout.policy import num_params
+from epoet.terrain.cppn import render_reference
+from epoet.terrain.reference_rendering import EVAL_HEIGHT
 
-COMMAND = KeyValueCommand("reference", __doc__)
+COMMAND = KeyValueCommand("reference", __doc__, ReferenceConfig)
 
 REPOSITORY = "github.com/ml-tue/ePOET_3D"
 MODELS = "trained_models"
