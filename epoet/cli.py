@@ -105,8 +105,8 @@ def run_hydra_app(app: Callable[[], None]) -> None:
 @dataclass(frozen=True)
 class KeyValueCommand:
     """`python -m epoet.eval.<name> key=value ...`: composed from conf/<name>.yaml, validated by
-    its schema, with a generated `--help`. Defining the command registers its schema, so the
-    config it composes needs no list of the commands below it (epoet/config.py)."""
+    its schema, with a generated `--help`. Defining the command registers its schema, so
+    epoet/config.py, a layer below the commands, keeps no list of them."""
 
     name: str  # conf/<name>.yaml, its schema's node `<name>_schema`, the module epoet.eval.<name>
     doc: str | None  # the command module's docstring: what it does and its examples
