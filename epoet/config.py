@@ -193,7 +193,8 @@ def register_algorithm(cs: ConfigStore, record: Algorithm) -> None:
 
 def register_command(name: str, schema: type) -> None:
     """The schema of a command's conf/<name>.yaml (`<name>_schema`), registered by the command
-    itself (epoet.cli.KeyValueCommand), so composition keeps no list of the commands above it."""
+    itself (epoet.cli.KeyValueCommand), so composition keeps no list of the commands above it:
+    `compose(config_name=<name>)` needs the command's module imported (its COMMAND)."""
     ConfigStore.instance().store(name=f"{name}_schema", node=schema)
 
 

@@ -16,6 +16,7 @@ from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
 from epoet.envs.terrain_env import TerrainEnv
 from epoet.eval import suite as suite_module
+from epoet.eval.evaluate import COMMAND as EVALUATE
 from epoet.eval.suite import SHIPPED, SuiteError, example_terrain, load_suite
 from epoet.eval.suite_format import LEVELS, Course, level_of, quantize
 from epoet.eval.suite_generation import differences, generate, write_suite
@@ -184,7 +185,7 @@ def test_solved_asks_the_papers_speed_at_every_budget(budget: str) -> None:
     score (2000 x its score scale); at half that speed the episode ends before the line."""
     cfg = load([f"budget={budget}"])
     rules = load_suite().course.rules(cfg.agent)
-    solve = compose([], config_name="evaluate").solve_score * cfg.budget.score_scale
+    solve = compose([], config_name=EVALUATE.name).solve_score * cfg.budget.score_scale
     finished, total = _walk(rules, cfg.agent.reward.target_speed)
     assert finished and total >= solve
     finished, _ = _walk(rules, cfg.agent.reward.target_speed / 2)
