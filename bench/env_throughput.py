@@ -11,7 +11,7 @@ import time
 import mujoco
 import numpy as np
 
-from epoet.envs.hexapod_env import make_hexapod
+from epoet.env_factory import make_terrain_env
 
 
 def steps_per_second(step, n: int) -> float:
@@ -27,7 +27,7 @@ def main() -> None:
     parser.add_argument("--terrain", default="cppn", help="a conf/terrain/ kind")
     args = parser.parse_args()
 
-    env = make_hexapod(terrain=args.terrain)
+    env = make_terrain_env(terrain=args.terrain)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, size=(args.steps, 18))

@@ -21,8 +21,8 @@ import mujoco
 import numpy as np
 
 from epoet.config import Config, compose, validate
-from epoet.envs.hexapod_env import HexapodEnv
-from epoet.envs.model import action_to_targets
+from epoet.env_factory import action_to_targets
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.rollout.policy import forward, init_params, policy_sizes
 from epoet.terrain import Terrain, cppn_inputs, make_terrain, mutate_genome
 
@@ -48,7 +48,7 @@ def steps_per_second(cfg: Config, integrator: str, terrain: Terrain, steps: int,
                      self_collision: bool = False) -> float:
     """Bare mj_step rate on the env's model (terrain and spawn set by the env, not timed)."""
     cfg.agent.integrator = integrator
-    env = HexapodEnv(cfg.agent, cfg.terrain)
+    env = TerrainEnv(cfg.agent, cfg.terrain)
     env.reset(seed=0, options={"terrain": terrain})
     model, data = env.model, env.data
     if self_collision:
@@ -83,7 +83,7 @@ def unstable_episodes(cfg: Config, integrator: str, terrains: list[Terrain],
                       policy: Policy, episodes: int) -> tuple[int, int, int]:
     """(episodes run, unstable episodes, control steps)."""
     cfg.agent.integrator = integrator
-    env = HexapodEnv(cfg.agent, cfg.terrain)
+    env = TerrainEnv(cfg.agent, cfg.terrain)
     bad = steps = 0
     for e in range(episodes):
         obs, _ = env.reset(seed=e, options={"terrain": terrains[e % len(terrains)]})

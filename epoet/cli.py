@@ -25,7 +25,14 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from epoet.config import COMMAND_SCHEMAS, CONF_DIR, Config, compose, register_configs, validate
+from epoet.config import (
+    CONF_DIR,
+    Config,
+    compose,
+    register_command,
+    register_configs,
+    validate,
+)
 from epoet.core.cli import fail
 from epoet.core.help import asks_for_help, field_comments, options_table, page
 from epoet.core.schema import ConfigError
@@ -98,11 +105,16 @@ def run_hydra_app(app: Callable[[], None]) -> None:
 @dataclass(frozen=True)
 class KeyValueCommand:
     """`python -m epoet.eval.<name> key=value ...`: composed from conf/<name>.yaml, validated by
-    its schema (COMMAND_SCHEMAS), with a generated `--help`."""
+    its schema, with a generated `--help`. Defining the command registers its schema, so
+    epoet/config.py, a layer below the commands, keeps no list of them."""
 
-    name: str  # conf/<name>.yaml, the schema's key in COMMAND_SCHEMAS, the module epoet.eval.<name>
+    name: str  # conf/<name>.yaml, its schema's node `<name>_schema`, the module epoet.eval.<name>
     doc: str | None  # the command module's docstring: what it does and its examples
+    schema: type  # the dataclass of its settings (epoet/eval/config.py)
     plain: tuple[str, ...] = ()  # keys that take a value though a config group has their name
+
+    def __post_init__(self) -> None:
+        register_command(self.name, self.schema)
 
     @property
     def prog(self) -> str:
@@ -137,13 +149,12 @@ class KeyValueCommand:
     def help(self) -> str:
         """Usage, what the command does, each option with its description and default (nested
         groups as `<group>.<key>`), and the examples."""
-        schema = COMMAND_SCHEMAS[self.name]
-        comments, chosen = field_comments(schema), _group_choices(self.name)
+        comments, chosen = field_comments(self.schema), _group_choices(self.name)
         rows = []
         register_configs()
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             defaults = compose([], self.name)
-            for f in dataclasses.fields(schema):
+            for f in dataclasses.fields(self.schema):
                 if f.name not in chosen or f.name in self.plain:
                     rows.append((f"{f.name}=", comments[f.name], shown(defaults[f.name])))
                     continue

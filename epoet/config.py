@@ -1,7 +1,8 @@
-"""The root config of a training run, the registration of every schema (the run's and those of
-the commands around a trained agent, epoet/eval/config.py), and composition. Values live in the
-YAML files; each wing's schema lives beside its code (envs/, terrain/, es/, poet/, epoet_sac/,
-rl/, tracking/, eval/ config.py) and holds types and range checks, nothing else.
+"""The root config of a training run, the registration of the schemas, and composition. Values
+live in the YAML files; each folder's schema lives beside its code (envs/, terrain/, rollout/,
+es/, poet/, epoet_sac/, rl/, tracking/, eval/ config.py) and holds types and range checks,
+nothing else. The commands around a trained agent register their own schemas
+(`register_command`, called by epoet.cli.KeyValueCommand), so this module names none of them.
 
 Hydra's ConfigStore registers each dataclass as the schema of its YAML file, so a typo or a wrong
 type fails at composition. `validate` builds the dataclass tree with `OmegaConf.to_object`,
@@ -11,10 +12,9 @@ which runs each `__post_init__` range check before any work starts; every failur
 
 from __future__ import annotations
 
-import importlib.util
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any, ClassVar, Optional, cast
@@ -28,14 +28,8 @@ from omegaconf import DictConfig, OmegaConf
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import ConfigError, check, positive
 from epoet.envs.config import BODY_KEYS, HEXAPOD, AgentConfig
-from epoet.eval.config import (
-    EvaluateConfig,
-    GalleryConfig,
-    ReferenceConfig,
-    RenderConfig,
-    SuiteConfig,
-)
 from epoet.registry import algorithms
+from epoet.rollout.config import WorkersConfig
 from epoet.rollout.selection import SelectionConfig
 from epoet.terrain.config import REFERENCE_SIZE, TerrainConfig
 from epoet.tracking.config import TrackingConfig
@@ -108,35 +102,6 @@ class BaselineBudgetConfig(BudgetConfig):
 
 
 @dataclass
-class WorkersConfig:
-    """Where ES rollouts run: `local` is a process pool on this machine, `ray` a Ray cluster."""
-
-    KEY: ClassVar[str] = "workers"
-
-    backend: str
-    num: Optional[int]  # None: one worker per available core (Ray: per cluster CPU)
-    batch: int  # robots per process (fits the cache: bench/rollout_throughput)
-    address: Optional[str] = None  # ray: a running cluster's address; None starts a local Ray
-
-    def __post_init__(self) -> None:
-        check(
-            self.backend in ("local", "ray"),
-            f"workers.backend must be 'local' or 'ray', got {self.backend!r}.",
-        )
-        check(self.num is None or self.num > 0, f"workers.num must be > 0, got {self.num}.")
-        positive(self, "batch")
-        check(
-            self.address is None or self.backend == "ray",
-            "workers.address is the Ray cluster to join, so it needs workers=ray.",
-        )
-        check(
-            self.backend != "ray" or importlib.util.find_spec("ray") is not None,
-            "workers=ray needs Ray, the 'distributed' extra: "
-            "pip install -c constraints.txt -e '.[distributed]'.",
-        )
-
-
-@dataclass
 class Config:
     """The root config (conf/config.yaml)."""
 
@@ -201,23 +166,12 @@ FAMILY_BUDGETS: dict[Family, type[BudgetConfig]] = {
     Family.BASELINE: BaselineBudgetConfig,
 }
 
-# conf/<name>.yaml -> the schema of `python -m epoet.eval.<name>` (epoet.cli.KeyValueCommand)
-COMMAND_SCHEMAS: dict[str, type] = {
-    "gallery": GalleryConfig,
-    "suite": SuiteConfig,
-    "evaluate": EvaluateConfig,
-    "render": RenderConfig,
-    "reference": ReferenceConfig,
-}
-
 
 def register_configs() -> None:
     """Make each dataclass the schema of its YAML file (type checks at composition), and give
     every algorithm (its record) the two nodes composition reads it from."""
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
-    for name, schema in COMMAND_SCHEMAS.items():
-        cs.store(name=f"{name}_schema", node=schema)
     cs.store(group="agent", name="agent_schema", node=AgentConfig)
     cs.store(group="terrain", name="terrain_schema", node=TerrainConfig)
     cs.store(group="budget", name="budget_schema", node=BudgetConfig)
@@ -245,6 +199,13 @@ def register_algorithm(cs: ConfigStore, record: Algorithm) -> None:
         {f"optional /algo_budget/{record.name}": "${budget}"},
     ]
     cs.store(group="algo_budget", name=record.name, node={"defaults": defaults}, package="_global_")
+
+
+def register_command(name: str, schema: type) -> None:
+    """The schema of a command's conf/<name>.yaml (`<name>_schema`), registered by the command
+    itself (epoet.cli.KeyValueCommand), so composition keeps no list of the commands above it:
+    `compose(config_name=<name>)` needs the command's module imported (its COMMAND)."""
+    ConfigStore.instance().store(name=f"{name}_schema", node=schema)
 
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
@@ -295,38 +256,6 @@ def _typed_keys(message: str, cfg: DictConfig) -> str:
     return message
 
 
-def task_configs(
-    agent: Any = None, terrain: Any = None, robot: str = "hexapod"
-) -> tuple[AgentConfig, TerrainConfig]:
-    """A robot's task configs for code that builds an env outside a run (gym.make, notebooks,
-    tests): dataclasses as they are; dicts or DictConfigs as overrides of the paper budget's
-    agent (conf/agent/<robot>.yaml) and of the terrain file their `kind` names (or a kind's
-    name), range-checked."""
-    if isinstance(agent, AgentConfig) and isinstance(terrain, TerrainConfig):
-        return agent, terrain
-    terrain = {"kind": terrain} if isinstance(terrain, str) else _plain(terrain)
-    kind = terrain.get("kind", "bowl")
-    base = compose(
-        [
-            "budget=paper",
-            f"agent={robot}",
-            f"terrain={kind}"
-            if (CONF_DIR / "terrain" / f"{kind}.yaml").exists()
-            else "terrain=bowl",
-        ]
-    )
-    OmegaConf.resolve(base)  # agent.max_episode_steps interpolates the budget's episode length
-
-    def build(value: Any, node: DictConfig, schema: type) -> Any:
-        return (
-            value
-            if isinstance(value, schema)
-            else OmegaConf.to_object(OmegaConf.merge(node, _plain(value)))
-        )
-
-    return build(agent, base.agent, AgentConfig), build(terrain, base.terrain, TerrainConfig)
-
-
 @cache
 def _robot_body(robot: str) -> dict[str, Any]:
     agent = validate(compose([f"agent={robot}"])).agent
@@ -339,16 +268,6 @@ def saved_agent(agent: Mapping[str, Any]) -> dict[str, Any]:
     if "mjcf" in agent:
         return dict(agent)
     return {**_robot_body(HEXAPOD), **agent}
-
-
-def _plain(value: Any) -> dict:
-    if value is None:
-        return {}
-    if isinstance(value, DictConfig):
-        return cast(dict, OmegaConf.to_container(value, resolve=True))  # a DictConfig's: a dict
-    if isinstance(value, TerrainConfig):  # a dataclass terrain with a dict agent
-        return asdict(value)
-    return dict(value)
 
 
 def load(overrides: Sequence[str] = ()) -> Config:

@@ -339,7 +339,7 @@ def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     `python -m epoet.eval.evaluate run=<run_dir>` does. Interrupted, the run is not DONE, and a
     resume evaluates it again (logging each metric once: `StoredRun.log_results`)."""
     from epoet.eval.agents import AgentError  # pandas, the suite, the env: only when evaluating
-    from epoet.eval.evaluate import evaluate_run
+    from epoet.eval.evaluate import COMMAND, evaluate_run
     from epoet.eval.keys import RESULTS, SHIPPED_NAME
     from epoet.eval.suite import SuiteError
 
@@ -352,7 +352,7 @@ def evaluate_agent(cfg: Config, run_dir: Path) -> None:
     overrides += [f"tracking.uri={cfg.tracking.uri}"] if cfg.tracking.uri else []
     overrides += [f"processes={cfg.workers.num}"] if cfg.workers.num else []
     try:
-        evaluate_run(validate(compose(overrides, config_name="evaluate")), progress=False)
+        evaluate_run(validate(compose(overrides, config_name=COMMAND.name)), progress=False)
     except (AgentError, SuiteError) as err:
         raise EvaluationError(
             f"{cfg.algo.name} seed={cfg.seed} trained, but its evaluation "

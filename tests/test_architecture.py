@@ -1,18 +1,20 @@
-"""The house's shape (docs/architecture.md): every module of epoet/, analysis/ and pipeline/
-under MAX_LINES lines, no import cycle, and no import from a lower wing to a higher one, so data
-flows one way: config -> run -> algorithm -> rollout -> envs/terrain, with tracking and core beside
-and `core` the ground floor, importing nothing else of the package.
+"""The house's shape: the layers docs/architecture.md draws (read from its picture, so the doc
+and this test cannot disagree) are the import rules. The folders of epoet/ (and the modules at
+its top, each a node of its own), analysis/ and pipeline/ form a graph with no cycle, and no node
+imports one on its own line of the picture or above it. Every module stays under MAX_LINES, and
+modules import each other in no circle.
 
 Imports are read from the source (ast): module-level ones, those under `if`/`try`/`with` included,
-those under `if TYPE_CHECKING:` (a type-only circle or upward import still says that one module
-leans on another) and those inside functions (deferred on purpose: optional extras, heavy
-imports; a deferred import still makes its module lean on the other, so it counts for cycles and
-for the wing rule alike).
+those under `if TYPE_CHECKING:` (a type-only import still says that one module leans on another)
+and those inside functions (deferred on purpose: optional extras, heavy imports; a deferred
+import still makes its module lean on the other, so it counts for every rule).
 """
 
 from __future__ import annotations
 
 import ast
+import re
+from itertools import takewhile
 from pathlib import Path
 
 import pytest
@@ -21,38 +23,14 @@ from epoet.registry import algorithms
 
 ROOT = Path(__file__).resolve().parent.parent
 MAX_LINES = 400
+PICTURE = ROOT / "docs" / "architecture.md"
+PICTURE_SECTION = "## The layers"
+NODE = re.compile(r"<?\w+>?/|\w+\.py")  # a folder (`envs/`) or a top-level module (`run.py`)
+NEW_ALGORITHM = "<algorithm>/"  # the picture's place for an algorithm it does not name
 
 # The packages of the algorithms, from their records (an algorithm's runner lives in its
-# package, epoet.<package>.<module>.train): a new algorithm's folder joins the algorithms wing,
-# and its config.py the schemas wing, without an edit here.
-ALGORITHM_PACKAGES = tuple(sorted({".".join(r.runner.split(".")[:2]) for r in algorithms()}))
-
-# Lowest first; a module may import its own wing and the wings before it.
-WINGS: list[tuple[str, tuple[str, ...]]] = [
-    ("core", ("epoet.core",)),
-    (
-        "schemas",
-        (
-            "epoet.envs.config",
-            "epoet.terrain.config",
-            "epoet.es.config",
-            *(f"{package}.config" for package in ALGORITHM_PACKAGES),
-            "epoet.tracking.config",
-            "epoet.eval.config",
-        ),
-    ),
-    ("config", ("epoet.config", "epoet.registry", "epoet.cli")),
-    ("tracking", ("epoet.tracking",)),
-    ("run state", ("epoet.run_state",)),
-    ("terrain", ("epoet.terrain",)),
-    ("envs", ("epoet.envs",)),
-    ("rollout", ("epoet.rollout",)),
-    ("algorithms", ("epoet.es", *ALGORITHM_PACKAGES)),
-    ("eval", ("epoet.eval",)),
-    ("commands", ("epoet.run", "epoet.sweep", "epoet.__main__", "epoet")),
-    ("analysis", ("analysis",)),
-    ("pipeline", ("pipeline",)),
-]
+# package, epoet.<package>.<module>.train).
+ALGORITHM_PACKAGES = {r.runner.split(".")[1] + "/" for r in algorithms()}
 
 
 def _module(path: Path) -> str:
@@ -65,17 +43,6 @@ MODULES = {
     for d in ("epoet", "analysis", "pipeline")
     for p in sorted((ROOT / d).rglob("*.py"))
 }
-
-
-def _wing(module: str) -> int:
-    """The index of the most specific wing prefix that names `module`."""
-    best = (-1, -1)
-    for level, (_, prefixes) in enumerate(WINGS):
-        for prefix in prefixes:
-            if module == prefix or module.startswith(prefix + "."):
-                best = max(best, (len(prefix), level))
-    assert best[1] >= 0, f"{module} belongs to no wing: add it to WINGS"
-    return best[1]
 
 
 def _imports(path: Path) -> set[str]:
@@ -94,75 +61,154 @@ def _imports(path: Path) -> set[str]:
     return found
 
 
+IMPORTS = {m: _imports(p) for m, p in MODULES.items()}
+
+
+def _node(module: str) -> str:
+    """The folder or top-level module of the picture that `module` belongs to."""
+    top, *rest = module.split(".")
+    if top != "epoet":
+        return f"{top}/"
+    if not rest:
+        return "__init__.py"
+    return f"{rest[0]}/" if (ROOT / "epoet" / rest[0]).is_dir() else f"{rest[0]}.py"
+
+
+def _drawn_layers() -> list[list[str]]:
+    """The picture's layers, lowest first: each line's leading node names, in the first code
+    block after PICTURE_SECTION."""
+    section = PICTURE.read_text(encoding="utf-8").split(PICTURE_SECTION, 1)[1]
+    block = section.split("```", 2)[1]
+    lines = [list(takewhile(NODE.fullmatch, line.split())) for line in block.splitlines()]
+    return [names for names in reversed(lines) if names]
+
+
+LAYERS = _drawn_layers()
+NODES = sorted({_node(m) for m in MODULES})
+
+
+def _level(node: str) -> int:
+    """The line of the picture `node` is on, counted from the bottom."""
+    for level, names in enumerate(LAYERS):
+        if node in names or (node in ALGORITHM_PACKAGES and NEW_ALGORITHM in names):
+            return level
+    raise AssertionError(f"{node} is on no line of {PICTURE.name}'s picture: draw it")
+
+
+def _folder_graph() -> dict[str, dict[str, list[str]]]:
+    """node -> the nodes it imports -> the module imports that make the arrow."""
+    graph: dict[str, dict[str, list[str]]] = {n: {} for n in NODES}
+    for module, imported in IMPORTS.items():
+        for other in sorted(imported):
+            if _node(other) != _node(module):
+                graph[_node(module)].setdefault(_node(other), []).append(f"{module} -> {other}")
+    return graph
+
+
+def _cycle(graph: dict[str, set[str]] | dict[str, dict[str, list[str]]]) -> list[str] | None:
+    """One cycle of `graph` (its nodes in order, the first repeated at the end), or None."""
+    done: set[str] = set()
+
+    def walk(node: str, path: list[str]) -> list[str] | None:
+        if node in path:
+            return path[path.index(node) :] + [node]
+        if node in done:
+            return None
+        for after in sorted(graph[node]):
+            if (found := walk(after, path + [node])) is not None:
+                return found
+        done.add(node)
+        return None
+
+    return next((c for n in sorted(graph) if (c := walk(n, [])) is not None), None)
+
+
 @pytest.mark.parametrize("module", sorted(MODULES))
 def test_no_module_is_over_the_line_cap(module: str) -> None:
     lines = len(MODULES[module].read_text().splitlines())
     assert lines <= MAX_LINES, f"{module} has {lines} lines"
 
 
-def test_no_import_cycle() -> None:
-    graph = {m: _imports(p) for m, p in MODULES.items()}
-    done: set[str] = set()
-
-    def walk(module: str, path: list[str]) -> None:
-        if module in path:
-            pytest.fail("import cycle: " + " -> ".join(path[path.index(module) :] + [module]))
-        if module in done:
-            return
-        for imported in sorted(graph[module]):
-            walk(imported, path + [module])
-        done.add(module)
-
-    for module in sorted(graph):
-        walk(module, [])
+def test_no_module_import_cycle() -> None:
+    cycle = _cycle(IMPORTS)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
 
-def test_core_imports_nothing_else_of_the_package() -> None:
-    """The ground floor: run-level code (checkpointing a run, reporting its stop) lives above it,
-    in epoet/run_state.py, and test helpers in tests/."""
-    outside = [
-        f"{m} imports {i}"
-        for m, p in MODULES.items()
-        if _wing(m) == 0
-        for i in sorted(_imports(p))
-        if _wing(i) != 0
+def test_the_picture_draws_every_folder_once() -> None:
+    drawn = [name for names in LAYERS for name in names if name != NEW_ALGORITHM]
+    assert len(drawn) == len(set(drawn)), f"drawn twice: {sorted(drawn)}"
+    unnamed_algorithms = ALGORITHM_PACKAGES - set(drawn)  # on the NEW_ALGORITHM line
+    assert set(drawn) == set(NODES) - unnamed_algorithms, (
+        f"drawn but not in the code: {sorted(set(drawn) - set(NODES))}; "
+        f"in the code but not drawn: {sorted(set(NODES) - set(drawn) - unnamed_algorithms)}"
+    )
+
+
+def test_the_folder_graph_has_no_cycle() -> None:
+    graph = _folder_graph()
+    cycle = _cycle(graph)
+    assert cycle is None, "folder cycle: " + "; ".join(
+        graph[a][b][0] for a, b in zip(cycle or [], (cycle or [])[1:])
+    )
+
+
+def test_no_folder_imports_one_above_it_or_beside_it() -> None:
+    against = [
+        f"{node} (line {_level(node)}) imports {other} (line {_level(other)}): {', '.join(why)}"
+        for node, arrows in _folder_graph().items()
+        for other, why in arrows.items()
+        if _level(other) >= _level(node)
     ]
-    assert not outside, "\n".join(outside)
+    assert not against, "\n".join(against)
 
 
-def test_no_wing_imports_a_higher_one() -> None:
-    upward = [
-        f"{m} ({WINGS[_wing(m)][0]}) imports {i} ({WINGS[_wing(i)][0]})"
-        for m, p in MODULES.items()
-        for i in sorted(_imports(p))
-        if _wing(i) > _wing(m)
-    ]
-    assert not upward, "\n".join(upward)
+def _with_parents(module: str) -> set[str]:
+    """`module` and the packages Python runs before it (epoet.poet for epoet.poet.config)."""
+    parts = module.split(".")
+    return {".".join(parts[:i]) for i in range(1, len(parts) + 1)} & set(MODULES)
+
+
+def test_the_schemas_the_registry_imports_lean_on_nothing_above_the_config() -> None:
+    """epoet/registry.py imports each epoet/<package>/config.py by name, at composition: those
+    modules, and everything they import, stay below epoet/config.py (other packages' schemas and
+    package markers aside), so composing imports no algorithm's code, torch or MuJoCo."""
+    schemas = {m for m in MODULES if re.fullmatch(r"epoet\.\w+\.config", m)}
+    assert {"epoet.poet.config", "epoet.rl.config", "epoet.rollout.config"} <= schemas
+    seen: set[str] = set()
+    todo = set().union(*(_with_parents(s) for s in schemas))
+    while todo:
+        seen.add(module := todo.pop())
+        todo |= set().union(set(), *(_with_parents(i) for i in IMPORTS[module])) - seen
+    markers = {m for m in seen if MODULES[m].name == "__init__.py"}
+    above = sorted(m for m in seen - schemas - markers if _level(_node(m)) >= _level("config.py"))
+    assert not above, f"composition imports, through the schemas, {above}"
 
 
 def test_the_rules_see_what_they_check() -> None:
-    """Deferred and TYPE_CHECKING imports are both read (and count for both rules); and the
-    wings order the modules as the data flows."""
-    evaluators = MODULES["epoet.rollout.evaluators"]  # Ray's backend is imported on demand
-    assert "epoet.rollout.backends.ray_cluster" in _imports(evaluators)
-    assert "epoet.tracking" in _imports(MODULES["epoet.run_state"])  # type-only
+    """Deferred and TYPE_CHECKING imports are both read (and count for every rule); the picture
+    orders the folders as the data flows; and the rules would fail on the arrows that once ran
+    against it."""
+    assert "epoet.rollout.backends.ray_cluster" in IMPORTS["epoet.rollout.evaluators"]  # deferred
+    assert "epoet.tracking" in IMPORTS["epoet.run_state"]  # type-only
     # the steps of the loop do not call back into it (no mixin, no `self: EPOET`)
     for step in ("epoet.poet.reproduction", "epoet.poet.transfer", "epoet.poet.service"):
-        assert "epoet.poet.loop" not in _imports(MODULES[step]), step
-    assert _wing("epoet.core.schema") == 0 < _wing("epoet.poet.config")
-    assert _wing("epoet.run") > _wing("epoet.poet.loop") > _wing("epoet.rollout.engine")
-    assert _wing("epoet.rollout.engine") > _wing("epoet.envs.model") > _wing("epoet.config")
+        assert "epoet.poet.loop" not in IMPORTS[step], step
+    flow = ["pipeline/", "run.py", "poet/", "es/", "config.py", "rollout/", "envs/", "terrain/"]
+    assert [_level(n) for n in flow] == sorted((_level(n) for n in flow), reverse=True)
+    assert _level("core/") == 0 < min(_level(n) for n in NODES if n not in ("core/", "__init__.py"))
+    assert _level("epoet_sac/") > _level("poet/") == _level("rl/") == _level("eval/")
+    assert _cycle({"config.py": {"eval/"}, "eval/": {"cli.py"}, "cli.py": {"config.py"}})
 
 
 def test_epoet_knows_nothing_of_the_loop_that_extends_it() -> None:
     """ePOET-SAC's loop extends ePOET's (a subclass with its own steps, keys and metrics): no
     module of epoet/poet/ imports ePOET-SAC's or names it."""
     leaning = [
-        f"{m}: {sorted(i for i in _imports(p) if i.startswith('epoet.epoet_sac'))}"
+        f"{m}: {sorted(i for i in IMPORTS[m] if i.startswith('epoet.epoet_sac'))}"
         for m, p in MODULES.items()
         if m.startswith("epoet.poet")
         and (
-            any(i.startswith("epoet.epoet_sac") for i in _imports(p))
+            any(i.startswith("epoet.epoet_sac") for i in IMPORTS[m])
             or "sac" in p.read_text().lower()
         )
     ]

@@ -27,9 +27,9 @@ from epoet.rl import sac
 from epoet.rl.candidates import CANDIDATES
 from epoet.rl.env import RunningObsNorm, make_env, obs_norm_of, terrain_env
 from epoet.rl.harness import batch_plan
-from epoet.rl.policy_file import load_policy
 from epoet.rollout.agent_files import LAST_POLICY
 from epoet.rollout.selection import CHOICE_FILE, LAST
+from epoet.rollout.torch_policy import load_policy
 from epoet.run import run
 from epoet.tracking import MlflowTracker
 

@@ -11,17 +11,17 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from epoet.core.schema import ConfigError
-from epoet.envs import ENV_ID
-from epoet.envs.hexapod_env import HexapodEnv, make_hexapod
-from epoet.envs.model import TerrainMismatchError, action_to_targets, layout
+from epoet.env_factory import ENV_ID, action_to_targets, make_terrain_env
+from epoet.envs.model import TerrainMismatchError, layout
 from epoet.envs.task import REWARD_TERMS, EpisodeState, HexapodTask, heading_deviation, roll_pitch
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.terrain import Terrain, make_terrain
 from epoet.terrain.config import TerrainConfig
 
 
 @pytest.mark.parametrize("kind", ["bowl", "cppn"])
 def test_gymnasium_check_env(kind: str) -> None:
-    env = make_hexapod(terrain={"kind": kind, "grid": 40})
+    env = make_terrain_env(terrain={"kind": kind, "grid": 40})
     check_env(env, skip_render_check=True)
 
 
@@ -29,7 +29,7 @@ def test_torchrl_check_env_specs() -> None:
     from torchrl.envs import GymWrapper
     from torchrl.envs.utils import check_env_specs
 
-    env = GymWrapper(make_hexapod(terrain={"kind": "bowl", "grid": 40}))
+    env = GymWrapper(make_terrain_env(terrain={"kind": "bowl", "grid": 40}))
     check_env_specs(env, seed=0)
 
 
@@ -55,7 +55,7 @@ def test_action_maps_to_targets() -> None:
 
 
 def test_reward_terms_match_reference_formulas() -> None:
-    env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
+    env = make_terrain_env(terrain={"kind": "bowl", "grid": 40})
     task = HexapodTask(env.agent_cfg, layout(env.model), 10.0)
     rng = np.random.default_rng(0)
     qpos = np.zeros((1, 25))
@@ -98,7 +98,7 @@ def test_reward_terms_match_reference_formulas() -> None:
 
 
 def test_a_blown_up_row_ends_without_reward_and_leaves_the_others_alone() -> None:
-    env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
+    env = make_terrain_env(terrain={"kind": "bowl", "grid": 40})
     task = HexapodTask(replace(env.agent_cfg, finish_x=0.5), layout(env.model), 10.0)
     qpos = np.zeros((4, 25))
     qpos[:, 3] = 1.0
@@ -127,7 +127,7 @@ def test_a_blown_up_row_ends_without_reward_and_leaves_the_others_alone() -> Non
 
 
 def test_finish_bonus_paid_once() -> None:
-    env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
+    env = make_terrain_env(terrain={"kind": "bowl", "grid": 40})
     task = HexapodTask(replace(env.agent_cfg, finish_x=6.0), layout(env.model), 10.0)
     qpos = np.zeros((1, 25))
     qpos[0, 3] = 1.0
@@ -145,14 +145,14 @@ def test_finish_bonus_paid_once() -> None:
 
 
 def test_finish_in_env_reports_finished(flat: Terrain) -> None:
-    env = make_hexapod(terrain={"kind": "bowl", "grid": 40})
+    env = make_terrain_env(terrain={"kind": "bowl", "grid": 40})
     env.reset(seed=0, options={"terrain": flat})
     env.data.qpos[0] = env.agent_cfg.finish_x + 0.01  # carried over the line
     _, reward, terminated, _, info = env.step(np.zeros(18))
     assert terminated and info["finished"] and info["reward_terms"]["bonus"] == 500.0
 
 
-def _settle(env: HexapodEnv, action: np.ndarray, steps: int) -> np.ndarray:
+def _settle(env: TerrainEnv, action: np.ndarray, steps: int) -> np.ndarray:
     obs = None
     for _ in range(steps):
         obs, *_ = env.step(action)
@@ -160,7 +160,7 @@ def _settle(env: HexapodEnv, action: np.ndarray, steps: int) -> np.ndarray:
 
 
 def test_contacts_standing_and_lifted_leg(flat: Terrain) -> None:
-    env = make_hexapod(
+    env = make_terrain_env(
         agent={"spawn_yaw": 0.0, "spawn_vel_std": 0.0}, terrain={"kind": "bowl", "grid": 40}
     )
     env.reset(seed=0, options={"terrain": flat})
@@ -180,7 +180,7 @@ def test_contact_flags_describe_the_state_after_the_step(
     integrator: str, terrain_cfg: TerrainConfig
 ) -> None:
     """Joint angles and contact flags describe one instant: the state the step ended in."""
-    env = make_hexapod(agent={"integrator": integrator, "spawn_yaw": 0.0}, terrain=terrain_cfg)
+    env = make_terrain_env(agent={"integrator": integrator, "spawn_yaw": 0.0}, terrain=terrain_cfg)
     obs, _ = env.reset(seed=1)
     current = mujoco.MjData(env.model)
     contacts = layout(env.model).contact
@@ -201,7 +201,7 @@ def test_robot_geoms_never_collide_with_each_other(terrain_cfg: TerrainConfig) -
     """As the reference's robot (conaffinity 0): in a crouch with every tibia folded onto its
     coxa (past the tibia's limit; the old model reported 6 self-contacts here) no contact joins
     two robot geoms, while the torso resting on the ground still touches it."""
-    env = make_hexapod(terrain=replace(terrain_cfg, max_height=0.0))  # flat ground
+    env = make_terrain_env(terrain=replace(terrain_cfg, max_height=0.0))  # flat ground
     env.reset(seed=0)
     model, data = env.model, env.data
     terrain = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "terrain")
@@ -221,7 +221,7 @@ def test_robot_geoms_never_collide_with_each_other(terrain_cfg: TerrainConfig) -
 
 def test_spawn_above_local_ground_on_rough_terrain(terrain_cfg: TerrainConfig) -> None:
     cfg = replace(terrain_cfg, max_height=1.5, max_height_step=0.0)
-    env = make_hexapod(agent={"settle_steps": 0}, terrain=cfg)
+    env = make_terrain_env(agent={"settle_steps": 0}, terrain=cfg)
     for seed in range(5):
         rough = make_terrain(cfg, seed=seed)
         env.reset(seed=seed, options={"terrain": rough})
@@ -232,7 +232,7 @@ def test_spawn_above_local_ground_on_rough_terrain(terrain_cfg: TerrainConfig) -
 
 
 def test_no_progress_rule_ends_episode(flat: Terrain) -> None:
-    env = make_hexapod(
+    env = make_terrain_env(
         agent={"no_progress_steps": 15, "spawn_vel_std": 0.0}, terrain={"kind": "bowl", "grid": 40}
     )
     env.reset(seed=0, options={"terrain": flat})
@@ -245,7 +245,7 @@ def test_no_progress_rule_ends_episode(flat: Terrain) -> None:
 
 
 def test_max_episode_steps_truncates(flat: Terrain) -> None:
-    env = make_hexapod(agent={"max_episode_steps": 25}, terrain={"kind": "bowl", "grid": 40})
+    env = make_terrain_env(agent={"max_episode_steps": 25}, terrain={"kind": "bowl", "grid": 40})
     env.reset(seed=0, options={"terrain": flat})
     for step in range(1, 26):
         *_, terminated, truncated, _ = env.step(np.zeros(18))
@@ -253,7 +253,7 @@ def test_max_episode_steps_truncates(flat: Terrain) -> None:
 
 
 def test_terrain_swap_without_recompiling(terrain_cfg: TerrainConfig) -> None:
-    env = make_hexapod(terrain=terrain_cfg)
+    env = make_terrain_env(terrain=terrain_cfg)
     model = env.model
     a, b = make_terrain(terrain_cfg, seed=1), make_terrain(terrain_cfg, seed=2)
     env.reset(seed=0, options={"terrain": a})
@@ -266,7 +266,7 @@ def test_terrain_swap_without_recompiling(terrain_cfg: TerrainConfig) -> None:
 
 
 def test_resample_terrain_every_episode(terrain_cfg: TerrainConfig) -> None:
-    env = make_hexapod(terrain=terrain_cfg, resample_terrain=True)
+    env = make_terrain_env(terrain=terrain_cfg, resample_terrain=True)
     env.reset(seed=0)
     first = env.terrain
     env.reset()
@@ -275,7 +275,7 @@ def test_resample_terrain_every_episode(terrain_cfg: TerrainConfig) -> None:
 
 
 def test_roughness_is_patch_variance(terrain_cfg: TerrainConfig) -> None:
-    env = make_hexapod(terrain=terrain_cfg)
+    env = make_terrain_env(terrain=terrain_cfg)
     terrain = make_terrain(terrain_cfg, seed=3)
     env.set_terrain(terrain)
     r, c = 20, 10
@@ -287,12 +287,12 @@ def test_roughness_is_patch_variance(terrain_cfg: TerrainConfig) -> None:
 
 def test_bad_input_is_clear(flat: Terrain, terrain_cfg: TerrainConfig) -> None:
     with pytest.raises(ConfigError, match="terrain.kind"):
-        make_hexapod(terrain={"kind": "lava"})
+        make_terrain_env(terrain={"kind": "lava"})
     with pytest.raises(ConfigError, match="terrain.grid"):
-        make_hexapod(terrain={"grid": -5})
+        make_terrain_env(terrain={"grid": -5})
     with pytest.raises(ConfigError, match="max_episode_steps"):
-        make_hexapod(agent={"max_episode_steps": 0})
-    env = make_hexapod(terrain=terrain_cfg)
+        make_terrain_env(agent={"max_episode_steps": 0})
+    env = make_terrain_env(terrain=terrain_cfg)
     too_big = Terrain(np.zeros((50, 50)), 0.0, 20.0, "bowl", 0)
     with pytest.raises(TerrainMismatchError, match="heightfield"):
         env.set_terrain(too_big)

@@ -26,10 +26,11 @@ from epoet.epoet_sac.runner import warm_start_of
 from epoet.poet.keys import Key
 from epoet.poet.runner import layer_sizes
 from epoet.rl.env import episode_metrics, terrain_env
-from epoet.rl.policy_file import CRITICS_FILE, export_policy, load_policy, read_critics
+from epoet.rl.policy_file import CRITICS_FILE, export_policy, read_critics
 from epoet.rollout.agent_files import read_es_policy, recorded_layout
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.policy import forward
+from epoet.rollout.torch_policy import load_policy
 from epoet.run import run
 from pool_state import assert_same_state
 

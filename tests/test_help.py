@@ -63,7 +63,7 @@ def options_of(module: str, text: str) -> list[str]:
     """What the command's help must list: the run's groups and top-level keys (`python -m
     epoet`), a KeyValueCommand's schema fields, or every option of an argparse command's usage
     line (argparse builds it from the parser's own options)."""
-    from epoet.config import COMMAND_SCHEMAS, Config
+    from epoet.config import Config
 
     if module == "epoet":
         return [f"{f.name}=" for f in dataclasses.fields(Config)]
@@ -71,7 +71,7 @@ def options_of(module: str, text: str) -> list[str]:
         module if module != "epoet.eval.reference" else f"{module}.convert"
     )
     if (command := getattr(imported, "COMMAND", None)) is not None:
-        return [f"{f.name}" for f in dataclasses.fields(COMMAND_SCHEMAS[command.name])]
+        return [f"{f.name}" for f in dataclasses.fields(command.schema)]
     usage = text.split("\n\n")[0]
     options = re.findall(r"\[(--[\w-]+)|\s(--[\w-]+) ", usage)
     positional = re.findall(r"\[([a-z_]+) \.\.\.\]", usage)  # metavars are upper case

@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-import epoet.envs  # noqa: F401  (registers the env)
-from epoet.envs import ENV_ID
+from epoet.env_factory import ENV_ID
 from epoet.eval.agents import AgentError, AgentSource, resolve_run
 from epoet.eval.reference import FOLDER, manifest
 from epoet.eval.reference.pickles import ReferenceFileError, read_genome, read_pickle

@@ -167,7 +167,7 @@ except RenderError:
     print(NO_GL, file=sys.stderr)
     sys.exit(2)
 from epoet.config import load
-from epoet.envs.hexapod_env import make_hexapod
+from epoet.env_factory import make_terrain_env
 from epoet.eval.film import Film, caption_text
 from epoet.terrain import Terrain
 from epoet.eval.suite import terrain_config_for
@@ -178,7 +178,7 @@ bumps = 0.5 + 0.5 * np.sin(2 * np.pi * x / 3.0)[:, None] * np.sin(2 * np.pi * x 
 frames = {}
 for name, heightmap in (("flat", np.zeros((cfg.grid, cfg.grid))), ("bumps", bumps)):
     terrain = Terrain(heightmap, 0.9, cfg.size, "bowl", 0)
-    env = make_hexapod(terrain=terrain_config_for([terrain]))
+    env = make_terrain_env(terrain=terrain_config_for([terrain]))
     env.reset(seed=0, options={"terrain": terrain})
     for key, caption in ((name, caption_text("run", name, 0, 10, 0.0, 0.0)),
                          ("uncaptioned", ("", ""))):

@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
-import epoet.envs  # noqa: F401  (registers the envs)
+import epoet.env_factory  # noqa: F401  (registers the envs)
 from conftest import ACT_DIM, OBS_DIM, TINY_EPOET, tiny_baseline
 from epoet.config import load, saved_agent
 from epoet.core.checkpoint import load_checkpoint

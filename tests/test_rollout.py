@@ -11,8 +11,8 @@ import pytest
 
 from conftest import ES_SIZES
 from epoet.config import load
-from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import TerrainMismatchError
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.rollout.engine import RolloutEngine
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.policy import forward, init_params
@@ -45,7 +45,7 @@ def test_engine_reproduces_the_gym_env_episode_for_episode(terrain, integrator):
     params, seeds = population(4, seed=3)
     # batch 2 < 4 episodes: slots are refilled as episodes end.
     episodes = RolloutEngine(agent, TERRAIN_CFG, 2, ES_SIZES).run(terrain, params, seeds)
-    env = HexapodEnv(agent=agent, terrain=TERRAIN_CFG)
+    env = TerrainEnv(agent=agent, terrain=TERRAIN_CFG)
     for e in range(len(seeds)):
         obs, _ = env.reset(seed=int(seeds[e]), options={"terrain": terrain})
         total, steps, done, info = 0.0, 0, False, {}

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from epoet.config import compose, load, validate
-from epoet.envs.hexapod_env import HexapodEnv
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
+from epoet.envs.terrain_env import TerrainEnv
 from epoet.eval import suite as suite_module
+from epoet.eval.evaluate import COMMAND as EVALUATE
 from epoet.eval.suite import SHIPPED, SuiteError, example_terrain, load_suite
 from epoet.eval.suite_format import LEVELS, Course, level_of, quantize
 from epoet.eval.suite_generation import differences, generate, write_suite
@@ -163,7 +164,7 @@ def test_evaluation_runs_the_suites_course_scaled_to_the_episode():
 def _walk(rules, speed: float) -> tuple[bool, float]:
     """(finished, return) of a robot gliding straight along +x at `speed` (level, no lateral
     motion), through the task's real reward and episode rules, until the episode ends."""
-    env = HexapodEnv(rules, load(["budget=paper"]).terrain)
+    env = TerrainEnv(rules, load(["budget=paper"]).terrain)
     task = HexapodTask(rules, layout(env.model), 20.0)
     qpos, qvel, sd = np.zeros((1, 25)), np.zeros((1, 24)), np.zeros((1, 24))
     qpos[0, :4] = rules.start_x, 0.0, 0.2, 1.0
@@ -184,7 +185,7 @@ def test_solved_asks_the_papers_speed_at_every_budget(budget: str) -> None:
     score (2000 x its score scale); at half that speed the episode ends before the line."""
     cfg = load([f"budget={budget}"])
     rules = load_suite().course.rules(cfg.agent)
-    solve = compose([], config_name="evaluate").solve_score * cfg.budget.score_scale
+    solve = compose([], config_name=EVALUATE.name).solve_score * cfg.budget.score_scale
     finished, total = _walk(rules, cfg.agent.reward.target_speed)
     assert finished and total >= solve
     finished, _ = _walk(rules, cfg.agent.reward.target_speed / 2)

@@ -16,6 +16,7 @@ import pytest
 
 from epoet.config import compose, load, validate
 from epoet.core.schema import ConfigError
+from epoet.eval.gallery import COMMAND as GALLERY
 from epoet.terrain import (
     CppnMutationError,
     Terrain,
@@ -336,7 +337,7 @@ def test_unknown_kind_is_rejected_by_make_terrain(cfg):
 
 @pytest.mark.parametrize("field, value", [("grid", 0), ("grid", -3), ("size", 0.0), ("size", -1.0)])
 def test_non_positive_sizes_fail_validation_naming_the_field(field, value):
-    raw = compose([f"terrain.{field}={value}"], config_name="gallery")
+    raw = compose([f"terrain.{field}={value}"], config_name=GALLERY.name)
     with pytest.raises(ConfigError, match=f"terrain.{field} must be > 0"):
         validate(raw)
 

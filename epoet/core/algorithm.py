@@ -3,7 +3,7 @@ schema, and the interface that schema implements (`AlgoSettings`, the type of `C
 
 The record is the one place an algorithm's name, family, runner, schema and figure style are
 written; composition (epoet/config.py), the run (epoet/run.py), `make paper` and analysis read
-it through epoet/registry.py, which finds the records. It lives in `core` so that every wing's
+it through epoet/registry.py, which finds the records. It lives in `core` so that every folder's
 schema module can declare one without importing anything above it.
 """
 
@@ -51,7 +51,7 @@ class AlgoSettings:
 
     def check_run(self, cfg: Any) -> None:
         """What the algorithm needs of the run's other settings (`cfg`: the root Config; it is
-        above this module's wing); ConfigError in one sentence. Nothing, unless overridden."""
+        above this module's layer); ConfigError in one sentence. Nothing, unless overridden."""
 
     def unused_keys(self) -> Sequence[str]:
         """Dotted keys (and key prefixes) of the run's settings this algorithm never reads, left

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cache
 
 import mujoco
 import numpy as np
@@ -155,19 +154,6 @@ def targets_rows(
         for j in range(action.shape[1]):
             a = min(max(action[b, j], -1.0), 1.0)
             out[b, index[j]] = (a * 0.5 + 0.5) * span[j] + low[j]
-
-
-@cache
-def _hexapod_layout() -> Layout:
-    from epoet.config import task_configs
-
-    return layout(build_model(*task_configs()))
-
-
-def action_to_targets(action: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """The hexapod's position targets of actions (18,) or (B, 18): `action_to_ctrl` of its
-    model, for code that drives the hexapod by hand (its tests and benches)."""
-    return action_to_ctrl(_hexapod_layout(), action, out)
 
 
 class Ground:

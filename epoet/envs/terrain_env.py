@@ -1,14 +1,12 @@
-"""A robot's terrain-walking task as a gymnasium.Env (`epoet/Hexapod-v0`, `epoet/Ant-v0`)."""
+"""A robot's terrain-walking task as a gymnasium.Env, on validated configs (from the YAML
+defaults and gymnasium's ids: epoet.env_factory)."""
 
 from __future__ import annotations
-
-from typing import Any
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
-from epoet.config import task_configs
 from epoet.envs.config import AgentConfig
 from epoet.envs.model import Ground, action_to_ctrl, build_model, layout, stepper
 from epoet.envs.spawn import spawn
@@ -135,12 +133,3 @@ class TerrainEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
-
-
-def make_terrain_env(
-    agent: Any = None, terrain: Any = None, robot: str = "hexapod", **kwargs: Any
-) -> TerrainEnv:
-    """`gym.make("epoet/Hexapod-v0", agent=..., terrain=...)` (`epoet/Ant-v0`: robot="ant"):
-    configs as dataclasses, or as dicts of overrides of the YAML defaults of `robot`
-    (epoet.config.task_configs); `kwargs` go to the env."""
-    return TerrainEnv(*task_configs(agent, terrain, robot), **kwargs)

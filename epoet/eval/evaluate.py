@@ -97,7 +97,7 @@ COLUMNS = [
 ]
 
 
-COMMAND = KeyValueCommand("evaluate", __doc__)
+COMMAND = KeyValueCommand("evaluate", __doc__, EvaluateConfig)
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,7 @@ def write_gallery(terrains: list[Terrain], out: Path) -> Path:
     return path
 
 
-COMMAND = KeyValueCommand("gallery", __doc__)
+COMMAND = KeyValueCommand("gallery", __doc__, GalleryConfig)
 
 
 def main(argv: list[str] | None = None) -> None:

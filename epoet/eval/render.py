@@ -70,7 +70,7 @@ class RenderError(RuntimeError):
     """What rendering needs from the machine is missing; one sentence naming the fix."""
 
 
-COMMAND = KeyValueCommand("render", __doc__, plain=("terrain",))
+COMMAND = KeyValueCommand("render", __doc__, RenderConfig, plain=("terrain",))
 
 
 def parse_args(argv: list[str]) -> RenderConfig:

@@ -257,7 +257,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         fail(err)
 
 
-COMMAND = KeyValueCommand("suite", main.__doc__)
+COMMAND = KeyValueCommand("suite", main.__doc__, SuiteConfig)
 
 
 if __name__ == "__main__":

@@ -47,7 +47,7 @@ class AgentSource:
         if self.kind == "es":
             theta, sizes = read_es_policy(self.path)
             return lambda obs: forward(theta, obs, sizes)
-        from epoet.rl.policy_file import load_policy  # torch only when a torch policy is used
+        from epoet.rollout.torch_policy import load_policy  # torch only when a torch policy is used
 
         return load_policy(self.path)
 

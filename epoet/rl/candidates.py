@@ -20,9 +20,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from epoet.core.files import atomic_write
-from epoet.rl.policy_file import POLICY_FILE, load_policy
+from epoet.rl.policy_file import POLICY_FILE
 from epoet.rollout.agent_files import LAST_POLICY
 from epoet.rollout.selection import LAST, best_of, policy_held_out, write_choice
+from epoet.rollout.torch_policy import load_policy
 
 if TYPE_CHECKING:
     from epoet.config import Config

@@ -7,14 +7,13 @@ from typing import Any, ClassVar, Optional
 
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import check, config_key, non_negative, positive
+from epoet.rollout.config import RL_ACTIVATIONS
 
 # --- RL baselines: PPO, SAC and VMPO (paper Tables 2-3, docs/reference.md) -----------------
 # Sizes are per collector batch of `frames_per_batch` frames; budget.frames is the total
 # (`BaselineBudgetConfig`). A budget smaller than one batch shrinks the batch and keeps the ratios
 # (epochs per batch, SAC updates and random frames per collected frame): see `BatchPlan` in
 # epoet/rl/.
-
-RL_ACTIVATIONS = ("tanh", "relu", "elu")
 
 
 def _check_network(obj: Any) -> None:

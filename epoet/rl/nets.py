@@ -30,16 +30,8 @@ from torch import nn
 from torchrl.envs import EnvBase, ExplorationType
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
-from epoet.rl.config import RL_ACTIVATIONS
 from epoet.rl.env import OBS, policy_key
-
-# The schema's choices (epoet.rl.config.RL_ACTIVATIONS) as torch modules: nn.Tanh for "tanh",
-# nn.ReLU for "relu", ...
-ACTIVATIONS: dict[str, type[nn.Module]] = {
-    name: next(getattr(nn, attr) for attr in dir(nn) if attr.lower() == name)
-    for name in RL_ACTIVATIONS
-}
-
+from epoet.rollout.torch_policy import ACTIVATIONS
 
 # TorchRL's default scale mapping, and the authors' (module docstring): a log-std clamped to
 # [-20, 2] as their LOG_SIG_MIN / LOG_SIG_MAX, exponentiated.

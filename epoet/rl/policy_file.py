@@ -1,6 +1,6 @@
 """The exported policy of a baseline run: plain data (architecture, normaliser, weights) that
-`load_policy` turns back into `act(obs) -> action` with nothing but torch, for evaluation and
-rendering without TorchRL or the training state.
+epoet.rollout.torch_policy.load_policy turns back into `act(obs) -> action` with nothing but
+torch, for evaluation and rendering without TorchRL, the training state or this package.
 
 TorchRL and epoet.rl.env and nets (which import MuJoCo) are imported where used, so reading
 POLICY_FORMAT to check a file (epoet.eval.agents) imports neither.
@@ -9,14 +9,13 @@ POLICY_FORMAT to check a file (epoet.eval.agents) imports neither.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
-import numpy as np
 import torch
 from torch import nn
 
 from epoet.core.files import atomic_write
-from epoet.rollout.agent_files import INTEGRATOR, LAYOUT, POLICY_FORMAT, read_torch_policy
+from epoet.rollout.agent_files import INTEGRATOR, LAYOUT, POLICY_FORMAT
 
 if TYPE_CHECKING:
     from torchrl.envs import EnvBase
@@ -38,8 +37,8 @@ def export_policy(
 ) -> Path:
     """Write the deterministic policy as plain data: architecture, normaliser and weights.
 
-    `load_policy` rebuilds it with nothing but torch: a reader needs neither TorchRL nor the
-    training state. An actor that standardises inside its network (ePOET-SAC's ObsStandardize)
+    `load_policy` (epoet.rollout.torch_policy) rebuilds it with nothing but torch: a reader
+    needs neither TorchRL nor the training state. An actor that standardises inside its network (ePOET-SAC's ObsStandardize)
     is written as a raw-observation policy, the standardisation folded into the first layer
     (W / std, b - W mean / std), as ePOET's ES agents are.
     """
@@ -102,33 +101,3 @@ def read_critics(path: Path) -> dict:
     ):
         raise ValueError(f"{path} is not an epoet critics file ({CRITICS_FORMAT}).")
     return spec
-
-
-def load_policy(path: str | Path) -> Callable[[np.ndarray], np.ndarray]:
-    """Rebuild an exported policy as `act(obs) -> action` (numpy in, numpy out, batched or not).
-
-    action = tanh(first act_dim outputs of the MLP applied to clip((obs - loc) / scale)).
-    A file that is not such a policy for the task raises epoet.eval.agents.AgentError.
-    """
-    from epoet.rl.nets import ACTIVATIONS
-
-    spec = read_torch_policy(Path(path))
-    sizes = [spec["obs_dim"], *spec["hidden"]]
-    layers: list[nn.Module] = []
-    for n_in, n_out in zip(sizes[:-1], sizes[1:]):
-        layers += [nn.Linear(n_in, n_out), ACTIVATIONS[spec["activation"]]()]
-    out_features = spec["state_dict"][f"{2 * len(spec['hidden'])}.weight"].shape[0]
-    net = nn.Sequential(*layers, nn.Linear(sizes[-1], out_features))
-    net.load_state_dict(spec["state_dict"])
-    net.eval()
-    act_dim, clip = spec["act_dim"], spec["obs_clip"]
-    loc, scale = spec["obs_loc"], spec["obs_scale"]
-
-    @torch.no_grad()
-    def act(obs: np.ndarray) -> np.ndarray:
-        x = torch.as_tensor(np.asarray(obs), dtype=torch.float32)
-        if loc is not None:
-            x = ((x - loc) / scale).clamp(-clip, clip)
-        return torch.tanh(net(x)[..., :act_dim]).numpy()
-
-    return act

@@ -24,7 +24,7 @@ import numpy as np
 from epoet.core.files import atomic_write, savez
 from epoet.envs.config import HEXAPOD, AgentConfig
 from epoet.envs.spaces import layout_of, robot_sizes
-from epoet.rl.config import RL_ACTIVATIONS
+from epoet.rollout.config import RL_ACTIVATIONS
 from epoet.rollout.policy import num_params
 
 TORCH_POLICY = "policy.pt"

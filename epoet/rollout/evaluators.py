@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from epoet.config import WorkersConfig
 from epoet.core.compute import default_workers
 from epoet.envs.config import AgentConfig
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.backends.pool import PoolEvaluator
 from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.rollout.config import WorkersConfig
 from epoet.terrain.config import TerrainConfig
 
 

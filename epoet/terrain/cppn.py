@@ -31,8 +31,6 @@ import numpy as np
 from neat.graphs import feed_forward_layers
 from scipy import ndimage
 
-from epoet.terrain.reference_rendering import reference_inputs
-from epoet.terrain.reference_rendering import render as reference_render
 from epoet.terrain.bowl import bowl_of
 from epoet.terrain.config import (
     REFERENCE_GRID,
@@ -42,6 +40,8 @@ from epoet.terrain.config import (
     TerrainConfig,
     register,
 )
+from epoet.terrain.reference_rendering import reference_inputs
+from epoet.terrain.reference_rendering import render as reference_render
 from epoet.terrain.terrain import normalize
 
 INPUT_KEYS = (-1, -2)  # x, y

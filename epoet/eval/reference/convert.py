@@ -61,7 +61,7 @@ from epoet.rollout.policy import num_params
 from epoet.terrain.cppn import render_reference
 from epoet.terrain.reference_rendering import EVAL_HEIGHT
 
-COMMAND = KeyValueCommand("reference", __doc__)
+COMMAND = KeyValueCommand("reference", __doc__, ReferenceConfig)
 
 REPOSITORY = "github.com/ml-tue/ePOET_3D"
 MODELS = "trained_models"
