@@ -27,10 +27,14 @@ import numpy as np
 from analysis.records import RUN_FILE
 from analysis.store import AnalysisError, run_command
 from epoet.core.help import HelpParser
-from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT
 from epoet.run_state import SNAPSHOT_INFO
-from pipeline.compute import evaluate_snapshot, niches_of, promote_latest
+from pipeline.compute import (
+    add_evaluation_arguments,
+    evaluate_snapshot,
+    niches_of,
+    promote_latest,
+)
 from pipeline.records import write_json
 
 NOT_OVERRIDES = ("resume=", "hydra.", "tracking.", "evaluate=")  # how a run ran, not what it was
@@ -97,15 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--records", nargs="+", type=Path, required=True, help="ePOET records, e.g. <out>/epoet_s1"
     )
-    parser.add_argument(
-        "--suites",
-        default=f"{PAPER_NAME},{SHIPPED_NAME}",
-        help="suites (names or folders), comma-separated",
-    )
-    parser.add_argument(
-        "--episodes", type=int, default=5, help="episodes per terrain and agent (the paper's 5)"
-    )
-    parser.add_argument("--processes", type=int, default=1, help="evaluation processes (default 1)")
+    add_evaluation_arguments(parser)
     parser.add_argument(
         "--selection", nargs="*", default=[], help="selection.* overrides (default: the config's)"
     )

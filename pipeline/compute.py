@@ -333,14 +333,8 @@ def export_run(
     return record
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = HelpParser("python -m pipeline.compute", __doc__)
-    parser.add_argument(
-        "--runs", nargs="+", type=Path, required=True, help="run folders, training or finished"
-    )
-    parser.add_argument(
-        "--out", type=Path, required=True, help="records folder, e.g. docs/results/compute"
-    )
+def add_evaluation_arguments(parser: HelpParser) -> None:
+    """How records evaluate agents: the suites, episodes per terrain, processes."""
     parser.add_argument(
         "--suites",
         default=f"{PAPER_NAME},{SHIPPED_NAME}",
@@ -350,6 +344,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--episodes", type=int, default=5, help="episodes per terrain and agent (the paper's 5)"
     )
     parser.add_argument("--processes", type=int, default=1, help="evaluation processes (default 1)")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = HelpParser("python -m pipeline.compute", __doc__)
+    parser.add_argument(
+        "--runs", nargs="+", type=Path, required=True, help="run folders, training or finished"
+    )
+    parser.add_argument(
+        "--out", type=Path, required=True, help="records folder, e.g. docs/results/compute"
+    )
+    add_evaluation_arguments(parser)
     parser.add_argument(
         "--tracking-uri",
         default=None,
