@@ -220,7 +220,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
 def main(argv: Sequence[str] | None = None) -> None:
     """`python -m epoet.eval.suite [key=value ...]`: generate the fixed evaluation suite into
     `out` (by default the shipped epoet/suite/, which these defaults produce bit for bit), or,
-    with check=true, regenerate it and compare with `out`, writing nothing (about a minute).
+    with check=true, regenerate it and compare with `out`, writing nothing.
 
     Examples:
 
