@@ -26,7 +26,6 @@ Examples:
 from __future__ import annotations
 
 import itertools
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -40,7 +39,14 @@ import pandas as pd  # noqa: E402
 
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.joins import joins_table  # noqa: E402
-from analysis.records import EPISODES, read_records  # noqa: E402
+from analysis.records import (  # noqa: E402
+    EPISODES,
+    RUN_FILE,
+    read_csv,
+    read_json,
+    read_records,
+    record_file,
+)
 from analysis.stats import (  # noqa: E402
     CONFIDENCE,
     REPS,
@@ -69,7 +75,9 @@ READINGS = {"best": "the run's best agent", "niches": "mean over its niche agent
 def success_matrix(record: Path, snapshot: str, agents: Sequence[str], suite: str) -> pd.Series:
     """Per terrain (suite order), the success of the agents' episodes at the snapshot, averaged
     over the agents."""
-    frames = [pd.read_csv(record / snapshot / a / suite / EPISODES) for a in agents]
+    frames = [
+        read_csv(record / snapshot / a / suite / EPISODES, ["terrain", "solved"]) for a in agents
+    ]
     episodes = pd.concat(frames, ignore_index=True)
     return episodes.groupby("terrain", sort=False).solved.mean().astype(float)
 
@@ -79,25 +87,26 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
     CPU time), reading, success (the run's success rate) and per-terrain successes."""
     rows = []
     for info in read_records(records):
-        for minutes, snap in info.get("snapshots", {}).items():
-            evaluation = snap["evaluations"].get(suite)
-            if evaluation is None:
-                continue
-            folder = Path(records) / info["record"]
-            readings = {"best": [snap["best_agent"]], "niches": sorted(evaluation["agents"])}
-            for reading, agents in readings.items():
-                terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
-                rows.append(
-                    {
-                        "algo": info["algo"],
-                        "seed": info["seed"],
-                        "minutes": float(minutes),
-                        "cpu_hours": snap["cpu_time"] / 3600,
-                        "reading": reading,
-                        "success": float(terrains.mean()),
-                        "terrains": terrains,
-                    }
-                )
+        folder = Path(records) / info["record"]
+        with record_file(folder / RUN_FILE):  # its snapshots' entries
+            for minutes, snap in info.get("snapshots", {}).items():
+                evaluation = snap["evaluations"].get(suite)
+                if evaluation is None:
+                    continue
+                readings = {"best": [snap["best_agent"]], "niches": sorted(evaluation["agents"])}
+                for reading, agents in readings.items():
+                    terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
+                    rows.append(
+                        {
+                            "algo": info["algo"],
+                            "seed": info["seed"],
+                            "minutes": float(minutes),
+                            "cpu_hours": snap["cpu_time"] / 3600,
+                            "reading": reading,
+                            "success": float(terrains.mean()),
+                            "terrains": terrains,
+                        }
+                    )
     if not rows:
         raise AnalysisError(
             f"no record in {records} has a CPU-time snapshot evaluated on suite {suite}: "
@@ -173,7 +182,7 @@ def reference_lines(suite: str, folder: Path = REFERENCE) -> dict[str, float]:
     """Mean success of each algorithm's published agents on the suite (their records)."""
     rates: dict[str, list[float]] = {}
     for path in sorted(folder.glob("*/run.json")):
-        info = json.loads(path.read_text())
+        info = read_json(path)
         evaluation = info.get("evaluations", {}).get(suite)
         if evaluation is not None:
             rates.setdefault(info["algo"], []).append(evaluation["success_rate"])
@@ -230,7 +239,8 @@ def curves_from_records(records: Path) -> pd.DataFrame:
         path = Path(records) / info["record"] / "curves.csv"
         if not path.is_file():
             continue
-        curves = pd.read_csv(path).dropna(subset=["score", "env_steps", "cpu_time"])
+        columns = ["step", "score", "env_steps", "cpu_time"]
+        curves = read_csv(path, columns).dropna(subset=columns[1:])
         frames.append(
             pd.DataFrame(
                 {

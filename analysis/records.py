@@ -15,19 +15,58 @@ export of another run is never mixed in.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from analysis.store import AnalysisError
+from epoet.core.errors import first_line
 from epoet.eval.suite import Suite
 
 FORMAT = "epoet-record/1"
 RUN_FILE = "run.json"
 SUMMARY = "summary.json"
 EPISODES = "episodes.csv"
+REQUIRED = ("run_id", "algo", "seed")  # what every table reads of a record's run.json
+EPISODE_COLUMNS = ["terrain", "level", "return", "solved"]  # what the tables read of episodes.csv
+
+
+@contextlib.contextmanager
+def record_file(path: Path) -> Iterator[None]:
+    """Reading a record's file: a damaged or missing one (a run.json cut short, a CSV without
+    its columns) is one sentence naming the file and what is wrong, not a parser's traceback."""
+    try:
+        yield
+    except AnalysisError:
+        raise
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError) as exc:
+        raise AnalysisError(
+            f"record file {path} is damaged or incomplete ({type(exc).__name__}: "
+            f"{first_line(exc).rstrip('.')}): export the record again."
+        ) from exc
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    """A record's JSON file, which must hold an object."""
+    with record_file(path):
+        data = json.loads(path.read_text())
+        if not isinstance(data, dict):
+            raise ValueError(f"it holds a {type(data).__name__}, not an object")
+        return data
+
+
+def read_csv(path: Path, columns: list[str] | None = None, **kwargs: Any) -> pd.DataFrame:
+    """A record's CSV file, which must have `columns` (None: any)."""
+    with record_file(path):
+        frame = pd.read_csv(path, **kwargs)
+        if missing := [c for c in columns or [] if c not in frame.columns]:
+            raise ValueError(f"no column {', '.join(missing)}")
+        return frame
 
 
 def read_records(folder: Path) -> list[dict[str, Any]]:
@@ -42,10 +81,14 @@ def read_records(folder: Path) -> list[dict[str, Any]]:
         )
     records = []
     for path in sorted(folder.glob(f"*/{RUN_FILE}")):
-        info = json.loads(path.read_text())
+        info = read_json(path)
         if info.get("format") != FORMAT:
             raise AnalysisError(
                 f"{path} is not an epoet record (format {info.get('format')!r}, expected {FORMAT})."
+            )
+        if missing := [key for key in REQUIRED if key not in info]:
+            raise AnalysisError(
+                f"record file {path} is incomplete: it has no {', '.join(missing)}."
             )
         records.append({**info, "record": path.parent.name})
     if not records:
@@ -77,22 +120,23 @@ def record_episodes(folder: Path, suite: Suite) -> tuple[pd.DataFrame, str, list
     the suite's name on other terrains (another fingerprint)."""
     frames, scales, left_out = [], {}, []
     for info in read_records(folder):
-        evaluation = info.get("evaluations", {}).get(suite.name)
-        if evaluation is None:
-            left_out.append(info["record"])
-            continue
-        if evaluation["fingerprint"] != suite.fingerprint:
-            raise AnalysisError(
-                f"record {info['record']} was evaluated on other terrains under the name "
-                f"{suite.name} (fingerprint {evaluation['fingerprint']}, this suite "
-                f"{suite.fingerprint}): its numbers are not this suite's."
-            )
-        frame = pd.read_csv(Path(folder) / info["record"] / suite.name / EPISODES)
-        frame.insert(0, "run_id", info["run_id"])
-        frame.insert(1, "algo", info["algo"])
-        frame.insert(2, "seed", str(info["seed"]))
-        frames.append(frame)
-        scales[info["record"]] = str(evaluation["course_scale"])
+        with record_file(Path(folder) / info["record"] / RUN_FILE):  # its evaluations' entries
+            evaluation = info.get("evaluations", {}).get(suite.name)
+            if evaluation is None:
+                left_out.append(info["record"])
+                continue
+            if evaluation["fingerprint"] != suite.fingerprint:
+                raise AnalysisError(
+                    f"record {info['record']} was evaluated on other terrains under the name "
+                    f"{suite.name} (fingerprint {evaluation['fingerprint']}, this suite "
+                    f"{suite.fingerprint}): its numbers are not this suite's."
+                )
+            frame = read_csv(Path(folder) / info["record"] / suite.name / EPISODES, EPISODE_COLUMNS)
+            frame.insert(0, "run_id", info["run_id"])
+            frame.insert(1, "algo", info["algo"])
+            frame.insert(2, "seed", str(info["seed"]))
+            frames.append(frame)
+            scales[info["record"]] = str(evaluation["course_scale"])
     if not frames:
         raise AnalysisError(
             f"no record in {folder} has an evaluation on suite {suite.name} "

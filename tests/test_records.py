@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shlex
+import shutil
 from pathlib import Path
 
 import mlflow
@@ -302,3 +303,33 @@ def test_records_on_other_terrains_are_refused_and_records_without_the_suite_nam
         tables_from_records(tmp_path, tmp_path / "out")
     with pytest.raises(AnalysisError, match="no records folder"):
         tables_from_records(tmp_path / "nowhere", tmp_path / "out")
+
+
+COMPUTE_RECORD = Path(__file__).resolve().parent.parent / "docs" / "results" / "compute" / "ppo_s1"
+# (the file damaged, how, the commands that read it): one sentence naming the file for each
+DAMAGES = [
+    ("run.json", lambda text: text[: len(text) // 2], ("analysis.tables", "analysis.compute")),
+    ("run.json", lambda text: "[1, 2]", ("analysis.tables", "analysis.compute")),
+    ("paper/episodes.csv", lambda text: "not,the columns\n1,2\n", ("analysis.tables",)),
+    ("cpu60/policy/paper/episodes.csv", lambda text: "", ("analysis.compute",)),
+    ("curves.csv", lambda text: text.replace("cpu_time", "cpu"), ("analysis.compute",)),
+]
+
+
+@pytest.mark.parametrize("damaged, damage, commands", DAMAGES)
+def test_a_damaged_record_file_is_one_line_naming_it(tmp_path, capsys, damaged, damage, commands):
+    """A record cut short or rewritten (a copy of a committed one) ends each command that reads
+    it in one line on stderr, naming the file, with exit 2 and nothing written."""
+    import importlib
+
+    records = tmp_path / "records"
+    shutil.copytree(COMPUTE_RECORD, records / "ppo_s1")
+    path = records / "ppo_s1" / damaged
+    path.write_text(damage(path.read_text()))
+    for command in commands:
+        main = importlib.import_module(command).main
+        argv = ["--records", str(records), "--suite", "paper", "--out", str(tmp_path / "out")]
+        assert main(argv) == 2, command
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"error: record file {path} "), lines
+    assert not (tmp_path / "out").exists()

@@ -20,7 +20,7 @@ import re
 import sys
 import textwrap
 from collections.abc import Iterator, Sequence
-from typing import IO, NoReturn
+from typing import Any, NoReturn
 
 HELP_FLAGS = ("-h", "--help")
 _FIELD = re.compile(r"^    (\w+):[^#]*?(?:#\s*(.*))?$")  # `    name: type [= default]  # comment`
@@ -155,7 +155,7 @@ class HelpParser(argparse.ArgumentParser):
             formatter_class=_Formatter,
         )
 
-    def print_help(self, file: IO[str] | None = None) -> None:
+    def print_help(self, file: Any = None) -> None:
         with reader_may_leave():
             super().print_help(file)
 
