@@ -42,6 +42,7 @@ from analysis.joins import joins_table  # noqa: E402
 from analysis.records import (  # noqa: E402
     EPISODES,
     RUN_FILE,
+    one_protocol,
     read_csv,
     read_json,
     read_records,
@@ -72,19 +73,29 @@ REFERENCE = Path(__file__).resolve().parent.parent / "docs" / "results" / "refer
 READINGS = {"best": "the run's best agent", "niches": "mean over its niche agents"}
 
 
-def success_matrix(record: Path, snapshot: str, agents: Sequence[str], suite: str) -> pd.Series:
+def success_matrix(
+    record: Path, snapshot: str, agents: Sequence[str], suite: str
+) -> tuple[pd.Series, int]:
     """Per terrain (suite order), the success of the agents' episodes at the snapshot, averaged
-    over the agents."""
-    frames = [
-        read_csv(record / snapshot / a / suite / EPISODES, ["terrain", "solved"]) for a in agents
-    ]
-    episodes = pd.concat(frames, ignore_index=True)
-    return episodes.groupby("terrain", sort=False).solved.mean().astype(float)
+    over the agents; and the episodes per terrain of their evaluations, which must agree."""
+    frames = {
+        agent: read_csv(record / snapshot / agent / suite / EPISODES, ["terrain", "solved"])
+        for agent in agents
+    }
+    per_terrain = one_protocol(
+        {
+            f"{record.name} {snapshot} {agent}": int(frame.groupby("terrain").size().max())
+            for agent, frame in frames.items()
+        }
+    )
+    episodes = pd.concat(frames.values(), ignore_index=True)
+    return episodes.groupby("terrain", sort=False).solved.mean().astype(float), per_terrain
 
 
 def compute_table(records: Path, suite: str) -> pd.DataFrame:
     """One row per run, mark and reading: algo, seed, minutes, cpu_hours (the snapshot's own
-    CPU time), reading, success (the run's success rate) and per-terrain successes."""
+    CPU time), reading, success (the run's success rate), per-terrain successes and the
+    episodes per terrain, one number for every row (`one_protocol`)."""
     rows = []
     for info in read_records(records):
         folder = Path(records) / info["record"]
@@ -95,7 +106,7 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
                     continue
                 readings = {"best": [snap["best_agent"]], "niches": sorted(evaluation["agents"])}
                 for reading, agents in readings.items():
-                    terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
+                    terrains, per_terrain = success_matrix(folder, f"cpu{minutes}", agents, suite)
                     rows.append(
                         {
                             "algo": info["algo"],
@@ -105,6 +116,7 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
                             "reading": reading,
                             "success": float(terrains.mean()),
                             "terrains": terrains,
+                            "episodes": per_terrain,
                         }
                     )
     if not rows:
@@ -112,6 +124,7 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
             f"no record in {records} has a CPU-time snapshot evaluated on suite {suite}: "
             f"run python -m pipeline.compute --runs <run folders> --out {records}."
         )
+    one_protocol({f"{r['algo']} s{r['seed']} at {r['minutes']:g} min": r["episodes"] for r in rows})
     return pd.DataFrame(rows)
 
 
@@ -178,13 +191,14 @@ def comparisons(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def reference_lines(suite: str, folder: Path = REFERENCE) -> dict[str, float]:
-    """Mean success of each algorithm's published agents on the suite (their records)."""
+def reference_lines(suite: str, episodes: int, folder: Path = REFERENCE) -> dict[str, float]:
+    """Mean success of each algorithm's published agents on the suite (their records), from
+    evaluations of the runs' protocol only (`episodes` per terrain)."""
     rates: dict[str, list[float]] = {}
     for path in sorted(folder.glob("*/run.json")):
         info = read_json(path)
         evaluation = info.get("evaluations", {}).get(suite)
-        if evaluation is not None:
+        if evaluation is not None and evaluation.get("episodes_per_terrain") == episodes:
             rates.setdefault(info["algo"], []).append(evaluation["success_rate"])
     return {algo: float(np.mean(v)) for algo, v in rates.items() if np.mean(v) > 0}
 
@@ -263,7 +277,7 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
     table = compute_table(records, suite)  # a bad records folder writes nothing
     frame = summary(table)
     curves = curves_from_records(records)
-    references = reference_lines(suite)
+    references = reference_lines(suite, int(table.episodes.iloc[0]))  # one number (compute_table)
     out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "success_vs_compute.csv", index=False)
     shown = frame.assign(

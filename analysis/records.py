@@ -113,6 +113,37 @@ def one_course_scale(scales: dict[str, str]) -> str:
     return found.pop()
 
 
+def episodes_per_terrain(episodes: pd.DataFrame) -> dict[str, int]:
+    """Each run's episodes per terrain in an episodes table (columns run_id, algo, seed,
+    terrain), keyed by a label a reader finds the run by: `<algo> s<seed> (<run id>)`."""
+    counts = episodes.groupby(["run_id", "terrain"]).size().groupby(level=0).max()
+    runs = episodes.drop_duplicates("run_id").set_index("run_id")
+    return {
+        f"{runs.at[run, 'algo']} s{runs.at[run, 'seed']} ({run})": int(n)
+        for run, n in counts.items()
+    }
+
+
+def one_protocol(counts: dict[str, int]) -> int:
+    """The one number of episodes per terrain of the evaluations ({label: episodes per
+    terrain}); AnalysisError naming the runs of each number when they differ: a success rate
+    over 1 or 3 episodes per terrain (a small budget's end-of-run evaluation) is not one over
+    the paper's 5, so a table or figure never sets them side by side."""
+    found = sorted(set(counts.values()))
+    if len(found) > 1:
+        groups = [[label for label, k in counts.items() if k == n] for n in found]
+        listed = "; ".join(
+            f"{n}: {', '.join(labels[:3])}{f' and {len(labels) - 3} more' if len(labels) > 3 else ''}"
+            for n, labels in zip(found, groups)
+        )
+        raise AnalysisError(
+            f"the runs were evaluated with different episodes per terrain ({listed}): evaluate "
+            f"them again with one number (python -m epoet.eval.evaluate run=<run> "
+            f"suite=<suite> episodes={found[-1]}) or table them apart (--run)."
+        )
+    return found[0]
+
+
 def record_episodes(folder: Path, suite: Suite) -> tuple[pd.DataFrame, str, list[str]]:
     """The episodes on `suite` of every record under `folder` that holds an evaluation on it
     (columns run_id, algo, seed, then episodes.csv's), the course scale, and the records left
