@@ -30,11 +30,7 @@ SMOKE = [
 # (row id, overrides ({good}: the good run's folder, {tmp}: a scratch folder), stderr must hold)
 ROWS = [
     ("unknown algo", ["algo=foo"], "Could not find 'algo/foo' (available: epoet, epoet_sac"),
-    (
-        "misspelt algo",
-        ["algo=epot"],
-        "(available: epoet, epoet_sac, ppo, sac, vmpo); did you mean algo=epoet?",
-    ),
+    ("misspelt algo", ["algo=epot"], "vmpo); did you mean algo=epoet?"),
     ("unknown agent", ["agent=foo"], "Could not find 'agent/foo'"),
     ("unknown terrain", ["terrain=foo"], "Could not find 'terrain/foo'"),
     ("unknown budget", ["budget=foo"], "Could not find 'budget/foo'"),
@@ -44,13 +40,13 @@ ROWS = [
     (
         "unknown key",
         ["budget.iteration=3"],
-        "unknown key budget.iteration: did you mean budget.iterations?",
+        "key budget.iteration: did you mean budget.iterations?",
     ),
     # `+` adds a key Hydra does not check: refused all the same
     (
         "added unknown key",
         ["+budget.cpu_hour=1"],
-        "unknown key budget.cpu_hour: did you mean budget.cpu_hours?",
+        "key budget.cpu_hour: did you mean budget.cpu_hours?",
     ),
     ("added top-level key", ["+sed=1"], "unknown key sed: did you mean seed?"),
     (
@@ -148,6 +144,7 @@ def good(tmp_path_factory) -> tuple[Path, str]:
     return tmp, uri
 
 
+@pytest.mark.timeout(600)  # about 35 commands' imports at once, on a shared machine
 def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) -> None:
     tmp, uri = good
     checkpoint = tmp / "good" / "checkpoint.pkl"
@@ -266,33 +263,18 @@ def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> 
 
 
 # Every other command's bad input, as users type it: per command a missing file, a wrong type
-# (or a malformed value) and an unknown key ({tmp}: a scratch folder, a_file a file in it).
-# a suite's name misspelt: the suites there are, and the one meant
+# (or a malformed value) and an unknown key, set and `+`added; a misspelt suite where one is
+# read (SUITE_TYPO: the suites there are, and the one meant). {tmp}: a scratch folder.
 SUITE_TYPO = (
     "there is no suite papre: a suite is shipped, paper or a suite folder; did you mean paper?"
 )
 AGENT = Path(__file__).resolve().parent.parent / "epoet" / "reference" / "agents" / "sac" / "42.pt"
 COMMAND_ROWS = [
-    (
-        "epoet.eval.evaluate",
-        "missing",
-        ["run={tmp}/missing"],
-        "run={tmp}/missing: there is no such file or folder",
-    ),
+    ("epoet.eval.evaluate", "missing", ["run={tmp}/missing"], "missing: there is no such file"),
     ("epoet.eval.evaluate", "type", ["run=x", "episodes=abc"], "converted to Integer"),
-    (
-        "epoet.eval.evaluate",
-        "key",
-        ["run=x", "episode=3"],
-        "unknown key episode: did you mean episodes?",
-    ),
+    ("epoet.eval.evaluate", "key", ["run=x", "episode=3"], "key episode: did you mean episodes?"),
     ("epoet.eval.evaluate", "added", ["run=x", "+episode=3"], "did you mean episodes?"),
-    (
-        "epoet.eval.evaluate",
-        "unknown",
-        ["run=x", "bogus=1"],
-        "unknown key bogus: the top-level keys are run,",
-    ),
+    ("epoet.eval.evaluate", "unknown", ["run=x", "bogus=1"], "bogus: the top-level keys are run,"),
     ("epoet.eval.evaluate", "suite", [f"run={AGENT}", "suite=papre"], SUITE_TYPO),
     (
         "epoet.eval.render",
