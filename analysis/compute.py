@@ -29,7 +29,6 @@ Examples:
 from __future__ import annotations
 
 import itertools
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -49,7 +48,15 @@ from analysis.mean_success import (  # noqa: E402
     mean_interval,
     ties_ceiling,
 )
-from analysis.records import EPISODES, read_records  # noqa: E402
+from analysis.records import (  # noqa: E402
+    EPISODES,
+    RUN_FILE,
+    one_protocol,
+    read_csv,
+    read_json,
+    read_records,
+    record_file,
+)
 from analysis.stats import (  # noqa: E402
     CONFIDENCE,
     REPS,
@@ -81,48 +88,63 @@ READINGS = {
 }
 
 
-def success_matrix(record: Path, snapshot: str, agents: Sequence[str], suite: str) -> pd.Series:
+def success_matrix(
+    record: Path, snapshot: str, agents: Sequence[str], suite: str
+) -> tuple[pd.Series, int]:
     """Per terrain (suite order), the success of the agents' episodes at the snapshot, averaged
-    over the agents."""
-    frames = [pd.read_csv(record / snapshot / a / suite / EPISODES) for a in agents]
-    episodes = pd.concat(frames, ignore_index=True)
-    return episodes.groupby("terrain", sort=False).solved.mean().astype(float)
+    over the agents; and the episodes per terrain of their evaluations, which must agree."""
+    frames = {
+        agent: read_csv(record / snapshot / agent / suite / EPISODES, ["terrain", "solved"])
+        for agent in agents
+    }
+    per_terrain = one_protocol(
+        {
+            f"{record.name} {snapshot} {agent}": int(frame.groupby("terrain").size().max())
+            for agent, frame in frames.items()
+        }
+    )
+    episodes = pd.concat(frames.values(), ignore_index=True)
+    return episodes.groupby("terrain", sort=False).solved.mean().astype(float), per_terrain
 
 
 def compute_table(records: Path, suite: str) -> pd.DataFrame:
     """One row per run, mark and reading: algo, seed, minutes, cpu_hours (the snapshot's own
-    CPU time), reading, success (the run's success rate) and per-terrain successes."""
+    CPU time), reading, success (the run's success rate), per-terrain successes and the
+    episodes per terrain, one number for every row (`one_protocol`)."""
     rows = []
     for info in read_records(records):
-        for minutes, snap in info.get("snapshots", {}).items():
-            evaluation = snap["evaluations"].get(suite)
-            if evaluation is None:
-                continue
-            folder = Path(records) / info["record"]
-            niches = sorted(a for a in evaluation["agents"] if a.startswith("env"))
-            readings = {
-                "best": [snap["best_agent"]],
-                **({"own": [snap["own_agent"]]} if "own_agent" in snap else {}),
-                "niches": niches or [snap["best_agent"]],  # a baseline's one policy
-            }
-            for reading, agents in readings.items():
-                terrains = success_matrix(folder, f"cpu{minutes}", agents, suite)
-                rows.append(
-                    {
-                        "algo": info["algo"],
-                        "seed": info["seed"],
-                        "minutes": float(minutes),
-                        "cpu_hours": snap["cpu_time"] / 3600,
-                        "reading": reading,
-                        "success": float(terrains.mean()),
-                        "terrains": terrains,
-                    }
-                )
+        folder = Path(records) / info["record"]
+        with record_file(folder / RUN_FILE):  # its snapshots' entries
+            for minutes, snap in info.get("snapshots", {}).items():
+                evaluation = snap["evaluations"].get(suite)
+                if evaluation is None:
+                    continue
+                niches = sorted(a for a in evaluation["agents"] if a.startswith("env"))
+                readings = {
+                    "best": [snap["best_agent"]],
+                    **({"own": [snap["own_agent"]]} if "own_agent" in snap else {}),
+                    "niches": niches or [snap["best_agent"]],  # a baseline's one policy
+                }
+                for reading, agents in readings.items():
+                    terrains, per_terrain = success_matrix(folder, f"cpu{minutes}", agents, suite)
+                    rows.append(
+                        {
+                            "algo": info["algo"],
+                            "seed": info["seed"],
+                            "minutes": float(minutes),
+                            "cpu_hours": snap["cpu_time"] / 3600,
+                            "reading": reading,
+                            "success": float(terrains.mean()),
+                            "terrains": terrains,
+                            "episodes": per_terrain,
+                        }
+                    )
     if not rows:
         raise AnalysisError(
             f"no record in {records} has a CPU-time snapshot evaluated on suite {suite}: "
             f"run python -m pipeline.compute --runs <run folders> --out {records}."
         )
+    one_protocol({f"{r['algo']} s{r['seed']} at {r['minutes']:g} min": r["episodes"] for r in rows})
     return pd.DataFrame(rows)
 
 
@@ -199,13 +221,14 @@ def comparisons(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def reference_lines(suite: str, folder: Path = REFERENCE) -> dict[str, float]:
-    """Mean success of each algorithm's published agents on the suite (their records)."""
+def reference_lines(suite: str, episodes: int, folder: Path = REFERENCE) -> dict[str, float]:
+    """Mean success of each algorithm's published agents on the suite (their records), from
+    evaluations of the runs' protocol only (`episodes` per terrain)."""
     rates: dict[str, list[float]] = {}
     for path in sorted(folder.glob("*/run.json")):
-        info = json.loads(path.read_text())
+        info = read_json(path)
         evaluation = info.get("evaluations", {}).get(suite)
-        if evaluation is not None:
+        if evaluation is not None and evaluation.get("episodes_per_terrain") == episodes:
             rates.setdefault(info["algo"], []).append(evaluation["success_rate"])
     return {algo: float(np.mean(v)) for algo, v in rates.items() if np.mean(v) > 0}
 
@@ -261,7 +284,8 @@ def curves_from_records(records: Path) -> pd.DataFrame:
         path = Path(records) / info["record"] / "curves.csv"
         if not path.is_file():
             continue
-        curves = pd.read_csv(path).dropna(subset=["score", "env_steps", "cpu_time"])
+        columns = ["step", "score", "env_steps", "cpu_time"]
+        curves = read_csv(path, columns).dropna(subset=columns[1:])
         frames.append(
             pd.DataFrame(
                 {
@@ -291,7 +315,7 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
     table = compute_table(records, suite)  # a bad records folder writes nothing
     frame = summary(table)
     curves = curves_from_records(records)
-    references = reference_lines(suite)
+    references = reference_lines(suite, int(table.episodes.iloc[0]))  # one number (compute_table)
     out.mkdir(parents=True, exist_ok=True)
     frame.to_csv(out / "success_vs_compute.csv", index=False)
     shown = frame.assign(

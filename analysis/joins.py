@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis.records import read_records
+from analysis.records import RUN_FILE, read_csv, read_records, record_file
 from epoet.rollout.agent_files import ES_POLICIES
 
 # The curves a join leaves (the ePOET-SAC loop's metrics), which pipeline.compute keeps.
@@ -36,7 +36,7 @@ def parents(policies: Path) -> dict[int, int | None]:
     """Each agent file's environment and its parent environment (None: the root)."""
     out: dict[int, int | None] = {}
     for path in policies.glob("env*.npz"):
-        with np.load(path, allow_pickle=False) as data:
+        with record_file(path), np.load(path, allow_pickle=False) as data:
             parent = int(data["parent"])
         out[int(path.stem[3:])] = None if parent < 0 else parent
     return out
@@ -61,7 +61,7 @@ def _column(curves: pd.DataFrame, key: str) -> pd.Series:
 
 def run_joins(folder: Path, info: dict[str, Any], suite: str) -> dict[str, Any]:
     """One run's joins (see the module's docstring) at its latest snapshot."""
-    curves = pd.read_csv(folder / "curves.csv", index_col="step")
+    curves = read_csv(folder / "curves.csv", index_col="step")
     envs = _column(curves, "join/env").astype(int)
     joins = [
         f"it {step}: {curves.at[step, 'join/sac_score']:.0f} -> "
@@ -95,9 +95,10 @@ def run_joins(folder: Path, info: dict[str, Any], suite: str) -> dict[str, Any]:
 
 def joins_table(records: Path, suite: str, algo: str = "epoet_sac") -> pd.DataFrame:
     """One row per `algo` record with a snapshot (empty when there is none)."""
-    rows = [
-        run_joins(Path(records) / info["record"], info, suite)
-        for info in read_records(records)
-        if info["algo"] == algo and info.get("snapshots")
-    ]
+    rows = []
+    for info in read_records(records):
+        if info["algo"] == algo and info.get("snapshots"):
+            folder = Path(records) / info["record"]
+            with record_file(folder / RUN_FILE):  # its snapshots' entries
+                rows.append(run_joins(folder, info, suite))
     return pd.DataFrame(rows)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from analysis.records import EPISODES, read_records
+from analysis.records import EPISODES, read_csv, read_records
 from epoet.eval.suite import LEVELS
 
 STEP = 6.7  # metres past the spawn: where the reference's CPPN window ends (200 samples / 40 m)
@@ -30,7 +30,9 @@ def level_table(records: Path, suite: str) -> pd.DataFrame:
             if suite not in snap["evaluations"]:
                 continue
             path = Path(records) / info["record"] / f"cpu{minutes}" / snap["best_agent"] / suite
-            episodes = pd.read_csv(path / EPISODES)
+            episodes = read_csv(
+                path / EPISODES, ["level", "finished", "solved", "forward_distance"]
+            )
             medium = episodes[episodes.level == "medium"]
             failed = medium[~medium.solved]
             at_step = ~medium.finished & medium.forward_distance.between(*AT_STEP)

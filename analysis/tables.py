@@ -45,7 +45,12 @@ import pandas as pd
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
-from analysis.records import one_course_scale, record_episodes
+from analysis.records import (
+    episodes_per_terrain,
+    one_course_scale,
+    one_protocol,
+    record_episodes,
+)
 from analysis.stats_report import write_stats
 from analysis.store import (
     AnalysisError,
@@ -195,7 +200,9 @@ def course_scale(runs: Sequence[Run], suite: Suite) -> str:
 def write_tables(
     episodes: pd.DataFrame, out: Path, scale: str = "1", suite: str = SHIPPED_NAME
 ) -> list[Path]:
-    """Tables 1 and 2 of the episodes on the suite named `suite`, as out/table<k>_<suite>.*"""
+    """Tables 1 and 2 of the episodes on the suite named `suite`, as out/table<k>_<suite>.*;
+    runs evaluated with different episodes per terrain are refused (`one_protocol`)."""
+    one_protocol(episodes_per_terrain(episodes))
     out.mkdir(parents=True, exist_ok=True)
     t1, t2 = table1(episodes), table2(episodes)
     shown1, shown2 = formatted(t1, t2)

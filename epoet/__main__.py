@@ -14,6 +14,7 @@ from epoet.cli import run_hydra_app
 from epoet.config import CONF_DIR
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError
 from epoet.core.cli import fail
+from epoet.core.help import print_and_exit
 from epoet.core.lifecycle import Stopped
 from epoet.core.schema import ConfigError
 from epoet.preflight import remove_refused
@@ -49,6 +50,5 @@ def _app(cfg: DictConfig) -> None:
 
 if __name__ == "__main__":
     if "--version" in sys.argv[1:]:  # Hydra's --version would print Hydra's
-        print(f"epoet {__version__}")
-        sys.exit(0)
+        print_and_exit(f"epoet {__version__}")
     run_hydra_app(_app)

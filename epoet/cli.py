@@ -10,6 +10,7 @@ here, so its groups list only the choices a user may make. Bad input ends in one
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
@@ -34,7 +35,14 @@ from epoet.config import (
     validate,
 )
 from epoet.core.cli import fail
-from epoet.core.help import asks_for_help, field_comments, options_table, page
+from epoet.core.help import (
+    asks_for_help,
+    field_comments,
+    options_table,
+    page,
+    print_and_exit,
+    reader_may_leave,
+)
 from epoet.core.schema import ConfigError
 
 # What a user chooses in `python -m epoet`, in help order (the other groups are internal: the
@@ -42,6 +50,8 @@ from epoet.core.schema import ConfigError
 RUN_GROUPS = ("algo", "agent", "terrain", "budget", "workers", "tracking")
 LAUNCHER = "hydra/launcher"
 LAUNCHER_HELP = "how a sweep's jobs (-m) run: in turn, in parallel (joblib) or on SLURM"
+# Hydra's flags that print and run nothing, whose reader may stop reading (`--help | head -1`).
+PRINT_ONLY = ("-h", "--help", "--hydra-help", "-c", "--cfg", "-i", "--info")
 
 
 def shown(value: Any) -> str:
@@ -94,12 +104,16 @@ def run_hydra_app(app: Callable[[], None]) -> None:
     flags = get_args_parser()
     flags.error = lambda message: fail(ConfigError(f"{message} (see --help)"))  # type: ignore[method-assign]
     flags.parse_args(sys.argv[1:])
-    try:
-        app()
-    except (HydraException, OmegaConfBaseException) as err:
-        fail(err)
-    except OSError as err:  # e.g. an output folder that cannot be written (Hydra makes it)
-        fail(err)
+    printing = any(arg in PRINT_ONLY for arg in sys.argv[1:])
+    with reader_may_leave() if printing else contextlib.nullcontext():
+        try:
+            app()
+        except (HydraException, OmegaConfBaseException) as err:
+            fail(err)
+        except OSError as err:  # e.g. an output folder that cannot be written (Hydra makes it)
+            if printing and isinstance(err, BrokenPipeError):
+                raise  # the reader of the printout left: reader_may_leave ends quietly
+            fail(err)
 
 
 @dataclass(frozen=True)
@@ -125,8 +139,7 @@ class KeyValueCommand:
         input (an unknown key, a wrong type, a value out of range) is one line and exit 2."""
         args = list(sys.argv[1:] if argv is None else argv)
         if asks_for_help(args):
-            print(self.help())
-            sys.exit(0)
+            print_and_exit(self.help())
         try:
             if flags := [arg for arg in args if arg.startswith("-")]:
                 raise ConfigError(

@@ -26,7 +26,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
-from epoet.core.schema import ConfigError, check, positive
+from epoet.core.schema import ConfigError, check, check_known_keys, positive
 from epoet.envs.config import BODY_KEYS, HEXAPOD, AgentConfig
 from epoet.registry import algorithms
 from epoet.rollout.config import WorkersConfig
@@ -223,8 +223,10 @@ def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictC
 
 def validate(cfg: DictConfig) -> Any:
     """The dataclass tree of a composed config, every range check run; raises ConfigError with
-    one sentence. The YAML's schema (and, for `algo`, the algorithm's) decides each node's type."""
+    one sentence. The YAML's schema (and, for `algo`, the algorithm's) decides each node's type;
+    a key none of them has (`+budget.cpu_hour=1`) is refused like a plain typo."""
     try:
+        check_known_keys(cfg)
         return OmegaConf.to_object(cfg)
     except ConfigError as err:
         raise ConfigError(_typed_keys(str(err), cfg)) from None

@@ -30,17 +30,29 @@ SMOKE = [
 # (row id, overrides ({good}: the good run's folder, {tmp}: a scratch folder), stderr must hold)
 ROWS = [
     ("unknown algo", ["algo=foo"], "Could not find 'algo/foo' (available: epoet, epoet_sac"),
+    ("misspelt algo", ["algo=epot"], "vmpo); did you mean algo=epoet?"),
     ("unknown agent", ["agent=foo"], "Could not find 'agent/foo'"),
     ("unknown terrain", ["terrain=foo"], "Could not find 'terrain/foo'"),
     ("unknown budget", ["budget=foo"], "Could not find 'budget/foo'"),
     ("unknown workers", ["workers=foo"], "Could not find 'workers/foo'"),
     ("unknown tracking", ["tracking=foo"], "Could not find 'tracking/foo'"),
     ("unknown launcher", ["hydra/launcher=foo"], "Could not find 'hydra/launcher/foo'"),
-    ("unknown key", ["budget.iteration=3"], "Key 'iteration' not in"),
+    (
+        "unknown key",
+        ["budget.iteration=3"],
+        "key budget.iteration: did you mean budget.iterations?",
+    ),
+    # `+` adds a key Hydra does not check: refused all the same
+    (
+        "added unknown key",
+        ["+budget.cpu_hour=1"],
+        "key budget.cpu_hour: did you mean budget.cpu_hours?",
+    ),
+    ("added top-level key", ["+sed=1"], "unknown key sed: did you mean seed?"),
     (
         "another algorithm's budget key",
         ["algo=ppo", "budget.n_pairs=4"],
-        "Key 'n_pairs' not in 'BaselineBudgetConfig'",
+        "unknown key budget.n_pairs: budget's keys are name, episode_steps,",
     ),
     (
         "wrong type",
@@ -132,6 +144,7 @@ def good(tmp_path_factory) -> tuple[Path, str]:
     return tmp, uri
 
 
+@pytest.mark.timeout(600)  # about 35 commands' imports at once, on a shared machine
 def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) -> None:
     tmp, uri = good
     checkpoint = tmp / "good" / "checkpoint.pkl"
@@ -179,6 +192,7 @@ def test_check_validates_a_run_as_it_would_start_and_writes_nothing(good) -> Non
         ([new_store, f"hydra.run.dir={tmp}/checked/run"], 0, f"would start a new run in {tmp}"),
         ([f"resume={tmp / 'good'}"], 0, f"would resume {checkpoint}"),
         ([f"resume={tmp / 'good'}", "seed=1"], 2, "seed (0 -> 1)"),
+        (["+budget.cpu_hour=1"], 2, "unknown key budget.cpu_hour: did you mean budget.cpu_hours?"),
         (["terrain=bowl", f"hydra.run.dir={tmp}/checked/bowl"], 2, "needs terrain=cppn"),
     ]
     refused = [  # runs (not checks) refused after Hydra made their folder
@@ -249,50 +263,96 @@ def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> 
 
 
 # Every other command's bad input, as users type it: per command a missing file, a wrong type
-# (or a malformed value) and an unknown key ({tmp}: a scratch folder, a_file a file in it).
+# (or a malformed value) and an unknown key, set and `+`added; a misspelt suite where one is
+# read (SUITE_TYPO: the suites there are, and the one meant). {tmp}: a scratch folder.
+SUITE_TYPO = (
+    "there is no suite papre: a suite is shipped, paper or a suite folder; did you mean paper?"
+)
+AGENT = Path(__file__).resolve().parent.parent / "epoet" / "reference" / "agents" / "sac" / "42.pt"
 COMMAND_ROWS = [
-    ("epoet.eval.evaluate", "missing", ["run={tmp}/missing"], "run={tmp}/missing is neither"),
+    ("epoet.eval.evaluate", "missing", ["run={tmp}/missing"], "missing: there is no such file"),
     ("epoet.eval.evaluate", "type", ["run=x", "episodes=abc"], "converted to Integer"),
-    ("epoet.eval.evaluate", "key", ["run=x", "bogus=1"], "Key 'bogus' not in 'EvaluateConfig'"),
-    ("epoet.eval.render", "missing", ["run={tmp}/missing", "terrain=r0l0"], "is neither"),
+    ("epoet.eval.evaluate", "key", ["run=x", "episode=3"], "key episode: did you mean episodes?"),
+    ("epoet.eval.evaluate", "added", ["run=x", "+episode=3"], "did you mean episodes?"),
+    ("epoet.eval.evaluate", "unknown", ["run=x", "bogus=1"], "bogus: the top-level keys are run,"),
+    ("epoet.eval.evaluate", "suite", [f"run={AGENT}", "suite=papre"], SUITE_TYPO),
+    (
+        "epoet.eval.render",
+        "missing",
+        ["run={tmp}/missing", "terrain=r0l0"],
+        "no such file or folder",
+    ),
     ("epoet.eval.render", "type", ["run=x", "terrain=r0l0", "width=abc"], "converted to Integer"),
-    ("epoet.eval.render", "key", ["run=x", "bogus=1"], "Key 'bogus' not in 'RenderConfig'"),
-    ("epoet.eval.suite", "missing", ["check=true", "out={tmp}/missing"], "has no suite.json"),
+    ("epoet.eval.render", "key", ["run=x", "widht=3"], "unknown key widht: did you mean width?"),
+    ("epoet.eval.render", "added", ["run=x", "+widht=3"], "unknown key widht: did you mean width?"),
+    (
+        "epoet.eval.suite",
+        "missing",
+        ["check=true", "out={tmp}/missing"],
+        "no folder {tmp}/missing exists",
+    ),
     ("epoet.eval.suite", "type", ["seed=abc"], "converted to Integer"),
-    ("epoet.eval.suite", "key", ["bogus=1"], "Key 'bogus' not in 'SuiteConfig'"),
+    ("epoet.eval.suite", "key", ["sed=1"], "unknown key sed: did you mean seed?"),
+    ("epoet.eval.suite", "added", ["+sed=1", "check=true"], "unknown key sed: did you mean seed?"),
     ("epoet.eval.gallery", "missing", ["out={tmp}/a_file/gallery"], "Not a directory"),
     ("epoet.eval.gallery", "type", ["n=abc"], "converted to Integer"),
-    ("epoet.eval.gallery", "key", ["bogus=1"], "Key 'bogus' not in 'GalleryConfig'"),
+    ("epoet.eval.gallery", "key", ["terain=bowl"], "unknown key terain: did you mean terrain?"),
+    ("epoet.eval.gallery", "added", ["+terain=bowl"], "unknown key terain: did you mean terrain?"),
     ("epoet.eval.reference", "missing", ["source={tmp}/missing"], "is not a checkout"),
     ("epoet.eval.reference", "type", ["source=x", "check=maybe"], "'maybe' is not a valid bool"),
-    ("epoet.eval.reference", "key", ["bogus=1"], "Key 'bogus' not in 'ReferenceConfig'"),
+    ("epoet.eval.reference", "key", ["sorce=x"], "unknown key sorce: did you mean source?"),
+    ("epoet.eval.reference", "added", ["+sorce=x"], "unknown key sorce: did you mean source?"),
+    ("analysis.tables", "suite", ["--suite", "papre"], SUITE_TYPO),
+    ("analysis.compute", "suite", ["--records", "r", "--suite", "papre"], SUITE_TYPO),
+    ("analysis.figures", "suite", ["--suite", "papre"], SUITE_TYPO),
+    ("pipeline.paper", "suite", ["--suites", "papre"], SUITE_TYPO),
+    ("pipeline.reference", "suite", ["--suite", "papre"], SUITE_TYPO),
     ("analysis.tables", "missing", ["--records", "{tmp}/missing"], "there is no records folder"),
     ("analysis.tables", "type", ["--run"], "expected at least one argument"),
     ("analysis.tables", "key", ["--bogus"], "unrecognized arguments: --bogus"),
     ("analysis.compute", "missing", ["--records", "{tmp}/missing"], "there is no records folder"),
     ("analysis.compute", "type", ["--records"], "expected one argument"),
     ("analysis.compute", "key", ["--records", "r", "--bogus"], "unrecognized arguments: --bogus"),
-    ("analysis.figures", "missing", ["--suite", "{tmp}/missing"], "has no suite.json"),
+    (
+        "analysis.figures",
+        "missing",
+        ["--suite", "{tmp}/missing"],
+        "there is no suite {tmp}/missing",
+    ),
     ("analysis.figures", "type", ["--run"], "expected at least one argument"),
     ("analysis.figures", "key", ["--bogus"], "unrecognized arguments: --bogus"),
     ("analysis.curves", "missing", [], "there is no MLflow store"),
     ("analysis.curves", "type", ["--run"], "expected at least one argument"),
     ("analysis.curves", "key", ["--bogus"], "unrecognized arguments: --bogus"),
-    ("pipeline.paper", "missing", ["--suites", "{tmp}/missing"], "has no suite.json"),
+    ("pipeline.paper", "missing", ["--suites", "{tmp}/missing"], "there is no suite {tmp}/missing"),
     ("pipeline.paper", "type", ["--jobs", "abc"], "invalid int value: 'abc'"),
-    ("pipeline.paper", "key", ["budget.iteration=3"], "Key 'iteration' not in"),
+    # (checked per job: a baseline's budget has no iterations)
+    ("pipeline.paper", "key", ["budget.iteration=3"], "unknown key budget.iteration: "),
+    ("pipeline.paper", "added", ["+budget.iteration=3"], "unknown key budget.iteration: "),
     ("pipeline.records", "missing", ["--experiment", "e", "--out", "o"], "no MLflow store"),
     ("pipeline.records", "type", ["--experiment", "e", "--out", "o", "--run"], "expected at"),
     ("pipeline.records", "key", ["--experiment", "e", "--out", "o", "--bogus"], "unrecognized"),
     ("pipeline.compute", "missing", ["--runs", "{tmp}/missing", "--out", "o"], "not a run folder"),
     ("pipeline.compute", "type", ["--runs", "r", "--out", "o", "--episodes", "x"], "invalid int"),
     ("pipeline.compute", "key", ["--runs", "r", "--out", "o", "--bogus"], "unrecognized"),
-    ("pipeline.reference", "missing", ["--suite", "{tmp}/missing"], "has no suite.json"),
+    (
+        "pipeline.reference",
+        "missing",
+        ["--suite", "{tmp}/missing"],
+        "there is no suite {tmp}/missing",
+    ),
     ("pipeline.reference", "type", ["--episodes", "abc"], "invalid int value: 'abc'"),
     ("pipeline.reference", "key", ["--bogus"], "unrecognized arguments: --bogus"),
-    ("pipeline.epoet_sac_starts", "missing", ["--sac-run", "{tmp}/missing"], "is neither"),
+    (
+        "pipeline.epoet_sac_starts",
+        "missing",
+        ["--sac-run", "{tmp}/missing"],
+        "missing: there is no such folder",
+    ),
     ("pipeline.epoet_sac_starts", "type", ["--jobs", "abc"], "invalid int value: 'abc'"),
-    ("pipeline.epoet_sac_starts", "key", ["algo.bogus=1"], "Key 'bogus' not in"),
+    # (its first job is the SAC run, whose algo has no sac_init)
+    ("pipeline.epoet_sac_starts", "key", ["algo.sac_int=null"], "unknown key algo.sac_int: "),
+    ("pipeline.epoet_sac_starts", "added", ["+algo.sac_int=null"], "unknown key algo.sac_int: "),
 ]
 
 
@@ -306,8 +366,10 @@ def test_every_command_answers_bad_input_in_one_line(tmp_path, monkeypatch, caps
     commands = {module for module, *_ in COMMAND_ROWS}
     assert commands | {"epoet"} == set(entry_points())  # a new command needs its rows
     for module in commands:
-        kinds = sorted(kind for m, kind, *_ in COMMAND_ROWS if m == module)
-        assert kinds == ["key", "missing", "type"], module
+        kinds = {kind: args for m, kind, args, _ in COMMAND_ROWS if m == module}
+        assert {"key", "missing", "type"} <= kinds.keys(), module
+        if "=" in kinds["key"][-1]:  # key=value settings: a `+key` typo is refused too
+            assert "+" + kinds["key"][-1] in kinds["added"], module
     (tmp_path / "a_file").write_text("not a folder")
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path}/no_store/mlflow.db")
     monkeypatch.chdir(tmp_path)

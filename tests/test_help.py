@@ -59,6 +59,33 @@ def helps() -> dict[tuple[str, str], subprocess.CompletedProcess]:
         return dict(zip(calls, pool.map(lambda call: run(*call), calls)))
 
 
+def run_unread(module: str, *args: str) -> subprocess.CompletedProcess:
+    """The command with a stdout nobody reads (`--help | head -1` once head has gone): a pipe
+    whose reading end is closed before the command starts, so every write to it fails."""
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        return subprocess.run(
+            [sys.executable, "-m", module, *args],
+            cwd=ROOT,
+            stdout=write,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=240,
+        )
+    finally:
+        os.close(write)
+
+
+@pytest.fixture(scope="module")
+def unread() -> dict[tuple[str, ...], subprocess.CompletedProcess]:
+    """Each entry point's `--help`, `python -m epoet --version` and `--cfg job`, unread."""
+    calls = [(module, "--help") for module in entry_points()]
+    calls += [("epoet", "--version"), ("epoet", "--cfg", "job")]
+    with ThreadPoolExecutor(2) as pool:
+        return dict(zip(calls, pool.map(lambda call: run_unread(*call), calls)))
+
+
 def options_of(module: str, text: str) -> list[str]:
     """What the command's help must list: the run's groups and top-level keys (`python -m
     epoet`), a KeyValueCommand's schema fields, or every option of an argparse command's usage
@@ -126,3 +153,11 @@ def test_the_run_help_lists_only_what_a_user_chooses(helps):
 def test_evaluate_says_it_writes_into_the_working_directory(helps):
     text = helps[("epoet.eval.evaluate", "--help")].stdout
     assert "./evaluation/<run>/<suite> in the working directory" in " ".join(text.split())
+
+
+def test_help_whose_reader_leaves_ends_quietly_with_exit_0(unread):
+    """A reader that stops early (`| head -1`) chose to: no BrokenPipeError traceback, no
+    "Exception ignored" at exit, exit 0."""
+    assert {call[0] for call in unread} == set(entry_points())
+    for call, done in unread.items():
+        assert done.returncode == 0 and not done.stderr, (call, done.returncode, done.stderr)

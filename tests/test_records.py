@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import json
 import shlex
+import shutil
 from pathlib import Path
 
 import mlflow
 import pandas as pd
 import pytest
 
-from analysis.records import record_episodes
+from analysis.records import read_records, record_episodes
 from analysis.store import AnalysisError
 from analysis.tables import make_tables, tables_from_records
 from conftest import subset_suite
@@ -302,3 +303,71 @@ def test_records_on_other_terrains_are_refused_and_records_without_the_suite_nam
         tables_from_records(tmp_path, tmp_path / "out")
     with pytest.raises(AnalysisError, match="no records folder"):
         tables_from_records(tmp_path / "nowhere", tmp_path / "out")
+
+
+COMPUTE_RECORD = Path(__file__).resolve().parent.parent / "docs" / "results" / "compute" / "ppo_s1"
+# (the file damaged, how, the commands that read it): one sentence naming the file for each
+DAMAGES = [
+    ("run.json", lambda text: text[: len(text) // 2], ("analysis.tables", "analysis.compute")),
+    ("run.json", lambda text: "[1, 2]", ("analysis.tables", "analysis.compute")),
+    ("paper/episodes.csv", lambda text: "not,the columns\n1,2\n", ("analysis.tables",)),
+    ("cpu60/policy/paper/episodes.csv", lambda text: "", ("analysis.compute",)),
+    ("curves.csv", lambda text: text.replace("cpu_time", "cpu"), ("analysis.compute",)),
+]
+
+
+@pytest.mark.parametrize("damaged, damage, commands", DAMAGES)
+def test_a_damaged_record_file_is_one_line_naming_it(tmp_path, capsys, damaged, damage, commands):
+    """A record cut short or rewritten (a copy of a committed one) ends each command that reads
+    it in one line on stderr, naming the file, with exit 2 and nothing written."""
+    import importlib
+
+    records = tmp_path / "records"
+    shutil.copytree(COMPUTE_RECORD, records / "ppo_s1")
+    path = records / "ppo_s1" / damaged
+    path.write_text(damage(path.read_text()))
+    for command in commands:
+        main = importlib.import_module(command).main
+        argv = ["--records", str(records), "--suite", "paper", "--out", str(tmp_path / "out")]
+        assert main(argv) == 2, command
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"error: record file {path} "), lines
+    assert not (tmp_path / "out").exists()
+
+
+def test_runs_of_different_episodes_per_terrain_are_refused_not_tabled(tmp_path):
+    """One protocol per table: a run's end-of-run evaluation (1 episode per terrain) beside
+    another's 5 is refused, naming the runs of each, by the tables (records or store: both
+    write through `write_tables`) and by success against compute."""
+    from analysis.compute import compute_table
+    from analysis.tables import write_tables
+
+    shipped = load_suite("shipped")
+    for name, episodes in (("ppo_s1", 1), ("sac_s1", 5)):
+        rows = [
+            [t.name, t.level, t.roughness, e, 7, 5.0, True, True, 1.0, 10, 0.0]
+            for t in shipped.terrains
+            for e in range(episodes)
+        ]
+        write_record(tmp_path / name, pd.DataFrame(rows, columns=COLUMNS), {"shipped": "x"})
+    records = read_records(tmp_path)
+    frames = [
+        pd.read_csv(tmp_path / r["record"] / "shipped" / "episodes.csv").assign(
+            run_id=r["run_id"], algo=r["algo"], seed=r["seed"]
+        )
+        for r in records
+    ]
+    mixed = pd.concat(frames, ignore_index=True)
+    message = r"different episodes per terrain \(1: ppo s1 \(ppo_s1\); 5: sac s1 \(sac_s1\)\)"
+    with pytest.raises(AnalysisError, match=message):
+        write_tables(mixed, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    write_tables(mixed[mixed.algo == "sac"], tmp_path / "out")  # one protocol: tabled
+
+    compute = tmp_path / "compute"
+    shutil.copytree(COMPUTE_RECORD, compute / "ppo_s1")
+    episodes = compute / "ppo_s1" / "cpu60" / "policy" / "paper" / "episodes.csv"
+    first = pd.read_csv(episodes)
+    first[first.episode == 0].to_csv(episodes, index=False)  # 1 episode per terrain at 60 min
+    with pytest.raises(AnalysisError, match=r"\(1: ppo s1 at 60 min; 5: ppo s1 at 15 min"):
+        compute_table(compute, "paper")

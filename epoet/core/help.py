@@ -12,13 +12,15 @@ Two kinds of command share it: key=value commands composed by Hydra (`python -m 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import inspect
+import os
 import re
 import sys
 import textwrap
-from collections.abc import Sequence
-from typing import NoReturn
+from collections.abc import Iterator, Sequence
+from typing import Any, NoReturn
 
 HELP_FLAGS = ("-h", "--help")
 _FIELD = re.compile(r"^    (\w+):[^#]*?(?:#\s*(.*))?$")  # `    name: type [= default]  # comment`
@@ -27,6 +29,37 @@ _CONTINUED = re.compile(r"^    #\s*(.*)$")  # a comment line right below a field
 
 def asks_for_help(argv: Sequence[str]) -> bool:
     return any(arg in HELP_FLAGS for arg in argv)
+
+
+@contextlib.contextmanager
+def reader_may_leave() -> Iterator[None]:
+    """Output a reader may stop reading early (`--help | head -1`): its closed pipe ends the
+    command quietly with exit 0, as the reader chose, instead of a BrokenPipeError traceback
+    (or Python's "Exception ignored" when it flushes stdout at exit)."""
+    try:
+        yield
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _drop_stdout()
+        sys.exit(0)
+    except SystemExit:  # the command's own exit: flush what it printed before it goes
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _drop_stdout()
+        raise
+
+
+def _drop_stdout() -> None:
+    """Point stdout at /dev/null, so the flush at exit finds no closed pipe."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def print_and_exit(text: str) -> NoReturn:
+    """Print a help page (or a version) and exit 0, whether or not the reader reads it all."""
+    with reader_may_leave():
+        print(text)
+    sys.exit(0)
 
 
 def summary(doc: str | None) -> str:
@@ -121,6 +154,10 @@ class HelpParser(argparse.ArgumentParser):
             epilog="examples:\n" + "\n".join(f"  {line}" for line in found) if found else None,
             formatter_class=_Formatter,
         )
+
+    def print_help(self, file: Any = None) -> None:
+        with reader_may_leave():
+            super().print_help(file)
 
     def error(self, message: str) -> NoReturn:
         print(f"error: {message} (see {self.prog} --help)", file=sys.stderr)

@@ -199,6 +199,11 @@ def _resolve(spec: str, tracking_uri: str | None) -> _Found:
         return _from_folder(spec, Path(spec))
     if RUN_ID.match(spec):
         return _from_store(spec, tracking_uri)
+    if not Path(spec).exists():
+        raise ConfigError(
+            f"algo.sac_init={spec}: there is no such folder, and it is neither "
+            "reference:sac/42 nor an MLflow run id."
+        )
     raise _fail(spec, "is neither reference:sac/42, a SAC run folder nor an MLflow run id")
 
 

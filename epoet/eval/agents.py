@@ -164,6 +164,6 @@ def resolve_run(spec: str, tracking_uri: str | None = None) -> TrainedRun:
     except TrackingError as err:
         raise AgentError(str(err)) from err
     raise AgentError(
-        f"run={spec} is neither a reference:<run>/<agent>, a policy file, a run "
-        f"folder, an MLflow run id nor a model URI runs:/<run id>/agent."
+        f"run={spec}: there is no such file or folder, and it is neither a "
+        f"reference:<run>/<agent>, an MLflow run id nor a model URI runs:/<run id>/agent."
     )

@@ -52,7 +52,7 @@ import numpy as np
 from epoet.cli import KeyValueCommand
 from epoet.config import load
 from epoet.core.cli import fail
-from epoet.core.schema import ConfigError
+from epoet.core.schema import ConfigError, closest
 from epoet.eval.config import SuiteConfig
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite_format import (
@@ -167,6 +167,12 @@ def load_suite(folder: str | Path | None = None) -> Suite:
     """Read and check a suite: a name of `SUITES` (None: shipped; a name wins over a folder of
     that name: pass `./paper`) or a folder; SuiteError names any problem."""
     key = SHIPPED_NAME if folder is None else str(folder)
+    if key not in SUITES and not Path(key).exists():  # a typo of a name, or a missing folder
+        meant = closest(key, list(SUITES))
+        raise SuiteError(
+            f"there is no suite {key}: a suite is {', '.join(SUITES)} or a suite folder"
+            + (f"; did you mean {meant}?" if meant else f", and no folder {key} exists.")
+        )
     folder, key = (SUITES[key], key) if key in SUITES else (Path(key), suite_name(Path(key)))
     if not (folder / "suite.json").is_file():
         raise SuiteError(f"{folder} is not a suite folder: it has no suite.json.")
@@ -220,7 +226,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
 def main(argv: Sequence[str] | None = None) -> None:
     """`python -m epoet.eval.suite [key=value ...]`: generate the fixed evaluation suite into
     `out` (by default the shipped epoet/suite/, which these defaults produce bit for bit), or,
-    with check=true, regenerate it and compare with `out`, writing nothing (about a minute).
+    with check=true, regenerate it and compare with `out`, writing nothing.
 
     Examples:
 

@@ -1,0 +1,166 @@
+"""Facts the documentation states that the code also holds, checked against their source: the
+composed config (what `python -m epoet ... --cfg job --resolve` prints), the Makefile and the
+commands' `--help`. A change that makes a page wrong fails here, naming the page; the fix is
+the page (or, if the page was right, the change)."""
+
+from __future__ import annotations
+
+import re
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import pytest
+from omegaconf import OmegaConf
+
+from epoet.config import compose
+from test_help import run
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
+SMALLER_BUDGETS = ("smoke", "laptop", "workstation")
+
+
+def page(name: str) -> str:
+    """A documentation page's text with its lines joined, so a phrase may wrap."""
+    path = ROOT / name if name == "README.md" else DOCS / name
+    return " ".join(path.read_text(encoding="utf-8").split())
+
+
+def section(name: str, heading: str) -> str:
+    """The text of a page's section, from its heading to the next heading of any level."""
+    text = (DOCS / name).read_text(encoding="utf-8")
+    match = re.search(rf"^#+ {re.escape(heading)}\n(.*?)(?=^#+ |\Z)", text, re.M | re.S)
+    assert match, f"docs/{name} has no section {heading!r}"
+    return " ".join(match.group(1).split())
+
+
+def table_row(name: str, first_cell: str) -> list[str]:
+    """The cells of the table row of a page whose first cell is `first_cell`."""
+    for line in (DOCS / name).read_text(encoding="utf-8").splitlines():
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if line.startswith("|") and cells[0] == first_cell:
+            return cells
+    raise AssertionError(f"docs/{name} has no table row {first_cell!r}")
+
+
+@cache
+def composed(*overrides: str) -> Any:
+    """The resolved config of `python -m epoet <overrides>`, as plain containers."""
+    return OmegaConf.to_container(compose(list(overrides)), resolve=True)
+
+
+def test_fidelity_says_where_epoet_sac_starts_on_every_budget() -> None:
+    paper, _, ours, *_ = table_row("fidelity.md", "ePOET-SAC pre-training and mapping")[1:]
+    algo = composed("algo=epoet_sac", "budget=paper")["algo"]
+    assert f"{algo['pretrain_iterations']} pre-training iterations" in paper
+    assert algo["mapping"] == "random" and "random parameter selection" in paper
+    assert algo["sac_init"] is None and "the paper's at `budget=paper`" in ours
+    for budget in SMALLER_BUDGETS:
+        algo = composed("algo=epoet_sac", f"budget={budget}")["algo"]
+        assert algo["pretrain_iterations"] == 0 and "no pre-training" in ours, budget
+        assert f"the `{algo['mapping']}` mapping" in ours, budget
+        assert f"`algo.sac_init={algo['sac_init']}`" in ours, budget
+        assert algo["sac_init"] == "reference:sac/42" and "authors' trained SAC actor" in ours
+
+
+def test_the_equal_compute_comparison_says_epoet_sac_starts_from_the_authors_actor() -> None:
+    start = composed("algo=epoet_sac", "budget=workstation")["algo"]["sac_init"]
+    text = section("RESULTS.md", "ePOET-SAC against ePOET at this budget: 3 seeds")
+    assert "default start at this budget, which these runs kept, is the authors' trained" in text
+    assert f"`algo.sac_init={start}`" in text
+    assert "no CPU budget here counts" in text
+
+
+def test_the_workstation_budget_facts_are_the_configs() -> None:
+    budget = composed("budget=workstation")["budget"]
+    assert f"stops after {budget['cpu_hours']:g} CPU hour" in page("fidelity.md")
+    bench = table_row("benchmarks.md", "`bench/time_to_walker.py [--seeds 1,2,3] [override ...]`")
+    assert f"`budget.iterations` ({budget['iterations']} at the workstation budget" in bench[1]
+
+
+def test_the_evaluation_protocol_of_each_budget_is_the_configs() -> None:
+    """The end-of-run evaluation's episodes per terrain, by budget, against the paper's 5 and
+    `evaluate`'s default."""
+    text = page("evaluation.md")
+    evaluate = OmegaConf.load(ROOT / "conf" / "evaluate.yaml")
+    assert evaluate.episodes == 5 and "as `evaluate` does by default (`episodes=5`)" in text
+    by_budget = {
+        b: composed(f"budget={b}")["budget"]["eval_episodes"] for b in (*SMALLER_BUDGETS, "paper")
+    }
+    stated = "; ".join(f"{n} at `{b}`" for b, n in by_budget.items())
+    assert f"`budget.eval_episodes` episodes per terrain ({stated})" in text
+
+
+def help_groups() -> dict[str, set[str]]:
+    """Each config group `python -m epoet --help` lists, with its choices."""
+    text = run("epoet", "--help").stdout
+    return {g: set(o.split("|")) for g, o in re.findall(r"^  ([\w/]+)=([\w|]+)", text, re.M)}
+
+
+def test_the_config_groups_table_lists_the_choices_help_lists() -> None:
+    groups = help_groups()
+    assert "hydra/launcher" in groups and "algo" in groups
+    for group, choices in groups.items():
+        cell = table_row("configs.md", f"`{group}`")[1]
+        listed = set(re.findall(r"`(\w+)`", re.sub(r"\([^)]*\)", "", cell)))
+        assert listed == choices, (group, listed, choices)
+
+
+def makefile_variables() -> dict[str, set[str]]:
+    """Each Makefile target's user variables (those set with `?=`) that its recipe reads."""
+    text = (ROOT / "Makefile").read_text()
+    variables = set(re.findall(r"^([A-Z_]+)\s*\?=", text, re.M))
+    recipes: dict[str, set[str]] = {}
+    for target, recipe in re.findall(r"^([\w-]+):[^\n=]*\n((?:\t.*\n?)*)", text, re.M):
+        recipes[target] = set(re.findall(r"\$\(([A-Z_]+)\)", recipe)) & variables
+    return recipes
+
+
+def make_lines() -> list[tuple[str, str, str]]:
+    """(page, target, the rest) of every `make <target> ...` command line in the docs."""
+    pages = [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]
+    return [
+        (path.relative_to(ROOT).as_posix(), target, rest)
+        for path in pages
+        for target, rest in re.findall(r"^\s+make ([\w-]+)(.*)$", path.read_text(), re.M)
+    ]
+
+
+def test_make_commands_in_the_docs_set_only_what_their_recipe_reads() -> None:
+    """Every `make X VAR=...` names variables the recipe of X reads; a synopsis line (one with
+    `[optional]` parts and no comment) names all of them."""
+    recipes = makefile_variables()
+    assert recipes["figures"] >= {"RECORDS", "SUITE", "EXPERIMENT"}
+    synopses = 0
+    for name, target, rest in make_lines():
+        assert target in recipes, (name, target)
+        command = rest.split("#")[0]
+        named = set(re.findall(r"\b([A-Z][A-Z_]+)=", command))
+        assert named <= recipes[target], (name, target, named - recipes[target])
+        if "[" in command and command == rest:
+            synopses += 1
+            assert named == recipes[target], (name, target, recipes[target] - named)
+    assert synopses >= 4  # tables, figures, paper, epoet-sac-starts
+
+
+def out_default(module: str, capsys: pytest.CaptureFixture[str]) -> str:
+    """The `--out` default a flag command's `--help` states."""
+    main = __import__(module, fromlist=["main"]).main
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    match = re.search(r"--out OUT .*?\(default: (\S+)\)", text)
+    assert match, module
+    return match.group(1)
+
+
+def test_the_output_folders_in_the_docs_are_the_commands_defaults(capsys) -> None:
+    figures = section("analysis.md", "`make figures`")
+    tables = section("analysis.md", "`make tables`")
+    store = out_default("analysis.figures", capsys)
+    assert out_default("analysis.tables", capsys) == store
+    assert f"writes to `{store}/<input>/<suite name>/`" in figures
+    assert f"writes to `{store}/<input>/<suite name>/`" in tables
+    records = out_default("analysis.compute", capsys)
+    assert f"[--out {records}]" in figures and f"into `{records}/<name>/<suite name>/`" in figures
