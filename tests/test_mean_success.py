@@ -58,7 +58,13 @@ def test_the_level_table_counts_medium_episodes_that_stop_at_the_step(tmp_path):
             "forward_distance": [22.0, 6.0, 7.0, 12.0, 22.0],
         }
     ).to_csv(folder / EPISODES, index=False)
-    run = {"format": FORMAT, "algo": "epoet", "seed": "1", "started": "2026-01-01T00:00:00Z"}
+    run = {
+        "format": FORMAT,
+        "run_id": "r1",
+        "algo": "epoet",
+        "seed": "1",
+        "started": "2026-01-01T00:00:00Z",
+    }
     run["snapshots"] = {"60": {"best_agent": "agent", "evaluations": {"paper": {}}}}
     (record / RUN_FILE).write_text(json.dumps(run))
     [row] = level_table(tmp_path, "paper").to_dict("records")
