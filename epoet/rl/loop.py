@@ -26,7 +26,8 @@ exported policy is chosen among them at snapshots and at the end (`selection`).
 Metrics go to the tracker at step = frames: `train/*` (episode return and length, the learner's
 losses and diagnostics), `eval/*` (return_mean, return_std, length_mean, finish_rate), `score`
 (eval/return_mean) and `best_score` (its best so far), the axes `env_steps`, `elapsed` and
-`cpu_time`, `frames`, `fps`, `time/batch`, and `final/*` (the last evaluation) at the end.
+`cpu_time` (the baselines family's metrics: epoet/core/algorithm.py), `frames`, `fps`,
+`time/batch`, and `final/*` (the last evaluation) at the end.
 """
 
 from __future__ import annotations
@@ -290,7 +291,7 @@ class BaselineRun:
             "best_score": state.best_score,
         }
         if state.batches == 0:  # later evaluations follow a batch that logged the axes already
-            metrics.update({"env_steps": state.frames, "elapsed": state.wall_time})
+            metrics.update(self.axes())
         self.tracker.log_metrics(state.frames, metrics)
         self.write(
             f"frames={state.frames} eval return={state.last_eval['return_mean']:.1f} "
