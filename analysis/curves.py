@@ -54,7 +54,7 @@ from epoet.core.help import HelpParser  # noqa: E402
 from epoet.registry import algorithm, algorithms, names  # noqa: E402
 
 PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
-EVAL_KEY = "eval/return_mean"
+EVAL_KEY = Family.BASELINE.curve  # "eval/return_mean"
 EPOET_COLUMNS = ["run_id", "algo", "seed", "pair", "iteration", "return_mean"]
 BASELINE_COLUMNS = ["run_id", "algo", "seed", "frames", "return_mean"]
 

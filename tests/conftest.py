@@ -12,7 +12,9 @@ import torch
 
 from epoet.config import compose as compose_config
 from epoet.config import load
+from epoet.core.algorithm import Family
 from epoet.envs.config import AgentConfig
+from epoet.registry import algorithm
 from epoet.rollout.policy import policy_sizes
 from epoet.terrain import Terrain
 from epoet.terrain.config import TerrainConfig
@@ -75,6 +77,9 @@ TINY_BASELINE = [
     "algo.frames_per_batch=60",
     "checkpoint_every=2",
 ]
+TINY_FAMILY = {Family.BASELINE: TINY_BASELINE, Family.POOL: TINY_EPOET}
+# Each algorithm's own small sizes on its family's tiny run; an algorithm without an entry runs
+# its own sizes there.
 TINY_SIZES = {
     "ppo": ["algo.epochs=2", "algo.minibatch=30"],
     "vmpo": ["algo.epochs=2", "algo.minibatch=30"],
@@ -84,12 +89,22 @@ TINY_SIZES = {
         "algo.updates_per_batch=8",
         "algo.init_random_frames=60",
     ],
+    "epoet_sac": [
+        "algo.sac_init=null",  # cold: the shipped warm start's networks are [256, 256]
+        "algo.frames_per_iteration=40",
+        "algo.sac.hidden=[32,32]",
+        "algo.sac.batch_size=32",
+        "algo.sac.init_random_frames=40",
+    ],
 }
 
 
-def tiny_baseline(algo: str) -> list[str]:
-    """The overrides of `algo`'s tiny run."""
-    return [f"algo={algo}", *TINY_BASELINE, *TINY_SIZES[algo]]
+def tiny_run(algo: str) -> list[str]:
+    """The overrides of any registered algorithm's tiny run: its family's, with its sizes."""
+    return [f"algo={algo}", *TINY_FAMILY[algorithm(algo).family], *TINY_SIZES.get(algo, [])]
+
+
+tiny_baseline = tiny_run  # a baseline's tiny run, by the name the baselines' tests use
 
 
 @pytest.fixture

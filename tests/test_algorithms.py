@@ -19,14 +19,18 @@ import pandas as pd
 import pytest
 from omegaconf import OmegaConf
 
-from conftest import subset_suite
+from analysis.figures import curve_table
+from conftest import subset_suite, tiny_run
 from epoet.config import CONF_DIR, compose
-from epoet.core.algorithm import Algorithm, Family
+from epoet.core.algorithm import AXES, SCORE, Algorithm, Family
+from epoet.core.checkpoint import load_checkpoint
 from epoet.registry import algorithm, algorithms, names, register
 from epoet.rl.config import PpoConfig
+from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
 TOY = Path(__file__).with_name("toy_algorithm.py")
+ADDING = ROOT / "docs" / "algorithms" / "adding.md"  # the toy, as the page's random_search
 # What `python -m epoet algo=<algo> budget=<budget>` composed to before the records (commit
 # 54618cf), every value resolved; `python tests/test_algorithms.py` writes it again, for a change
 # to the configs that is meant.
@@ -105,6 +109,39 @@ def test_no_list_of_algorithm_names_outside_the_records() -> None:
     assert _name_lists(Path(__file__), known)
 
 
+def unmet_metrics(client: mlflow.MlflowClient, run_id: str, family: Family) -> list[str]:
+    """What the run misses of its family's metrics (`Family.metrics`): each it never logged,
+    and each step with a `score` that lacks an axis (a point the learning curves would lose)."""
+    logged = client.get_run(run_id).data.metrics
+    unmet = [key for key in family.metrics if key not in logged]
+    scored = {m.step for m in client.get_metric_history(run_id, SCORE)}
+    for axis in AXES:
+        have = {m.step for m in client.get_metric_history(run_id, axis)}
+        unmet += [f"{axis} at step {step}" for step in sorted(scored - have)]
+    return unmet
+
+
+@pytest.mark.parametrize("algo", names())
+def test_every_algorithm_logs_its_familys_metrics(
+    algo: str, mlflow_uri: str, tmp_path: Path
+) -> None:
+    """Each registered algorithm, tiny on the smoke budget, logs what its family declares, and
+    the learning-curve figure reads a point from it."""
+    run(compose([*tiny_run(algo), "evaluate=false"]), tmp_path / "run")
+    run_id = load_checkpoint(tmp_path / "run" / "checkpoint.pkl")["run_id"]
+    client = mlflow.MlflowClient(mlflow_uri)
+    assert unmet_metrics(client, run_id, algorithm(algo).family) == []
+    assert not curve_table(client, [client.get_run(run_id)]).empty
+
+
+def test_the_adding_page_shows_the_toys_runner() -> None:
+    """docs/algorithms/adding.md's runner is the one the toy test trains, its names aside."""
+    toy = TOY.read_text()
+    runner = toy[toy.index("def train(") : toy.index("\n\n\ndef register()")]
+    shown = runner.replace("ToyConfig", "RandomSearchConfig").replace('"toy"', '"random_search"')
+    assert shown in ADDING.read_text()
+
+
 def _run(args: list[str], cwd: Path, uri: str) -> subprocess.CompletedProcess:
     """A command as a user runs it, on this worktree's code and the test's store."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MLFLOW_TRACKING_URI": uri}
@@ -137,6 +174,9 @@ def test_a_toy_algorithm_trains_is_evaluated_and_tabled(tmp_path: Path) -> None:
     assert run.data.params["algo._target_"] == "toy_algorithm.train"
     assert run.data.params["budget.frames"] == "400" and run.data.metrics["frames"] >= 400
     assert (run_dir / "policies" / "env0.npz").is_file()
+    client = mlflow.MlflowClient(uri)
+    assert unmet_metrics(client, run.info.run_id, Family.BASELINE) == []  # it gets its curve
+    assert not curve_table(client, [run]).empty
 
     _run(
         ["-m", "epoet.eval.evaluate", f"run={run_dir}", f"suite={suite}", "episodes=1"],

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import epoet.env_factory  # noqa: F401  (registers the envs)
-from conftest import ACT_DIM, OBS_DIM, TINY_EPOET, tiny_baseline
+from conftest import ACT_DIM, OBS_DIM, TINY_EPOET, tiny_run
 from epoet.config import load, saved_agent
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
@@ -25,24 +25,13 @@ from epoet.envs.spaces import layout_of, observation_names, robot_sizes
 from epoet.eval.agents import AgentError, policy_in, resolve_run
 from epoet.eval.reference import FOLDER, manifest
 from epoet.eval.reference.layout import LEGS, SEGMENTS
+from epoet.registry import names
 from epoet.rollout.agent_files import LAYOUT, check_robot
 from epoet.rollout.policy import init_params
 from epoet.run import prepare, run
 
 ANT = "epoet/Ant-v0"
 ANT_JOINTS = ["hip_1", "ankle_1", "hip_2", "ankle_2", "hip_3", "ankle_3", "hip_4", "ankle_4"]
-TINY_RUNS = {
-    "epoet": [*TINY_EPOET, "algo=epoet"],
-    "epoet_sac": [
-        *TINY_EPOET,
-        "algo=epoet_sac",
-        "algo.frames_per_iteration=40",
-        "algo.sac.hidden=[32,32]",
-        "algo.sac.batch_size=32",
-        "algo.sac.init_random_frames=40",
-    ],
-    **{algo: tiny_baseline(algo) for algo in ("ppo", "sac", "vmpo")},
-}
 
 
 def test_the_ant_observes_by_the_hexapods_rule() -> None:
@@ -171,7 +160,7 @@ def test_the_ant_starts_epoet_sac_cold_and_refuses_the_authors_hexapod_sac(
         )
 
 
-@pytest.mark.parametrize("algo", sorted(TINY_RUNS))
+@pytest.mark.parametrize("algo", names())
 def test_every_algorithm_trains_the_ant_and_its_agent_is_evaluated_and_served(
     algo: str, compose, mlflow_uri: str, tmp_path: Path
 ) -> None:
@@ -179,7 +168,7 @@ def test_every_algorithm_trains_the_ant_and_its_agent_is_evaluated_and_served(
     agent records the ant, the end-of-run evaluation runs it on the shipped suite, and its
     MLflow model acts on the ant's observations."""
     folder = tmp_path / "run"
-    run(compose(["agent=ant", *TINY_RUNS[algo], "evaluate=true"]), folder)
+    run(compose(["agent=ant", *tiny_run(algo), "evaluate=true"]), folder)
     found = policy_in(folder)
     assert found is not None
     trained = resolve_run(str(folder), mlflow_uri)

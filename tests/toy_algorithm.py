@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import runpy
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
@@ -19,6 +20,7 @@ from hydra.core.config_store import ConfigStore
 
 from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
+from epoet.core.clock import CpuMeter
 from epoet.core.schema import positive
 from epoet.registry import register as register_record
 from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
@@ -56,7 +58,8 @@ YAML = {"defaults": ["toy_schema", "_self_"], "hidden": [8], "sigma": 0.1}
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> float:
     """Random search for the budget's frames, each step on a fresh terrain; exports the best
-    parameters as the ES policy file evaluation reads, then checkpoints (its last state)."""
+    parameters as the ES policy file evaluation reads, then checkpoints (its last state). Logs
+    its family's metrics (`Family.BASELINE.metrics`) at step = frames, so it gets its curves."""
     algo = ToyConfig.of(cfg)
     frames_budget = cast(BaselineBudgetConfig, cfg.budget).frames  # its family's unit
     sizes = policy_sizes(cfg.agent, algo.hidden)
@@ -64,11 +67,13 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
         "theta": np.zeros(num_params(sizes)),
         "best": -np.inf,
         "frames": 0,
-        "step": 0,
+        "elapsed": 0.0,
+        "cpu_time": 0.0,
         "rng": np.random.default_rng(cfg.seed).bit_generator.state,
     }
     rng = np.random.default_rng()
     rng.bit_generator.state = state["rng"]
+    cpu, started = CpuMeter(), time.perf_counter()
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, sizes) as evaluator:
         while state["frames"] < frames_budget:
             noise_seed, spawn_seed = rng.integers(2**31, size=(2, 1))
@@ -79,9 +84,21 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
             if episodes.returns[e] > state["best"]:
                 state["best"], state["theta"] = float(episodes.returns[e]), population.job(e)[0]
             state["frames"] += int(episodes.lengths.sum())
-            metrics = {"score": float(episodes.returns[e]), "best_score": state["best"]}
-            tracker.log_metrics(state["step"], {**metrics, "frames": state["frames"]})
-            state["step"] += 1
+            state["cpu_time"] += cpu.lap()
+            state["elapsed"] += time.perf_counter() - started
+            started = time.perf_counter()
+            tracker.log_metrics(
+                state["frames"],
+                {
+                    "score": float(episodes.returns[e]),  # the step's better perturbation
+                    "best_score": state["best"],
+                    "eval/return_mean": float(episodes.returns.mean()),  # the step's episodes
+                    "env_steps": state["frames"],
+                    "elapsed": state["elapsed"],
+                    "cpu_time": state["cpu_time"],
+                    "frames": state["frames"],
+                },
+            )
     policy = run_dir / ES_POLICIES / "env0.npz"
     write_es_policy(policy, state["theta"], state["best"], sizes, cfg.agent)
     state["rng"] = rng.bit_generator.state

@@ -1,10 +1,11 @@
 """What an algorithm is to the platform: one record (`Algorithm`), declared beside its settings'
 schema, and the interface that schema implements (`AlgoSettings`, the type of `Config.algo`).
 
-The record is the one place an algorithm's name, family, runner, schema and figure style are
-written; composition (epoet/config.py), the run (epoet/run.py), `make paper` and analysis read
-it through epoet/registry.py, which finds the records. It lives in `core` so that every folder's
-schema module can declare one without importing anything above it.
+The record is the one place an algorithm's name, family (what its budget counts and which
+metrics it logs: `Family.metrics`), runner, schema and figure style are written; composition
+(epoet/config.py), the run (epoet/run.py), `make paper` and analysis read it through
+epoet/registry.py, which finds the records. It lives in `core` so that every folder's schema
+module can declare one without importing anything above it.
 """
 
 from __future__ import annotations
@@ -13,6 +14,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 from typing import Any, ClassVar, Self
+
+# What every algorithm logs, each at every step that has a `score`: the score (ePOET: its best
+# active pair's evaluation; a baseline: its deterministic evaluation return), the best so far and
+# the x-axes. The learning-curve figure (analysis/figures.py) draws `score` against `env_steps`
+# and `elapsed`; a run's record keeps them all (pipeline/compute.py `CURVE_KEYS`).
+SCORE = "score"
+AXES = ("env_steps", "elapsed", "cpu_time")
+SCORE_METRICS = (SCORE, "best_score", *AXES)
 
 
 class Family(Enum):
@@ -27,6 +36,19 @@ class Family(Enum):
     def counts(self) -> str:
         """The unit of the family's budget: environment frames or iterations of the ES loop."""
         return "frames" if self is Family.BASELINE else "iterations"
+
+    @property
+    def curve(self) -> str:
+        """The metric of the family's own curves (analysis/curves.py): a baseline's evaluation
+        return against frames; a pool's mean ES return per pair, `pair<N>/return_mean`, of
+        which every run logs pair 0's."""
+        return "eval/return_mean" if self is Family.BASELINE else "pair0/return_mean"
+
+    @property
+    def metrics(self) -> tuple[str, ...]:
+        """What every runner of the family logs (the metrics contract; tests/test_algorithms.py
+        runs every registered algorithm and checks it)."""
+        return (*SCORE_METRICS, self.curve)
 
 
 @dataclass

@@ -1,25 +1,31 @@
-"""The on-policy update PPO (ppo.py) and V-MPO (vmpo.py) share; only their TorchRL loss module
-differs."""
+"""The on-policy learner PPO (ppo.py) and V-MPO (vmpo.py) share: their networks and their update;
+only their TorchRL loss module differs. The baselines' loop (loop.py) calls `learn` on each
+collector batch."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import LazyTensorStorage, SamplerWithoutReplacement, TensorDictReplayBuffer
+from torchrl.envs import EnvBase
 from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import LossModule
 from torchrl.objectives.value import GAE
 
 from epoet.rl.config import OnPolicyConfig
 from epoet.rl.harness import BatchPlan
-from epoet.rl.nets import step_if_finite
+from epoet.rl.nets import make_actor, make_value, step_if_finite
 
 
 class OnPolicyLearner:
-    """GAE on each collector batch, then epochs of shuffled minibatches on a loss module.
+    """A tanh actor with a state-independent log-std and a tanh critic, both on the env's
+    (normalised) observations, and a loss module on them (`make_loss(actor, critic)`); GAE on
+    each collector batch, then epochs of shuffled minibatches on the loss.
 
     Per collector batch: GAE advantages and value targets once (with the critic before the
     update, as CleanRL), then `epochs` passes over the batch in shuffled minibatches drawn
@@ -31,14 +37,18 @@ class OnPolicyLearner:
     learned scalars (VMPO's eta and alpha) are not clipped.
     """
 
+    random_frames = 0  # the actor acts from the first frame
+
     def __init__(
         self,
         cfg: OnPolicyConfig,
+        env: EnvBase,
         plan: BatchPlan,
-        actor: ProbabilisticActor,
-        critic: ValueOperator,
-        loss: LossModule,
+        make_loss: Callable[[ProbabilisticActor, ValueOperator], LossModule],
     ) -> None:
+        actor = make_actor(env, cfg.hidden, cfg.activation, state_independent_scale=True)
+        critic = make_value(env, cfg.hidden, cfg.activation)
+        loss = make_loss(actor, critic)
         self.actor, self.critic, self.loss = actor, critic, loss
         self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.gae_lambda, value_network=critic)
         self.optimizer = torch.optim.Adam(loss.parameters(), lr=cfg.lr)
@@ -78,6 +88,10 @@ class OnPolicyLearner:
                 for k, v in out.items():
                     sums[k] = sums.get(k, 0.0) + v.detach().float().mean()
         return {**{k: float(v) / steps for k, v in sums.items()}, "skipped_updates": skipped}
+
+    def artifacts(self, run_dir: Path) -> list[Path]:
+        """Nothing beside the policy."""
+        return []
 
     def state_dict(self) -> dict[str, Any]:
         return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}

@@ -1,5 +1,5 @@
-"""SAC on the hexapod (paper Table 3), read top to bottom: the learner, then the whole run in
-`train`.
+"""SAC on the hexapod (paper Table 3): its learner (also ePOET-SAC's), and that learner as the
+baselines' loop (loop.py) trains it for `algo=sac`.
 
 A ReLU tanh-Gaussian actor (TorchRL's ProbabilisticActor, which the collector runs) and twin
 ReLU Q networks, the SAC losses of sac_loss.py, a uniform TorchRL replay buffer, soft target
@@ -9,8 +9,7 @@ logged returns are the env's). Each collector batch is followed by `updates_per_
 updates; the first batch comes from uniform random actions (Table 3: one pre-training epoch).
 Settings: conf/learner/sac.yaml (networks, losses, replay; shared with ePOET-SAC) and
 conf/algo/sac.yaml (collection and updates). `SacLearner.gradient_steps` is what
-bench/sac_updates.py times. What every baseline's run shares (seeds, envs, counters,
-evaluation, checkpoints): harness.py.
+bench/sac_updates.py times.
 
 Speed (the project's target: the update rate of a plain-PyTorch SAC; bench/sac_updates.py):
 the loss is ours (sac_loss.py: the twin critics as one batched ensemble, no functional
@@ -22,7 +21,6 @@ SAMPLE_CHUNK batches per call and split.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -34,10 +32,10 @@ from torchrl.envs import EnvBase
 from torchrl.modules import MLP
 
 from epoet.config import Config
-from epoet.core.lifecycle import raise_if_stopped
+from epoet.rl import loop
 from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.rl.env import OBS, policy_key
-from epoet.rl.harness import Harness, TrainResult, make_collector
+from epoet.rl.harness import BatchPlan, TrainResult
 from epoet.rl.nets import ACTIVATIONS, SOFTPLUS_SCALE, ObsStandardize, make_actor, step_if_finite
 from epoet.rl.policy_file import CRITICS_FILE, export_critics
 from epoet.rl.sac_loss import SacLoss, TwinQ
@@ -244,43 +242,38 @@ class SacLearner:
         self.buffer.writer.load_state_dict(state["writer"])
 
 
+class SacBaseline:
+    """SAC's learner as the baselines' loop (loop.py) runs it for `algo=sac`: each collector
+    batch is stored and followed by `updates` updates (the config's per-batch count, scaled to
+    the batch: harness.BatchPlan); the first `random_frames` frames are uniform random actions
+    (Table 3's pre-training epoch); the critics go beside the policy at the end, where
+    ePOET-SAC's warm start (`algo.sac_init`) loads them."""
+
+    def __init__(self, algo: SacConfig, env: EnvBase, plan: BatchPlan) -> None:
+        self.sac = SacLearner(algo, env)
+        self.actor, self.loss = self.sac.actor, self.sac.loss
+        self.updates = plan.scaled(algo.updates_per_batch, minimum=1)
+        self.random_frames = plan.scaled(algo.init_random_frames)
+        self.hidden, self.activation = algo.hidden, algo.activation
+
+    def learn(self, batch: TensorDictBase) -> dict[str, float]:
+        return self.sac.learn(batch, self.updates)
+
+    def artifacts(self, run_dir: Path) -> list[Path]:
+        return [
+            export_critics(run_dir / CRITICS_FILE, self.loss.critics, self.hidden, self.activation)
+        ]
+
+    def state_dict(self) -> dict[str, Any]:
+        return self.sac.state_dict()
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.sac.load_state_dict(state)
+
+
 def train(
     cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> TrainResult:
     """The `algo=sac` runner (its record: epoet/rl/config.py `SAC`)."""
     algo = SacConfig.of(cfg)
-    with Harness(cfg, tracker, run_dir, resume) as run:  # threads, seeds, envs, counters
-        learner = SacLearner(algo, run.env)
-        updates = run.plan.scaled(algo.updates_per_batch, minimum=1)
-        # uniform random actions first (Table 3's pre-training epoch); none are left after a
-        # resume that is past them
-        random_frames = max(0, run.plan.scaled(algo.init_random_frames) - run.state.frames)
-        collector = make_collector(run.env, learner.actor, run.plan, random_frames)
-        run.start(collector, learner, learner.actor)  # a resumed run continues from its checkpoint
-
-        state = run.state
-        if state.frames >= state.next_eval:  # frame 0
-            run.evaluate(learner.actor)
-        batches = iter(collector)
-        while not run.budget_spent():  # budget.frames or budget.hours
-            started = time.perf_counter()
-            batch = next(batches)  # collect
-            learned = learner.learn(batch, updates)  # store, then learn
-            if run.obs_stats is not None:  # after learning: one normalisation per batch
-                run.obs_stats.update(batch[OBS])
-            run.log(batch, learned, started)  # log
-            if state.frames >= state.next_eval:  # evaluate
-                run.evaluate(learner.actor)
-            if run.checkpoint_due():  # checkpoint
-                run.checkpoint(learner)
-                raise_if_stopped(f"at frame {state.frames}")  # a stop signal ends the run here
-                collector.reset()  # checkpoints end the running episode (harness.py)
-        if state.last_eval_frames != state.frames:  # the final policy, unless just evaluated
-            run.evaluate(learner.actor)
-        # the critics beside the policy: what ePOET-SAC's warm start (algo.sac_init) loads
-        tracker.log_artifact(
-            export_critics(
-                run_dir / CRITICS_FILE, learner.loss.critics, algo.hidden, algo.activation
-            )
-        )
-        return run.finish(learner)
+    return loop.train(cfg, tracker, run_dir, resume, lambda env, plan: SacBaseline(algo, env, plan))
