@@ -143,6 +143,11 @@ class Config:
             f"budget.episode_steps ({self.budget.episode_steps}); set budget.episode_steps.",
         )
         check(
+            self.terrain.kind != "bowl" or self.terrain.rendering == "clean",
+            "terrain.rendering=reference renders CPPN environments; terrain.kind=bowl has none "
+            "(use terrain.rendering=clean).",
+        )
+        check(
             self.selection.terrains == 0
             or self.selection.rendering == "clean"
             or self.terrain.size == REFERENCE_SIZE,

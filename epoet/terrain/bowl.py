@@ -75,6 +75,7 @@ class BowlGenerator:
         "terrain.mutation",
         "terrain.cppn_scale",
         "terrain.cppn_origin",
+        "terrain.rendering",
     )
 
     def encode(self, cfg: TerrainConfig, seed: int) -> None:

@@ -194,11 +194,6 @@ class TerrainConfig:
         )
         if self.rendering == "reference":
             check(
-                self.kind != "bowl",
-                "terrain.rendering=reference renders CPPN environments; terrain.kind=bowl has "
-                "none (use terrain.rendering=clean).",
-            )
-            check(
                 self.size == REFERENCE_SIZE,
                 f"terrain.rendering=reference is defined on the reference's field, "
                 f"terrain.size={REFERENCE_SIZE:g} metres; got {self.size:g}.",
