@@ -110,7 +110,11 @@ tiny_baseline = tiny_run  # a baseline's tiny run, by the name the baselines' te
 @pytest.fixture
 def terrain_cfg() -> TerrainConfig:
     return replace(
-        load(["budget=paper"]).terrain, grid=40, size=40.0, max_height=0.3, bowl_weight=0.3
+        load(["budget=paper", "terrain.rendering=clean"]).terrain,
+        grid=40,
+        size=40.0,
+        max_height=0.3,
+        bowl_weight=0.3,
     )
 
 

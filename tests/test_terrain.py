@@ -38,7 +38,7 @@ from epoet.terrain.config import TerrainConfig
 from epoet.terrain.cppn import _ACTIVATIONS, fingerprint, has_input_output_path
 
 ROOT = Path(__file__).resolve().parents[1]
-CPPN = load(["budget=paper"]).terrain  # the paper's ePOET terrain (conf/terrain/cppn.yaml)
+CPPN = load(["budget=paper", "terrain.rendering=clean"]).terrain  # conf/terrain/cppn.yaml, clean
 BOWL = load(["algo=ppo", "budget=paper"]).terrain  # the baselines' (conf/terrain/bowl.yaml)
 
 
