@@ -73,7 +73,9 @@ def run_joins(folder: Path, info: dict[str, Any], suite: str) -> dict[str, Any]:
     joined = set(envs) & set(parent_of)
     lineage = joined | descendants(joined, parent_of)
     agents = snap["evaluations"].get(suite, {}).get("agents", {})
-    best_on_suite = max(agents, key=agents.get) if agents else None
+    niches = {name: rate for name, rate in agents.items() if name.startswith("env")}
+    best_on_suite = max(niches, key=niches.get) if niches else None
+    own = snap.get("own_agent", snap["best_agent"])  # the exported `agent` is a niche's copy
 
     def of_lineage(agent: str | None) -> str:
         if agent is None:
@@ -88,7 +90,7 @@ def run_joins(folder: Path, info: dict[str, Any], suite: str) -> dict[str, Any]:
         "transfers out of joined": int(_column(curves, "transfers/from_joined").sum()),
         "niches founded": len(lineage - joined),
         "pairs": len(parent_of),
-        "best by own score (a join's?)": of_lineage(snap["best_agent"]),
+        "best by own score (a join's?)": of_lineage(own),
         f"best on {suite} (a join's?)": of_lineage(best_on_suite),
     }
 

@@ -44,7 +44,11 @@ RESUMABLE = (
     "budget.cpu_hours",
     "snapshot_cpu_minutes",
     "algo._target_",
+    "selection",  # which agent the run exports, not how it trains
 )
+# Settings added after checkpoints were written, with the value that reproduces what those runs
+# did: a checkpoint without them resumes only where they keep that value.
+PREDATED = {"algo.es.terrain_variants": "1", "terrain.rendering": "clean"}
 
 Runner = Callable[[Config, "Tracker", Path, "dict[str, Any] | None"], Any]
 
@@ -94,13 +98,14 @@ def config_changes(
 ) -> list[str]:
     """`key (old -> new)` for every setting that differs, except the RESUMABLE ones and those
     the resumed run never reads (`unused`: Config.unused_keys; `saved`: a checkpoint's config,
-    in any layout `saved_config` reads). A setting the checkpoint predates counts as null (its
-    run had none of it), so such a run resumes with that setting at null, where it would
-    otherwise show as changed whatever the user sets."""
+    in any layout `saved_config` reads). A setting the checkpoint predates counts as what its run
+    did (`PREDATED`), else as null (its run had none of it), so such a run resumes with that
+    setting at that value, where it would otherwise show as changed whatever the user sets."""
     from epoet.tracking import flatten
 
     old, new = flatten(saved_config(saved)), flatten(current)
     skipped = (*RESUMABLE, *unused)
+    old = {**{k: v for k, v in PREDATED.items() if k in new}, **old}
     keys = sorted(
         k
         for k in old.keys() | new.keys()

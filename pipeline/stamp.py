@@ -7,7 +7,7 @@ alone (docs/api.md, "Agent files"). A file that already records an integrator is
 against its record's and left as it is; a file outside any record (no config.yaml above it, as
 the authors' agents) is left alone. Every write is atomic.
 
-Example:
+Examples:
 
     python -m pipeline.stamp --records docs/results
 """

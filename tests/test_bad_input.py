@@ -335,6 +335,12 @@ COMMAND_ROWS = [
     ("pipeline.compute", "missing", ["--runs", "{tmp}/missing", "--out", "o"], "not a run folder"),
     ("pipeline.compute", "type", ["--runs", "r", "--out", "o", "--episodes", "x"], "invalid int"),
     ("pipeline.compute", "key", ["--runs", "r", "--out", "o", "--bogus"], "unrecognized"),
+    ("pipeline.choose", "missing", ["--records", "{tmp}/missing"], "is not a record"),
+    ("pipeline.choose", "type", ["--records", "r", "--episodes", "x"], "invalid int"),
+    ("pipeline.choose", "key", ["--records", "r", "--bogus"], "unrecognized"),
+    ("pipeline.stamp", "missing", ["--records", "{tmp}/missing"], "there is no records folder"),
+    ("pipeline.stamp", "type", ["--records"], "expected one argument"),
+    ("pipeline.stamp", "key", ["--records", "r", "--bogus"], "unrecognized"),
     (
         "pipeline.reference",
         "missing",

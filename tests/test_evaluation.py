@@ -246,7 +246,7 @@ def test_bad_inputs_are_one_line_errors(paper, tmp_path, monkeypatch, capsys):
         "has no heights.npz",
     )
     one_line_error(
-        capsys, lambda: evaluate.main(["run=nothing-here"]), "a policy file, a run folder"
+        capsys, lambda: evaluate.main(["run=nothing-here"]), "there is no such file or folder"
     )
     one_line_error(capsys, lambda: evaluate.main(["episodes=0", "run=x"]), "episodes")
     empty = f"sqlite:///{tmp_path}/empty.db"
