@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -207,3 +208,30 @@ def subset_suite(folder: Path, picks: list[tuple[str, int]]) -> Path:
     with np.load(SHIPPED / "heights.npz") as heights:
         np.savez(folder / "heights.npz", **{name: heights[name] for name in names})
     return folder
+
+
+def serial_loop(
+    algo: Any,
+    agent: AgentConfig,
+    terrain: TerrainConfig,
+    sizes: tuple[int, ...],
+    *,
+    seed: int,
+    n_pairs: int,
+    eval_episodes: int = 1,
+) -> Any:
+    """An ePOET loop on an in-process evaluator, at the paper's score scale: the loop a test
+    drives step by step."""
+    from epoet.poet.loop import EPOET
+    from epoet.rollout.backends.serial import SerialEvaluator
+
+    return EPOET(
+        algo,
+        terrain,
+        SerialEvaluator(agent, terrain, batch=8, layer_sizes=sizes),
+        seed=seed,
+        n_pairs=n_pairs,
+        eval_episodes=eval_episodes,
+        score_scale=1.0,
+        layer_sizes=sizes,
+    )

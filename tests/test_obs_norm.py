@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import serial_loop
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
-from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.policy import fold, forward, init_params
 from epoet.rollout.populations import Agents, Request
 from epoet.run import run
@@ -60,15 +60,8 @@ def _poet(terrain_cfg: TerrainConfig, episodes: int) -> EPOET:
     paper = load(["budget=paper"])
     agent = replace(paper.agent, max_episode_steps=30, settle_steps=2)
     es = replace(paper.algo.es, obs_norm_episodes=episodes)
-    return EPOET(
-        replace(paper.algo, es=es),
-        terrain_cfg,
-        SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES),
-        seed=4,
-        n_pairs=3,
-        eval_episodes=2,
-        score_scale=1.0,
-        layer_sizes=SIZES,
+    return serial_loop(
+        replace(paper.algo, es=es), agent, terrain_cfg, SIZES, seed=4, n_pairs=3, eval_episodes=2
     )
 
 

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from conftest import serial_loop
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.eval.agents import policy_in
@@ -17,7 +18,6 @@ from epoet.poet.exported_agent import candidates, export_agent, niches_of
 from epoet.poet.loop import EPOET
 from epoet.poet.pairs import Environment
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, read_es_policy
-from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.selection import CHOICE_FILE, held_out_terrains, rank
 
 SIZES = (53, 40, 40, 18)  # the authors' ES agents'
@@ -33,16 +33,7 @@ def pool_with_a_misleading_own_score(cfg) -> EPOET:
     niche with the authors' walker and a poor own score."""
     agent = replace(cfg.agent, max_episode_steps=120)
     terrain = replace(cfg.terrain, grid=40)
-    loop = EPOET(
-        cfg.algo,
-        terrain,
-        SerialEvaluator(agent, terrain, batch=8, layer_sizes=SIZES),
-        seed=3,
-        n_pairs=2,
-        eval_episodes=1,
-        score_scale=1.0,
-        layer_sizes=SIZES,
-    )
+    loop = serial_loop(cfg.algo, agent, terrain, SIZES, seed=3, n_pairs=2)
     root = loop.pool.active[0]
     root.es.reset(np.zeros_like(root.theta))
     loop.pool.record(root, 5000.0)

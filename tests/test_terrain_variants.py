@@ -7,10 +7,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from conftest import serial_loop
 from epoet.config import load
 from epoet.poet.keys import Key
 from epoet.poet.loop import EPOET
-from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.populations import Mirrored, Request
 
 SIZES = (53, 8, 18)
@@ -20,16 +20,7 @@ def make_loop(variants: int) -> EPOET:
     cfg = load(["budget=paper", f"algo.es.terrain_variants={variants}"])
     agent = replace(cfg.agent, max_episode_steps=15, settle_steps=2)
     terrain = replace(cfg.terrain, grid=40, max_height=0.3)
-    return EPOET(
-        cfg.algo,
-        terrain,
-        SerialEvaluator(agent, terrain, batch=8, layer_sizes=SIZES),
-        seed=5,
-        n_pairs=4,
-        eval_episodes=1,
-        score_scale=1.0,
-        layer_sizes=SIZES,
-    )
+    return serial_loop(cfg.algo, agent, terrain, SIZES, seed=5, n_pairs=4)
 
 
 def test_one_variant_is_the_niches_terrain_alone():
