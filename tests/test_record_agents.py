@@ -10,6 +10,7 @@ import pytest
 
 from epoet.config import compose, validate
 from epoet.eval.agents import resolve_run
+from epoet.eval.evaluate import COMMAND  # registers the evaluate command's schema
 from pipeline.stamp import agent_files, record_config, record_integrator
 
 RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results"
@@ -18,7 +19,7 @@ RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results"
 @cache
 def evaluation_agent(robot: str):
     """`evaluate run=<file> agent=<robot>`'s default agent config, as a user types it."""
-    return validate(compose(["run=any.npz", f"agent={robot}"], config_name="evaluate")).agent
+    return validate(compose(["run=any.npz", f"agent={robot}"], config_name=COMMAND.name)).agent
 
 
 FILES = [p for p in agent_files(RESULTS) if record_integrator(p, RESULTS) is not None]
