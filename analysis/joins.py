@@ -74,7 +74,7 @@ def run_joins(folder: Path, info: dict[str, Any], suite: str) -> dict[str, Any]:
     lineage = joined | descendants(joined, parent_of)
     agents = snap["evaluations"].get(suite, {}).get("agents", {})
     niches = {name: rate for name, rate in agents.items() if name.startswith("env")}
-    best_on_suite = max(niches, key=niches.get) if niches else None
+    best_on_suite = max(niches, key=lambda name: niches[name]) if niches else None
     own = snap.get("own_agent", snap["best_agent"])  # the exported `agent` is a niche's copy
 
     def of_lineage(agent: str | None) -> str:
