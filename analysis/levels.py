@@ -17,8 +17,9 @@ import pandas as pd
 from analysis.records import EPISODES, read_csv, read_records
 from epoet.eval.suite import LEVELS
 
-STEP = 6.7  # metres past the spawn: where the reference's CPPN window ends (200 samples / 40 m)
-AT_STEP = (5.5, 7.5)  # forward distances counted as stopping at the step
+# Forward distances counted as stopping at the step, which lies 6.7 m past the spawn (where the
+# reference's CPPN window ends).
+AT_STEP = (5.5, 7.5)
 
 
 def level_table(records: Path, suite: str) -> pd.DataFrame:
