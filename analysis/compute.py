@@ -164,7 +164,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     only where the pool held more than one agent)."""
     out = []
     for (algo, minutes, reading), rows in table.groupby(["algo", "minutes", "reading"]):
-        if reading == "niches" and algorithm(algo).family is not Family.POOL:
+        if reading == "niches" and algorithm(algo).family is not Family.OPEN_ENDED:
             continue
         matrix = np.stack([t.to_numpy() for t in rows.terrains])
         mean, low, high = mean_interval(rows.success)

@@ -48,7 +48,7 @@ def run_overrides(command: str) -> list[str]:
 
 def snapshot_niches(folder: Path) -> list:
     """The niches of a record's snapshot, from their agent files (best and last parameters)."""
-    from epoet.poet.exported_agent import Niche
+    from epoet.open_ended.exported_agent import Niche
 
     niches = []
     for path in niches_of(folder):
@@ -69,7 +69,7 @@ def choose_record(record: Path, selection: Sequence[str], suites: list, cfg, poo
     """Give every snapshot of `record` its held-out choice, evaluate it, rewrite run.json."""
     from epoet.config import load
     from epoet.eval.agents import resolve_run
-    from epoet.poet.exported_agent import choose
+    from epoet.open_ended.exported_agent import choose
     from epoet.rollout.agent_files import read_es_policy
 
     info = json.loads((record / RUN_FILE).read_text())

@@ -298,7 +298,7 @@ def export_run(
         if overrides.is_file()
         else command_of(client, run)  # from its params
     )
-    poet = state.get("poet")
+    pool = state.get("open_ended")
     loop = state.get("loop", {})
     write_json(
         record / RUN_FILE,
@@ -318,10 +318,10 @@ def export_run(
             "started": iso(run.info.start_time),
             "ended": iso(run.info.end_time),
             "training": {
-                "cpu_time_s": poet["cpu_time"] if poet else loop.get("cpu_time"),
-                "wall_time_s": poet["elapsed"] if poet else loop.get("wall_time"),
-                "env_steps": poet["env_steps"] if poet else loop.get("frames"),
-                **({"iterations": poet["iteration"]} if poet else {"frames": loop.get("frames")}),
+                "cpu_time_s": pool["cpu_time"] if pool else loop.get("cpu_time"),
+                "wall_time_s": pool["elapsed"] if pool else loop.get("wall_time"),
+                "env_steps": pool["env_steps"] if pool else loop.get("frames"),
+                **({"iterations": pool["iteration"]} if pool else {"frames": loop.get("frames")}),
                 "workers": config["workers"]["num"],
                 "stop_reason": run.data.tags.get("stop_reason"),
             },

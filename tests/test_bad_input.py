@@ -50,6 +50,11 @@ ROWS = [
     ),
     ("added top-level key", ["+sed=1"], "unknown key sed: did you mean seed?"),
     (
+        "renamed config path",
+        ["algo_budget/poet=laptop"],
+        "algo_budget/poet is now algo_budget/open_ended: override algo_budget/open_ended=<budget>.",
+    ),
+    (
         "another algorithm's budget key",
         ["algo=ppo", "budget.n_pairs=4"],
         "unknown key budget.n_pairs: budget's keys are name, episode_steps,",

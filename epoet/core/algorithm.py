@@ -30,7 +30,7 @@ class Family(Enum):
     conf/algo_budget/<value>/<budget>.yaml. Declaration order is table and legend order."""
 
     BASELINE = "baselines"  # one agent learning from environment frames
-    POOL = "poet"  # an open-ended pool of environment-agent pairs, trained by ES
+    OPEN_ENDED = "open_ended"  # an open-ended pool of environment-agent pairs, trained by ES
 
     @property
     def counts(self) -> str:
