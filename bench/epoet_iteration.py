@@ -21,7 +21,7 @@ import numpy as np
 from epoet.config import Config, compose, validate
 from epoet.rollout.populations import mirrored_population
 from epoet.rollout.engine import RolloutEngine
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Request

@@ -37,7 +37,7 @@ from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config, load
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.runner import warm_start_of
 from epoet.open_ended.loop import Epoet

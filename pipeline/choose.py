@@ -29,13 +29,13 @@ from analysis.store import AnalysisError, run_command
 from epoet.core.help import HelpParser
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT
 from epoet.run_state import SNAPSHOT_INFO
-from pipeline.compute import (
+from pipeline.records import write_json
+from pipeline.snapshots import (
     add_evaluation_arguments,
     evaluate_snapshot,
     niches_of,
     promote_latest,
 )
-from pipeline.records import write_json
 
 NOT_OVERRIDES = ("resume=", "hydra.", "tracking.", "evaluate=")  # how a run ran, not what it was
 

@@ -39,7 +39,7 @@ from analysis.store import connect, require_runs, run_command, select_runs, unev
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
 from epoet.core.cli import fail
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.core.help import HelpParser
 from epoet.core.schema import ConfigError
 from epoet.eval.evaluate import evaluate_run, evaluation_pool

@@ -627,12 +627,12 @@ def test_founded_niches_are_a_joined_environments_descendants() -> None:
 def test_what_the_joins_did_is_read_from_the_record_alone(
     compose, mlflow_uri: str, tmp_path: Path
 ) -> None:
-    """analysis.joins from pipeline.compute's record (run folder and store gone): each join's
+    """analysis.joins from pipeline.snapshots's record (run folder and store gone): each join's
     actor and mapped scores as the run logged them, the replacements summed, and the joined
     pairs found in the latest snapshot's pool (a snapshot taken on resume, after both joins)."""
     import shutil
 
-    from pipeline.compute import main as export
+    from pipeline.snapshots import main as export
 
     folder, out = tmp_path / "run", tmp_path / "records"
     run(compose([*SMOKE, "budget.iterations=7", "snapshot_cpu_minutes=[1000]"]), folder)

@@ -25,7 +25,7 @@ from mlflow.types import DataType
 from analysis.tables import formatted, table1, table2
 from conftest import ACT_DIM, ES_SIZES, OBS_DIM, one_terrain_suite
 from epoet import registry
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.eval.agents import resolve_run
 from epoet.eval.suite import LEVELS, SHIPPED, load_suite
 

@@ -118,7 +118,7 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
             state = load_checkpoint(folder)
         except CheckpointError as err:
             raise AgentError(str(err)) from err
-    elif (folder / RECORD_CONFIG).is_file():  # a record (pipeline.compute): the run's config
+    elif (folder / RECORD_CONFIG).is_file():  # a record (pipeline.snapshots): the run's config
         loaded = OmegaConf.to_container(OmegaConf.load(folder / RECORD_CONFIG))
         state = {"config": loaded, "algo": cast(dict[str, Any], loaded)["algo"]["name"]}
     config = state.get("config")

@@ -51,7 +51,7 @@ from tqdm import tqdm
 
 from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.core.files import atomic_write, savez
 from epoet.core.lifecycle import end_with
 from epoet.core.schema import ConfigError
