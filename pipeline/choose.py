@@ -112,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not (record / RUN_FILE).is_file():
                 raise AnalysisError(f"{record} is not a record: it has no {RUN_FILE}.")
         from epoet.config import compose, validate
-        from epoet.eval.evaluate import evaluation_pool
+        from epoet.eval.episodes import evaluation_pool
         from epoet.eval.suite import load_suite
 
         suites = [load_suite(name) for name in args.suites.split(",")]

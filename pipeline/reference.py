@@ -33,7 +33,8 @@ from epoet.config import compose, validate
 from epoet.core.cores import default_workers
 from epoet.core.help import HelpParser
 from epoet.eval.agents import resolve_run
-from epoet.eval.evaluate import evaluate_run, evaluation_pool
+from epoet.eval.episodes import evaluation_pool
+from epoet.eval.evaluate import evaluate_run
 from epoet.eval.reference import EXPERIMENT, PREFIX, names
 from epoet.eval.suite import LEVELS, load_suite
 from pipeline.records import export

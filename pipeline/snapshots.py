@@ -47,7 +47,8 @@ from epoet.core.files import atomic_write
 from epoet.core.help import HelpParser
 from epoet.eval.agents import RECORD_CONFIG, TrainedRun, policy_in, resolve_run
 from epoet.eval.config import EvaluateConfig
-from epoet.eval.evaluate import evaluate, evaluation_pool, write_results
+from epoet.eval.episodes import evaluation_pool
+from epoet.eval.evaluate import evaluate, write_results
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import Suite, load_suite
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, LAST_POLICY, TORCH_POLICY

@@ -18,7 +18,8 @@ from analysis.store import AnalysisError
 from analysis.tables import make_tables, tables_from_records
 from conftest import subset_suite
 from epoet.config import compose, validate
-from epoet.eval.evaluate import COLUMNS, evaluate_run
+from epoet.eval.episodes import COLUMNS
+from epoet.eval.evaluate import evaluate_run
 from epoet.eval.suite import load_suite
 from pipeline.records import export
 
