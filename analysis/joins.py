@@ -1,5 +1,6 @@
 """What ePOET-SAC's joins did to the pool, per run, from its record alone (pipeline.snapshots's
-curves.csv and the latest snapshot's agent files; analysis.success_vs_compute writes it as joins.md).
+curves.csv and the latest snapshot's agent files; analysis.success_vs_compute writes it as
+joins.md).
 
 A join makes the SAC actor a new pair: an ES agent mapped from the actor, on a copy of the
 environment the actor trained on (its parent), which then crosses over with every other active

@@ -1,5 +1,5 @@
-"""`python -m analysis.success_vs_compute --records docs/results/<name> [--suite paper]`: success against
-compute, and the learning curves, from records alone (pipeline.snapshots writes them).
+"""`python -m analysis.success_vs_compute --records docs/results/<name> [--suite paper]`: success
+against compute, and the learning curves, from records alone (pipeline.snapshots writes them).
 
 For each algorithm and CPU-time mark (the runs' `snapshot_cpu_minutes`), first the paper's
 statistic: the mean success over the suite's terrains of each run's agent at that mark, each
@@ -13,17 +13,17 @@ authors' agents are the horizontal references, in the same statistic: the mean s
 algorithm's published agents in the reference records (docs/results/reference).
 
 Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
-success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment
-steps and against CPU hours), levels.md (per level, and where the failed medium episodes stop: analysis.levels),
-comparisons.md where they hold two algorithms or more (the
-paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
+success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment steps and
+against CPU hours), levels.md (per level, and where the failed medium episodes stop:
+analysis.levels), comparisons.md where they hold two algorithms or more (the paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
 ties ceiling, at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what
 their joins did to the pool: analysis.joins).
 
 Examples:
 
     python -m analysis.success_vs_compute --records docs/results/compute
-    python -m analysis.success_vs_compute --records docs/results/compute --suite shipped --out /tmp/fig
+    python -m analysis.success_vs_compute --records docs/results/compute --suite shipped \
+        --out /tmp/fig
 """
 
 from __future__ import annotations

@@ -163,7 +163,8 @@ def test_no_folder_imports_one_above_it_or_beside_it() -> None:
 
 
 def _with_parents(module: str) -> set[str]:
-    """`module` and the packages Python runs before it (epoet.open_ended for epoet.open_ended.config)."""
+    """`module` and the packages Python runs before it (epoet.open_ended for
+    epoet.open_ended.config)."""
     parts = module.split(".")
     return {".".join(parts[:i]) for i in range(1, len(parts) + 1)} & set(MODULES)
 

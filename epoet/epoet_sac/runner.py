@@ -1,5 +1,5 @@
-"""`algo=epoet_sac`: ePOET's run of iterations (epoet.open_ended.runner.train_loop) over the ePOET-SAC
-loop.
+"""`algo=epoet_sac`: ePOET's run of iterations (epoet.open_ended.runner.train_loop) over the
+ePOET-SAC loop.
 
 Imported only when a config names it: torch and TorchRL are heavy imports that ePOET runs never
 need.
