@@ -52,15 +52,17 @@ tables: install
 	$(PY) -m analysis.tables $(if $(RECORDS),--records $(RECORDS),$(if $(EXPERIMENT),--experiment $(EXPERIMENT))) $(if $(SUITE),--suite $(SUITE))
 
 # RECORDS=docs/results/<name>: success against CPU hours and the learning curves from those
-# records alone (analysis.compute; SUITE default: paper), into results/compute/<name>/<suite>/.
+# records alone (analysis.success_vs_compute; SUITE default: paper), into
+# results/compute/<name>/<suite>/.
 figures: install
-	$(if $(RECORDS),$(PY) -m analysis.compute --records $(RECORDS) $(if $(SUITE),--suite $(SUITE)),$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE)))
+	$(if $(RECORDS),$(PY) -m analysis.success_vs_compute --records $(RECORDS) $(if $(SUITE),--suite $(SUITE)),$(PY) -m analysis.figures $(if $(EXPERIMENT),--experiment $(EXPERIMENT)) $(if $(SUITE),--suite $(SUITE)))
 
 # Success against compute: evaluate the CPU-time snapshots of RUNS (run folders, still training
-# or finished) on the paper and shipped suites into the records folder RECORDS (pipeline.compute).
+# or finished) on the paper and shipped suites into the records folder RECORDS
+# (pipeline.snapshots).
 RUNS ?=
 compute: install
-	$(PY) -m pipeline.compute --runs $(RUNS) --out $(RECORDS) $(OVERRIDES)
+	$(PY) -m pipeline.snapshots --runs $(RUNS) --out $(RECORDS) $(OVERRIDES)
 
 # Every algorithm x seed at one budget, evaluated on each of SUITES (default: shipped,paper),
 # tabled and plotted; resumable (docs/analysis.md). RECORDS=docs/results/<name> also exports the runs'

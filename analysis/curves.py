@@ -146,13 +146,13 @@ def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path, source: s
 
     Raises AnalysisError when neither figure has anything to plot.
     """
-    epoet_runs = [r for r in runs if r.data.tags.get("algo") in names(Family.POOL)]
+    epoet_runs = [r for r in runs if r.data.tags.get("algo") in names(Family.OPEN_ENDED)]
     baseline_runs = [r for r in runs if r.data.tags.get("algo") in names(Family.BASELINE)]
     tables = {
         "epoet_curves": (
             epoet_table(client, epoet_runs),
             epoet_runs,
-            _labels(Family.POOL),
+            _labels(Family.OPEN_ENDED),
             "pair<N>/return_mean",
         ),
         "baseline_curves": (
@@ -164,7 +164,7 @@ def write_curves(client: MlflowClient, runs: Sequence[Run], out: Path, source: s
     }
     if all(table.empty for table, *_ in tables.values()):
         raise AnalysisError(
-            f"{source} has no {_labels(Family.POOL)} runs with pair<N>/return_mean and no "
+            f"{source} has no {_labels(Family.OPEN_ENDED)} runs with pair<N>/return_mean and no "
             f"{_labels(Family.BASELINE)} runs with {EVAL_KEY} to plot."
         )
     out.mkdir(parents=True, exist_ok=True)

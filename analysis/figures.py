@@ -183,7 +183,7 @@ def generation_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
 
 
 def plot_generations(table: pd.DataFrame, out: Path) -> list[Path]:
-    algos = in_order(table.algo, Family.POOL)
+    algos = in_order(table.algo, Family.OPEN_ENDED)
     fig, axes = plt.subplots(1, len(algos), figsize=(6 * len(algos), 4.2), squeeze=False)
     for ax, algo in zip(axes[0], algos):
         rows = table[table.algo == algo]
@@ -350,12 +350,15 @@ def write_figures(
         print("skipped learning_curves.png: no run logged score with env_steps and elapsed")
     else:
         written += plot_learning_curves(curves, out)
-    poet = [r for r in runs if r.data.tags["algo"] in names(Family.POOL)]
-    if poet:  # runs without a training history (the authors' agents) have no curves to draw
-        generations, environments = generation_table(client, poet), environments_table(client, poet)
+    open_ended = [r for r in runs if r.data.tags["algo"] in names(Family.OPEN_ENDED)]
+    if open_ended:  # runs without a training history (the authors' agents) have no curves to draw
+        generations, environments = (
+            generation_table(client, open_ended),
+            environments_table(client, open_ended),
+        )
         written += plot_generations(generations, out) if not generations.empty else []
         written += plot_environments(environments, out) if not environments.empty else []
-        written += admitted_galleries(client, poet, out)
+        written += admitted_galleries(client, open_ended, out)
     loaded = load_suite(suite)
     picks = [
         next(t.name for t in loaded.terrains if t.level == level)

@@ -1,5 +1,6 @@
-"""What ePOET-SAC's joins did to the pool, per run, from its record alone (pipeline.compute's
-curves.csv and the latest snapshot's agent files; analysis.compute writes it as joins.md).
+"""What ePOET-SAC's joins did to the pool, per run, from its record alone (pipeline.snapshots's
+curves.csv and the latest snapshot's agent files; analysis.success_vs_compute writes it as
+joins.md).
 
 A join makes the SAC actor a new pair: an ES agent mapped from the actor, on a copy of the
 environment the actor trained on (its parent), which then crosses over with every other active
@@ -21,7 +22,7 @@ import pandas as pd
 from analysis.records import RUN_FILE, read_csv, read_records, record_file
 from epoet.rollout.agent_files import ES_POLICIES
 
-# The curves a join leaves (the ePOET-SAC loop's metrics), which pipeline.compute keeps.
+# The curves a join leaves (the ePOET-SAC loop's metrics), which pipeline.snapshots keeps.
 JOIN_KEYS = (
     "joined",
     "join/env",

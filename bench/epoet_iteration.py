@@ -21,12 +21,12 @@ import numpy as np
 from epoet.config import Config, compose, validate
 from epoet.rollout.populations import mirrored_population
 from epoet.rollout.engine import RolloutEngine
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Request
-from epoet.poet.loop import EPOET
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.loop import Epoet
+from epoet.open_ended.runner import layer_sizes
 from rollout_throughput import raw_seconds
 
 
@@ -35,6 +35,7 @@ class Counting:
 
     def __init__(self, evaluator: Evaluator, settle_steps: int) -> None:
         self.evaluator, self.settle_steps, self.physics_steps = evaluator, settle_steps, 0
+        self.layer_sizes = evaluator.layer_sizes  # the loop's policy sizes are its evaluator's
 
     def run(self, requests: list[Request]):
         episodes = self.evaluator.run(requests)
@@ -43,13 +44,13 @@ class Counting:
         return episodes
 
 
-def bare_rate(poet: EPOET, cfg: Config, samples: int) -> float:
+def bare_rate(loop: Epoet, cfg: Config, samples: int) -> float:
     """One core's bare mj_step steps/s replaying ES episodes like the timed ones: `samples`
     mirrored pairs around each pool agent with its current sigma, on its current terrain."""
     engine = RolloutEngine(cfg.agent, cfg.terrain, cfg.workers.batch, layer_sizes(cfg))
     steps, seconds = 0, 0.0
-    for pair in poet.pool.active:
-        terrain = poet.service.terrain(pair.env, poet.iteration)
+    for pair in loop.pool.active:
+        terrain = loop.service.terrain(pair.env, loop.iteration)
         noise = np.arange(samples) + 1000 * pair.env.index
         params = mirrored_population(pair.theta, noise, pair.es.sigma)
         seeds = np.tile(noise, 2)
@@ -77,24 +78,23 @@ def main() -> None:
     cores = cfg.workers.num or default_workers()
     with make_evaluator(cfg.agent, cfg.terrain, cores, cfg.workers.batch, sizes) as pool:
         evaluator = Counting(pool, cfg.agent.settle_steps)
-        poet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
-                     eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                     layer_sizes=sizes)
-        poet.reproduce_interval = poet.later_reproduce_interval = 1  # until the pool is full
-        while len(poet.pool.active) < args.pairs:
-            poet.run_iteration()
-        poet.reproduce_interval = 10**9  # the pool stays as it is while timed
+        loop = Epoet(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
+                     eval_episodes=budget.eval_episodes, score_scale=budget.score_scale)
+        loop.reproduce_interval = loop.later_reproduce_interval = 1  # until the pool is full
+        while len(loop.pool.active) < args.pairs:
+            loop.run_iteration()
+        loop.reproduce_interval = 10**9  # the pool stays as it is while timed
         # Interleaved: each timed iteration is followed by a bare pass, so load from elsewhere
         # on this noisy machine weighs on both sides alike.
         ratios, rates, raws, transfers = [], [], [], 0
         for _ in range(args.iterations):
             evaluator.physics_steps = 0
             start = time.perf_counter()
-            transfers += "transfers" in poet.run_iteration()
+            transfers += "transfers" in loop.run_iteration()
             rates.append(evaluator.physics_steps / (time.perf_counter() - start))
-            raws.append(bare_rate(poet, cfg, args.samples))
+            raws.append(bare_rate(loop, cfg, args.samples))
             ratios.append(rates[-1] / (raws[-1] * cores))
-    print(f"pairs: {len(poet.pool.active)}, timed iterations: {args.iterations} "
+    print(f"pairs: {len(loop.pool.active)}, timed iterations: {args.iterations} "
           f"({transfers} with transfers), workers: {cores}, integrator: {cfg.agent.integrator}")
     print(f"iterations: {np.median(rates):,.0f} physics steps/s (median; "
           f"{min(rates):,.0f}..{max(rates):,.0f})")

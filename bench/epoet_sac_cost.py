@@ -37,14 +37,13 @@ from torchrl.envs import ExplorationType
 from torchrl.envs.utils import set_exploration_type
 
 from epoet.config import Config, load
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.runner import warm_start_of
-from epoet.poet.loop import EPOET
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.loop import Epoet
+from epoet.open_ended.runner import layer_sizes
 from epoet.rl.env import terrain_env
 from epoet.rollout.evaluators import make_evaluator
-from epoet.rollout.policy import policy_sizes
 
 TINY = ["algo=epoet_sac", "budget=workstation", "budget.n_pairs=8", "budget.episode_steps=400",
         "budget.eval_episodes=1", "algo.iterations_before_transfer=2", "algo.adjust_interval=100",
@@ -267,9 +266,8 @@ def es_steps_ratio(cfg: Config, rounds: int, cores: int) -> float:
                         layer_sizes(cfg)) as evaluator:
         sac = EpoetSac.from_config(cfg, evaluator, warm_start_of(cfg))
         budget = cfg.budget
-        epoet = EPOET(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
-                      eval_episodes=budget.eval_episodes, score_scale=budget.score_scale,
-                      layer_sizes=policy_sizes(cfg.agent, cfg.algo.es.hidden))
+        epoet = Epoet(cfg.algo, cfg.terrain, evaluator, seed=cfg.seed, n_pairs=budget.n_pairs,
+                      eval_episodes=budget.eval_episodes, score_scale=budget.score_scale)
         steps: dict[Any, int] = {epoet: 0, sac: 0}  # worker steps per loop
         for loop in steps:
             run = loop.service.run

@@ -62,7 +62,7 @@ def iterations(proc: subprocess.Popen, until: int | None = None) -> int:
 
 def checkpoint_iteration(run_dir: Path) -> int:
     path = run_dir / "checkpoint.pkl"
-    return load_checkpoint(path)["poet"]["iteration"] if path.exists() else 0
+    return load_checkpoint(path)["open_ended"]["iteration"] if path.exists() else 0
 
 
 def worker_pids(tag: str, main: int) -> list[int]:
@@ -123,8 +123,8 @@ def main() -> None:
 
         a = load_checkpoint(run_dir / "checkpoint.pkl")
         b = load_checkpoint(tmp / "straight" / "checkpoint.pkl")
-        pools = [(s["poet"]["active"] + s["poet"]["archived"]) for s in (a, b)]
-        equal = (a["poet"]["iteration"] == b["poet"]["iteration"]
+        pools = [(s["open_ended"]["active"] + s["open_ended"]["archived"]) for s in (a, b)]
+        equal = (a["open_ended"]["iteration"] == b["open_ended"]["iteration"]
                  and len(pools[0]) == len(pools[1])
                  and all(np.array_equal(p["es"]["theta"], q["es"]["theta"])
                          and p["scores"] == q["scores"] for p, q in zip(*pools)))

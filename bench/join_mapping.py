@@ -24,7 +24,7 @@ from contextlib import closing
 from epoet.config import load
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.runner import warm_start_of
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.runner import layer_sizes
 from epoet.rollout.evaluators import evaluator_for
 
 WALKS = 1000.0  # an actor that walks: the threshold

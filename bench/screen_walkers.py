@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from time_to_walker import describe, root_pair_config, time_to_walker  # noqa: E402
 
-from epoet.core.compute import default_workers  # noqa: E402
+from epoet.core.cores import default_workers  # noqa: E402
 
 # Why each: docs/benchmarks.md "Walker experiments" keeps the reasoning and the outcome.
 # Each names every setting it changes, whatever the budget's default (budget=workstation has

@@ -25,8 +25,8 @@ import numpy as np
 
 from epoet.config import Config, load
 from epoet.rollout.evaluators import evaluator_for
-from epoet.poet.loop import EPOET
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.loop import Epoet
+from epoet.open_ended.runner import layer_sizes
 
 
 class Walk(NamedTuple):
@@ -51,18 +51,18 @@ def time_to_walker(cfg: Config, threshold: float) -> Walk:
     """Train the root pair until its score first reaches `threshold` or the budget's iterations
     run out."""
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
-        poet = EPOET.from_config(cfg, evaluator)
+        loop = Epoet.from_config(cfg, evaluator)
         start, curve = time.perf_counter(), []
-        while poet.iteration < cfg.budget.iterations:
-            poet.run_iteration()
-            root = poet.pool.active[0]
-            if poet.iteration % 10 == 0:
+        while loop.iteration < cfg.budget.iterations:
+            loop.run_iteration()
+            root = loop.pool.active[0]
+            if loop.iteration % 10 == 0:
                 curve.append(round(root.score, 1))
-                print(f"  seed {cfg.seed} it {poet.iteration} score {root.score:.1f} "
+                print(f"  seed {cfg.seed} it {loop.iteration} score {root.score:.1f} "
                       f"({(time.perf_counter() - start) / 60:.1f} min)", flush=True)
             if root.score >= threshold:
                 break
-    return Walk((time.perf_counter() - start) / 60, poet.iteration, poet.service.env_steps,
+    return Walk((time.perf_counter() - start) / 60, loop.iteration, loop.service.env_steps,
                 root.score >= threshold, root.score, root.best_score, curve)
 
 

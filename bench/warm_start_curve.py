@@ -30,8 +30,8 @@ from pathlib import Path
 from epoet.config import load
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.runner import warm_start_of
-from epoet.poet.keys import Key
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.keys import Key
+from epoet.open_ended.runner import layer_sizes
 from epoet.rollout.evaluators import evaluator_for
 
 KEPT = (

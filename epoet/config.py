@@ -1,6 +1,6 @@
 """The root config of a training run, the registration of the schemas, and composition. Values
 live in the YAML files; each folder's schema lives beside its code (envs/, terrain/, rollout/,
-es/, poet/, epoet_sac/, rl/, tracking/, eval/ config.py) and holds types and range checks,
+es/, open_ended/, epoet_sac/, rl/, tracking/, eval/ config.py) and holds types and range checks,
 nothing else. The commands around a trained agent register their own schemas
 (`register_command`, called by epoet.cli.KeyValueCommand), so this module names none of them.
 
@@ -78,7 +78,7 @@ class BudgetConfig:
 
 
 @dataclass
-class PoetBudgetConfig(BudgetConfig):
+class OpenEndedBudgetConfig(BudgetConfig):
     """The compute of ePOET and ePOET-SAC: iterations of the loop and ES pairs per step."""
 
     iterations: int
@@ -167,7 +167,7 @@ class Config:
 
 # What a family's budget counts, as the schema of `budget`.
 FAMILY_BUDGETS: dict[Family, type[BudgetConfig]] = {
-    Family.POOL: PoetBudgetConfig,
+    Family.OPEN_ENDED: OpenEndedBudgetConfig,
     Family.BASELINE: BaselineBudgetConfig,
 }
 

@@ -1,7 +1,7 @@
 """The algorithms: every `Algorithm` record (epoet.core.algorithm), found without a list.
 
 An algorithm's record is a module-level value of the module that defines its schema, the
-config.py of its package (epoet/poet/config.py: ePOET; epoet/rl/config.py: PPO, SAC and VMPO),
+config.py of its package (epoet/open_ended/config.py: ePOET; epoet/rl/config.py: PPO, SAC and VMPO),
 so `_declared` imports each epoet/<package>/config.py and keeps the records whose schema that
 module defines: a new package with a record in its config.py is found, and nothing else names
 it. Schema modules are light (no torch, no MuJoCo), so finding the records costs composition

@@ -19,7 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from epoet.config import Config, compose, saved_agent, validate
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.core.files import atomic_write
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import robot_sizes

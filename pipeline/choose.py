@@ -29,13 +29,13 @@ from analysis.store import AnalysisError, run_command
 from epoet.core.help import HelpParser
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT
 from epoet.run_state import SNAPSHOT_INFO
-from pipeline.compute import (
+from pipeline.records import write_json
+from pipeline.snapshots import (
     add_evaluation_arguments,
     evaluate_snapshot,
     niches_of,
     promote_latest,
 )
-from pipeline.records import write_json
 
 NOT_OVERRIDES = ("resume=", "hydra.", "tracking.", "evaluate=")  # how a run ran, not what it was
 
@@ -48,7 +48,7 @@ def run_overrides(command: str) -> list[str]:
 
 def snapshot_niches(folder: Path) -> list:
     """The niches of a record's snapshot, from their agent files (best and last parameters)."""
-    from epoet.poet.exported_agent import Niche
+    from epoet.open_ended.exported_agent import Niche
 
     niches = []
     for path in niches_of(folder):
@@ -69,7 +69,7 @@ def choose_record(record: Path, selection: Sequence[str], suites: list, cfg, poo
     """Give every snapshot of `record` its held-out choice, evaluate it, rewrite run.json."""
     from epoet.config import load
     from epoet.eval.agents import resolve_run
-    from epoet.poet.exported_agent import choose
+    from epoet.open_ended.exported_agent import choose
     from epoet.rollout.agent_files import read_es_policy
 
     info = json.loads((record / RUN_FILE).read_text())
@@ -112,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not (record / RUN_FILE).is_file():
                 raise AnalysisError(f"{record} is not a record: it has no {RUN_FILE}.")
         from epoet.config import compose, validate
-        from epoet.eval.evaluate import evaluation_pool
+        from epoet.eval.episodes import evaluation_pool
         from epoet.eval.suite import load_suite
 
         suites = [load_suite(name) for name in args.suites.split(",")]

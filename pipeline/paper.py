@@ -39,10 +39,11 @@ from analysis.store import connect, require_runs, run_command, select_runs, unev
 from analysis.tables import make_tables
 from epoet.config import CONF_DIR, compose, validate
 from epoet.core.cli import fail
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.core.help import HelpParser
 from epoet.core.schema import ConfigError
-from epoet.eval.evaluate import evaluate_run, evaluation_pool
+from epoet.eval.episodes import evaluation_pool
+from epoet.eval.evaluate import evaluate_run
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import SuiteError, load_suite
 from epoet.registry import names

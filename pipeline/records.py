@@ -20,11 +20,7 @@ named. Exporting again overwrites each exported run's files, each atomically, wr
 last; it never touches other records. The output depends only on the store: the same store
 gives the same files.
 
-The command: a sweep's job (`make paper`) is found through its parent run's `sweep_dir` tag (the
-job folder whose DONE file holds the run id), and its `.hydra/overrides.yaml` gives the command
-(`command_source: overrides`); otherwise the command is rebuilt from the run's params: the
-settings that differ from the config composed from its algo, budget and seed
-(`command_source: params`; a setting equal to that default is left out even if it was given).
+The command that trained a run, and where it comes from: pipeline.run_header.
 
 Examples:
 
@@ -34,21 +30,16 @@ Examples:
 from __future__ import annotations
 
 import json
-import shlex
 import shutil
 import tempfile
 from collections.abc import Sequence
-from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
-import yaml
 from mlflow import MlflowClient
 from mlflow.entities import Run
-from mlflow.exceptions import MlflowException
-from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT, MLFLOW_PARENT_RUN_ID
 
-from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
+from analysis.records import EPISODES, RUN_FILE, SUMMARY
 from analysis.store import (
     AnalysisError,
     connect,
@@ -58,7 +49,6 @@ from analysis.store import (
     seed_of,
     select_runs,
 )
-from epoet.core.errors import first_line
 from epoet.core.files import atomic_write
 from epoet.core.help import HelpParser
 from epoet.eval.keys import (
@@ -73,10 +63,9 @@ from epoet.eval.keys import (
 )
 from epoet.registry import algorithm
 from epoet.tracking import StoredRun
-from epoet.tracking.writer import LOAD_METRIC
+from pipeline.run_header import command_of, iso, load_of, run_header
 
 COMMIT_TAG = "eval_commit"  # eval_commit/<suite name>: the commit that evaluated (make paper)
-DONE = "DONE"  # epoet.run.DONE: a finished job folder, holding its run id
 
 
 def record_name(run: Run) -> str:
@@ -121,105 +110,6 @@ def evaluations_of(run: Run, named: dict[str, str]) -> dict[str, tuple[Logged, s
     return found
 
 
-def iso(ms: int | None) -> str | None:
-    if ms is None:
-        return None
-    return datetime.fromtimestamp(ms / 1000, timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def parent_tags(client: MlflowClient, run: Run) -> dict[str, str] | None:
-    """The tags of the run's sweep parent; None for a run outside a sweep (or a parent gone
-    from the store)."""
-    parent = run.data.tags.get(MLFLOW_PARENT_RUN_ID)
-    if parent is None:
-        return None
-    try:
-        return dict(client.get_run(parent).data.tags)
-    except MlflowException:
-        return None
-
-
-def job_folder(run: Run, sweep: dict[str, str] | None) -> Path | None:
-    """The Hydra job folder of a sweep's run: under its parent's `sweep_dir`, the folder whose
-    DONE file holds the run id; None when it cannot be found (not a sweep job, or the folder is
-    gone)."""
-    sweep_dir = (sweep or {}).get("sweep_dir")
-    if not sweep_dir or not Path(sweep_dir).is_dir():
-        return None
-    for done in sorted(Path(sweep_dir).glob(f"*/{DONE}")):
-        if done.read_text().strip() == run.info.run_id:
-            return done.parent
-    return None
-
-
-def override_value(value: str) -> str:
-    """A param's value (Python's str()) as a Hydra override value."""
-    return {"None": "null", "True": "true", "False": "false"}.get(value, value)
-
-
-def command_from_params(run: Run) -> str:
-    """`python -m epoet` with the run's algo, budget and seed and every param that differs from
-    the config they compose to (the store and worker count as it ran)."""
-    from omegaconf import OmegaConf
-
-    from epoet.config import compose
-    from epoet.tracking import flatten
-
-    tags, params = run.data.tags, run.data.params
-    base = [f"algo={tags['algo']}", f"budget={tags['budget']}", f"seed={seed_of(run)}"]
-    composed = flatten(cast(dict[str, Any], OmegaConf.to_container(compose(base), resolve=True)))
-    changed = [
-        f"{key}={override_value(value)}"
-        for key, value in sorted(params.items())
-        if key in composed and composed[key] != value and key != "tracking.uri"
-    ]
-    return shlex.join(["python", "-m", "epoet", *base, *changed])
-
-
-def command_of(client: MlflowClient, run: Run) -> dict[str, Any]:
-    """The command that trained the run, and where it comes from."""
-    tags = run.data.tags
-    if "reference" in tags:
-        return {
-            "command": None,
-            "command_source": "reference",
-            "reference": f"reference:{tags['reference']}",
-            "provenance": dict(sorted(run.data.params.items())),
-        }
-    found: dict[str, Any] = {}
-    if (sweep := parent_tags(client, run)) is not None:
-        found["sweep"] = {
-            "run_id": tags[MLFLOW_PARENT_RUN_ID],
-            "dir": sweep.get("sweep_dir"),
-            "command": shlex.join(
-                ["python", "-m", "epoet", "-m", *shlex.split(sweep.get("sweep_overrides", ""))]
-            ),
-        }
-    folder = job_folder(run, sweep)
-    overrides = folder / ".hydra" / "overrides.yaml" if folder is not None else None
-    if overrides is not None and overrides.is_file():
-        listed = yaml.safe_load(overrides.read_text()) or []
-        return {
-            "command": shlex.join(["python", "-m", "epoet", *map(str, listed)]),
-            "command_source": "overrides",
-            "job_dir": str(folder),
-            **found,
-        }
-    if not {"algo", "budget", "seed"} <= tags.keys():
-        return {"command": None, "command_source": None, **found}
-    try:
-        command = command_from_params(run)
-    except Exception as exc:  # noqa: BLE001 - any composition error of today's config
-        return {
-            "command": None,
-            "command_source": None,
-            "command_note": f"the run's algo, budget and seed do not compose with the "
-            f"config of the exporting commit: {first_line(exc)}",
-            **found,
-        }
-    return {"command": command, "command_source": "params", **found}
-
-
 def last_step(client: MlflowClient, run: Run, key: str) -> int | None:
     points = history(client, run.info.run_id, key)
     return points[-1][0] if points else None
@@ -241,20 +131,6 @@ def training_of(client: MlflowClient, run: Run) -> dict[str, Any]:
     else:
         training["frames"] = m.get("frames")
     return training
-
-
-def load_of(client: MlflowClient, run: Run) -> dict[str, Any] | None:
-    """The machine's 1-minute load average over the run (`system/load1`), or None (runs
-    before it was logged)."""
-    values = [v for _, v in history(client, run.info.run_id, LOAD_METRIC)]
-    if not values:
-        return None
-    return {
-        "metric": LOAD_METRIC,
-        "mean": sum(values) / len(values),
-        "max": max(values),
-        "points": len(values),
-    }
 
 
 def evaluation_info(
@@ -280,21 +156,8 @@ def evaluation_info(
 def run_info(
     client: MlflowClient, run: Run, name: str, uri: str, evaluations: dict[str, Any]
 ) -> dict[str, Any]:
-    tags = run.data.tags
     return {
-        "format": FORMAT,
-        "record": name,
-        "algo": tags["algo"],
-        "seed": seed_of(run),
-        "budget": tags.get("budget"),
-        "run_name": run.info.run_name,
-        "run_id": run.info.run_id,
-        "experiment": client.get_experiment(run.info.experiment_id).name,
-        "store": uri,
-        **command_of(client, run),
-        "commit": tags.get(MLFLOW_GIT_COMMIT),
-        "started": iso(run.info.start_time),
-        "ended": iso(run.info.end_time),
+        **run_header(client, run, name, uri, command_of(client, run)),
         "training": training_of(client, run),
         "load": load_of(client, run),
         "evaluations": evaluations,
@@ -306,7 +169,7 @@ def write_json(path: Path, obj: Any) -> None:
         f.write((json.dumps(obj, indent=1, sort_keys=False) + "\n").encode())
 
 
-def export_run(
+def export_evaluated_run(
     client: MlflowClient, run: Run, name: str, out: Path, uri: str, named: dict[str, str]
 ) -> Path:
     """The run's record in out/<name>/: each suite's files, then run.json; a suite folder the
@@ -361,7 +224,10 @@ def export(
                 flush=True,
             )
         chosen[name] = run
-    written = [export_run(client, run, name, Path(out), uri, named) for name, run in chosen.items()]
+    written = [
+        export_evaluated_run(client, run, name, Path(out), uri, named)
+        for name, run in chosen.items()
+    ]
     print(
         f"[records] wrote {len(written)} record(s) of experiment {experiment} to {out}/: "
         f"{', '.join(p.name for p in written)}",

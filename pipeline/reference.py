@@ -30,10 +30,11 @@ import pandas as pd
 from analysis.store import connect, evaluation_on, run_command
 from analysis.tables import EASY_MEDIUM, episodes_of, make_tables, to_markdown
 from epoet.config import compose, validate
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.core.help import HelpParser
 from epoet.eval.agents import resolve_run
-from epoet.eval.evaluate import evaluate_run, evaluation_pool
+from epoet.eval.episodes import evaluation_pool
+from epoet.eval.evaluate import evaluate_run
 from epoet.eval.reference import EXPERIMENT, PREFIX, names
 from epoet.eval.suite import LEVELS, load_suite
 from pipeline.records import export

@@ -78,7 +78,7 @@ TINY_BASELINE = [
     "algo.frames_per_batch=60",
     "checkpoint_every=2",
 ]
-TINY_FAMILY = {Family.BASELINE: TINY_BASELINE, Family.POOL: TINY_EPOET}
+TINY_FAMILY = {Family.BASELINE: TINY_BASELINE, Family.OPEN_ENDED: TINY_EPOET}
 # Each algorithm's own small sizes on its family's tiny run; an algorithm without an entry runs
 # its own sizes there.
 TINY_SIZES = {
@@ -222,10 +222,10 @@ def serial_loop(
 ) -> Any:
     """An ePOET loop on an in-process evaluator, at the paper's score scale: the loop a test
     drives step by step."""
-    from epoet.poet.loop import EPOET
+    from epoet.open_ended.loop import Epoet
     from epoet.rollout.backends.serial import SerialEvaluator
 
-    return EPOET(
+    return Epoet(
         algo,
         terrain,
         SerialEvaluator(agent, terrain, batch=8, layer_sizes=sizes),
@@ -233,5 +233,4 @@ def serial_loop(
         n_pairs=n_pairs,
         eval_episodes=eval_episodes,
         score_scale=1.0,
-        layer_sizes=sizes,
     )

@@ -1,5 +1,5 @@
 """What "the same loop state" means for the ePOET and ePOET-SAC tests: every entry of two
-checkpoints' `poet` states equal, wall and CPU time aside."""
+checkpoints' `open_ended` states equal, wall and CPU time aside."""
 
 from __future__ import annotations
 

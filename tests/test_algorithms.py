@@ -47,13 +47,13 @@ def test_the_records_are_found_in_table_order() -> None:
     """The paper's five are found in the packages (a sixth may join them), baselines first."""
     paper = ["ppo", "sac", "vmpo", "epoet", "epoet_sac"]
     assert [n for n in names() if n in paper] == paper
-    assert [n for n in names(Family.POOL) if n in paper] == ["epoet", "epoet_sac"]
+    assert [n for n in names(Family.OPEN_ENDED) if n in paper] == ["epoet", "epoet_sac"]
     records = algorithms()
     assert len({r.label for r in records}) == len({r.colour for r in records}) == len(records)
     assert algorithm("ppo").schema is PpoConfig and algorithm("ppo").family.counts == "frames"
     assert algorithm("epoet").family.counts == "iterations"
     with pytest.raises(ValueError, match="two algorithms are named 'ppo'"):
-        register(Algorithm("ppo", Family.POOL, PpoConfig, "epoet.rl.ppo.train", "PPO", "red"))
+        register(Algorithm("ppo", Family.OPEN_ENDED, PpoConfig, "epoet.rl.ppo.train", "PPO", "red"))
 
 
 @pytest.mark.parametrize("key", sorted(json.loads(COMPOSED.read_text())))

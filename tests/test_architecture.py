@@ -163,7 +163,8 @@ def test_no_folder_imports_one_above_it_or_beside_it() -> None:
 
 
 def _with_parents(module: str) -> set[str]:
-    """`module` and the packages Python runs before it (epoet.poet for epoet.poet.config)."""
+    """`module` and the packages Python runs before it (epoet.open_ended for
+    epoet.open_ended.config)."""
     parts = module.split(".")
     return {".".join(parts[:i]) for i in range(1, len(parts) + 1)} & set(MODULES)
 
@@ -173,7 +174,7 @@ def test_the_schemas_the_registry_imports_lean_on_nothing_above_the_config() -> 
     modules, and everything they import, stay below epoet/config.py (other packages' schemas and
     package markers aside), so composing imports no algorithm's code, torch or MuJoCo."""
     schemas = {m for m in MODULES if re.fullmatch(r"epoet\.\w+\.config", m)}
-    assert {"epoet.poet.config", "epoet.rl.config", "epoet.rollout.config"} <= schemas
+    assert {"epoet.open_ended.config", "epoet.rl.config", "epoet.rollout.config"} <= schemas
     seen: set[str] = set()
     todo = set().union(*(_with_parents(s) for s in schemas))
     while todo:
@@ -190,23 +191,36 @@ def test_the_rules_see_what_they_check() -> None:
     against it."""
     assert "epoet.rollout.backends.ray_cluster" in IMPORTS["epoet.rollout.evaluators"]  # deferred
     assert "epoet.tracking" in IMPORTS["epoet.run_state"]  # type-only
-    # the steps of the loop do not call back into it (no mixin, no `self: EPOET`)
-    for step in ("epoet.poet.reproduction", "epoet.poet.transfer", "epoet.poet.service"):
-        assert "epoet.poet.loop" not in IMPORTS[step], step
-    flow = ["pipeline/", "run.py", "poet/", "es/", "config.py", "rollout/", "envs/", "terrain/"]
+    # the steps of the loop do not call back into it (no mixin, no `self: Epoet`)
+    for step in (
+        "epoet.open_ended.reproduction",
+        "epoet.open_ended.transfer",
+        "epoet.open_ended.service",
+    ):
+        assert "epoet.open_ended.loop" not in IMPORTS[step], step
+    flow = [
+        "pipeline/",
+        "run.py",
+        "open_ended/",
+        "es/",
+        "config.py",
+        "rollout/",
+        "envs/",
+        "terrain/",
+    ]
     assert [_level(n) for n in flow] == sorted((_level(n) for n in flow), reverse=True)
     assert _level("core/") == 0 < min(_level(n) for n in NODES if n not in ("core/", "__init__.py"))
-    assert _level("epoet_sac/") > _level("poet/") == _level("rl/") == _level("eval/")
+    assert _level("epoet_sac/") > _level("open_ended/") == _level("rl/") == _level("eval/")
     assert _cycle({"config.py": {"eval/"}, "eval/": {"cli.py"}, "cli.py": {"config.py"}})
 
 
 def test_epoet_knows_nothing_of_the_loop_that_extends_it() -> None:
     """ePOET-SAC's loop extends ePOET's (a subclass with its own steps, keys and metrics): no
-    module of epoet/poet/ imports ePOET-SAC's or names it."""
+    module of epoet/open_ended/ imports ePOET-SAC's or names it."""
     leaning = [
         f"{m}: {sorted(i for i in IMPORTS[m] if i.startswith('epoet.epoet_sac'))}"
         for m, p in MODULES.items()
-        if m.startswith("epoet.poet")
+        if m.startswith("epoet.open_ended")
         and (
             any(i.startswith("epoet.epoet_sac") for i in IMPORTS[m])
             or "sac" in p.read_text().lower()

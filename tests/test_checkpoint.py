@@ -1,16 +1,18 @@
-"""Checkpoints: exact round trip, atomic replacement, one-sentence errors for bad files, and the
-configs of older checkpoints read in today's layout."""
+"""Checkpoints: exact round trip, atomic replacement, one-sentence errors for bad files, and
+older checkpoints (their configs, their renamed classes and keys) read in today's layout."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+import epoet.open_ended.pairs
 from epoet.config import load
 from epoet.core.checkpoint import (
     CHECKPOINT_NAME,
@@ -111,6 +113,22 @@ def test_damaged_files_raise_checkpoint_error(tmp_path, damage, message):
     path.write_bytes(damage(path.read_bytes()))
     with pytest.raises(CheckpointError, match=message):
         load_checkpoint(path)
+
+
+def test_a_checkpoint_from_before_the_open_ended_rename_loads(tmp_path, monkeypatch):
+    """ePOET's state under its old key, its pairs' environments pickled from the old package
+    (epoet.poet, as checkpoints written before issue 47 hold them): they load under today's."""
+    pairs = epoet.open_ended.pairs
+    env = pairs.Environment(index=0, genome=None, generation=0, parent=None, created_at=0)
+    with monkeypatch.context() as old:  # pickle finds the class where that code had it
+        old.setitem(sys.modules, "epoet.poet.pairs", pairs)
+        old.setattr(pairs.Environment, "__module__", "epoet.poet.pairs")
+        save_checkpoint(tmp_path / CHECKPOINT_NAME, {"algo": "epoet", "poet": {"active": [env]}})
+    assert b"epoet.poet.pairs" in (tmp_path / CHECKPOINT_NAME).read_bytes()
+    state = load_checkpoint(tmp_path)
+    assert state.keys() == {"algo", "open_ended"}
+    (loaded,) = state["open_ended"]["active"]
+    assert type(loaded) is pairs.Environment and loaded == env
 
 
 def test_state_must_be_a_dict(tmp_path):

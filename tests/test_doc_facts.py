@@ -162,5 +162,5 @@ def test_the_output_folders_in_the_docs_are_the_commands_defaults(capsys) -> Non
     assert out_default("analysis.tables", capsys) == store
     assert f"writes to `{store}/<input>/<suite name>/`" in figures
     assert f"writes to `{store}/<input>/<suite name>/`" in tables
-    records = out_default("analysis.compute", capsys)
+    records = out_default("analysis.success_vs_compute", capsys)
     assert f"[--out {records}]" in figures and f"into `{records}/<name>/<suite name>/`" in figures

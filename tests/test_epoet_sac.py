@@ -23,8 +23,8 @@ from epoet.epoet_sac.keys import SacKey
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.runner import warm_start_of
-from epoet.poet.keys import Key
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.keys import Key
+from epoet.open_ended.runner import layer_sizes
 from epoet.rl.env import episode_metrics, terrain_env
 from epoet.rl.policy_file import CRITICS_FILE, export_policy, read_critics
 from epoet.rollout.agent_files import read_es_policy, recorded_layout
@@ -115,7 +115,7 @@ def test_the_laptop_budget_holds_two_joins() -> None:
 
 
 def test_the_keys_of_sacs_steps_are_numbered_after_epoets() -> None:
-    """Its keyed streams are none of ePOET's (epoet_sac/keys.py continues poet/keys.py's first
+    """Its keyed streams are none of ePOET's (epoet_sac/keys.py continues loop/keys.py's first
     keys; ePOET's later keys are numbered above SacKey's)."""
     assert min(SacKey) == Key.ADMIT_SPAWN + 1
     assert all(k < min(SacKey) or k > max(SacKey) for k in Key)
@@ -150,12 +150,12 @@ def _metric(client: mlflow.MlflowClient, run_id: str, key: str) -> dict[int, flo
 def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_improvement(
     compose, mlflow_uri: str, tmp_path: Path
 ) -> None:
-    poet = run(compose(SMOKE + ["budget.iterations=7"]), tmp_path / "run")
+    loop = run(compose(SMOKE + ["budget.iterations=7"]), tmp_path / "run")
     client = mlflow.MlflowClient(mlflow_uri)
     (r,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
     run_id = r.info.run_id
     assert sorted(_metric(client, run_id, "joined")) == [2, 6]
-    assert poet.joins == 2 and sorted(poet.lineage(p) for p in poet.pool.active) == [0, 1, 2]
+    assert loop.joins == 2 and sorted(loop.lineage(p) for p in loop.pool.active) == [0, 1, 2]
     # every crossover outcome: replaced exactly when the child's return is higher
     keys = [k for k in r.data.metrics if k.startswith("crossover/") and k.endswith("_replaced")]
     assert keys
@@ -167,17 +167,17 @@ def test_a_run_joins_at_algorithm_1s_iterations_and_crossover_replaces_only_on_i
             assert replaced == float(new[step] > old[step])
             decisions += 1
     assert decisions >= 2
-    assert len(poet.exchange.replaced) == sum(_metric(client, run_id, "replaced").values())
-    archived = {(a.env, a.iteration) for a in poet.exchange.replaced}
+    assert len(loop.exchange.replaced) == sum(_metric(client, run_id, "replaced").values())
+    archived = {(a.env, a.iteration) for a in loop.exchange.replaced}
     # each replaced agent is kept as an ES policy file that records the robot it ran on
     folder = tmp_path / "run" / "replaced"
     assert sorted(p.name for p in folder.glob("*.npz")) == sorted(
         f"env{env}_it{it}.npz" for env, it in archived
     )
-    for agent in poet.exchange.replaced:
+    for agent in loop.exchange.replaced:
         path = folder / f"env{agent.env}_it{agent.iteration}.npz"
         np.testing.assert_array_equal(read_es_policy(path)[0], agent.theta)
-        assert recorded_layout(path, "es")[1] == layout_of(poet.service.evaluator.agent)
+        assert recorded_layout(path, "es")[1] == layout_of(loop.service.evaluator.agent)
     for key in keys:
         env = int(key.split("/")[1].removesuffix("_replaced")[3:])
         for step, replaced in _metric(client, run_id, key).items():
@@ -239,7 +239,8 @@ def test_resume_ends_in_the_uninterrupted_state(
         tmp_path / "resumed",
     )
     a, b = (
-        load_checkpoint(tmp_path / d / "checkpoint.pkl")["poet"] for d in ("straight", "resumed")
+        load_checkpoint(tmp_path / d / "checkpoint.pkl")["open_ended"]
+        for d in ("straight", "resumed")
     )
     assert a["iteration"] == b["iteration"] == 5 and a["env_steps"] == b["env_steps"]
     assert a["join_of"] == b["join_of"] and len(a["join_of"]) == 1 and a["mix"] == b["mix"]
@@ -626,12 +627,12 @@ def test_founded_niches_are_a_joined_environments_descendants() -> None:
 def test_what_the_joins_did_is_read_from_the_record_alone(
     compose, mlflow_uri: str, tmp_path: Path
 ) -> None:
-    """analysis.joins from pipeline.compute's record (run folder and store gone): each join's
+    """analysis.joins from pipeline.snapshots's record (run folder and store gone): each join's
     actor and mapped scores as the run logged them, the replacements summed, and the joined
     pairs found in the latest snapshot's pool (a snapshot taken on resume, after both joins)."""
     import shutil
 
-    from pipeline.compute import main as export
+    from pipeline.snapshots import main as export
 
     folder, out = tmp_path / "run", tmp_path / "records"
     run(compose([*SMOKE, "budget.iterations=7", "snapshot_cpu_minutes=[1000]"]), folder)

@@ -14,7 +14,8 @@ import pytest
 from conftest import subset_suite
 from epoet.config import compose, validate
 from epoet.eval import suite as suite_module
-from epoet.eval.evaluate import COLUMNS, evaluate_run
+from epoet.eval.episodes import COLUMNS
+from epoet.eval.evaluate import evaluate_run
 from epoet.eval.suite import load_suite
 
 # one ES iteration of a tiny ePOET: an MLflow run with an exported agent, in seconds

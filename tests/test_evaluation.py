@@ -25,7 +25,7 @@ from mlflow.types import DataType
 from analysis.tables import formatted, table1, table2
 from conftest import ACT_DIM, ES_SIZES, OBS_DIM, one_terrain_suite
 from epoet import registry
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.eval.agents import resolve_run
 from epoet.eval.suite import LEVELS, SHIPPED, load_suite
 
@@ -406,7 +406,7 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(
     with pytest.raises(Stopped):
         run(compose(overrides), interrupted)
     stopped = load_checkpoint(interrupted)
-    assert stopped["poet"]["iteration"] == 1 < first.iteration  # work left to do
+    assert stopped["open_ended"]["iteration"] == 1 < first.iteration  # work left to do
     assert not (interrupted / DONE).exists()
 
     again = run(compose(overrides), interrupted)  # continues from iteration 1
@@ -415,9 +415,11 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(
     assert (interrupted / DONE).is_file()
     done, straight = load_checkpoint(interrupted), load_checkpoint(finished)
     assert done["run_id"] == stopped["run_id"]  # the resume continued its run
-    assert done["poet"]["env_steps"] == straight["poet"]["env_steps"]  # as if never stopped
-    assert len(done["poet"]["active"]) == len(straight["poet"]["active"])
-    for a, b in zip(done["poet"]["active"], straight["poet"]["active"]):
+    assert (
+        done["open_ended"]["env_steps"] == straight["open_ended"]["env_steps"]
+    )  # as if never stopped
+    assert len(done["open_ended"]["active"]) == len(straight["open_ended"]["active"])
+    for a, b in zip(done["open_ended"]["active"], straight["open_ended"]["active"]):
         np.testing.assert_array_equal(a["es"]["theta"], b["es"]["theta"])
     client = mlflow.MlflowClient(mlflow_uri)
     runs = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])

@@ -127,7 +127,7 @@ def test_sigterm_checkpoints_then_the_resumed_run_equals_an_uninterrupted_one(
     assert proc.returncode == 128 + sig, err
     assert f"stopped by {sig.name}" in err and f"resume={run_dir}" in err, err
     state = load_checkpoint(run_dir / "checkpoint.pkl")
-    stopped_at = state["poet"]["iteration"]
+    stopped_at = state["open_ended"]["iteration"]
     assert 2 <= stopped_at < 1000
     client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
     assert client.get_run(state["run_id"]).info.status == "KILLED"
@@ -146,8 +146,8 @@ def test_sigterm_checkpoints_then_the_resumed_run_equals_an_uninterrupted_one(
         assert proc.returncode == 0, err[-2000:]
     resumed = load_checkpoint(run_dir / "checkpoint.pkl")
     straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")
-    assert resumed["poet"]["iteration"] == straight["poet"]["iteration"] == total
-    assert_same_state(resumed["poet"], straight["poet"])  # every entry, pools by length
+    assert resumed["open_ended"]["iteration"] == straight["open_ended"]["iteration"] == total
+    assert_same_state(resumed["open_ended"], straight["open_ended"])  # every entry, pools by length
     steps = [m.step for m in client.get_metric_history(state["run_id"], "best_score")]
     assert sorted(steps) == list(range(total))  # every iteration once: none lost, none twice
 

@@ -54,7 +54,7 @@ def final_parameters(algo: str, run_dir: Path) -> np.ndarray:
     """Every learned parameter at the end of the run, flattened in a fixed order."""
     state = load_checkpoint(run_dir / "checkpoint.pkl")
     if algo == "epoet":
-        pairs = state["poet"]["active"] + state["poet"]["archived"]
+        pairs = state["open_ended"]["active"] + state["open_ended"]["archived"]
         return np.concatenate([p["es"]["theta"] for p in pairs])
     params = state["learner"]["loss"]
     return np.concatenate(

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from epoet.poet.novelty import novelties, novelty, pata_ec, rank_by_novelty
+from epoet.open_ended.novelty import novelties, novelty, pata_ec, rank_by_novelty
 
 LOW, HIGH = 500.0, 3000.0
 

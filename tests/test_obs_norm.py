@@ -14,8 +14,8 @@ from conftest import serial_loop
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.es.obs_norm import VAR_FLOOR, ObsNormalizer
-from epoet.poet.keys import Key
-from epoet.poet.loop import EPOET
+from epoet.open_ended.keys import Key
+from epoet.open_ended.loop import Epoet
 from epoet.rollout.policy import fold, forward, init_params
 from epoet.rollout.populations import Agents, Request
 from epoet.run import run
@@ -56,7 +56,7 @@ def test_statistics_start_at_the_identity_and_follow_the_data() -> None:
     assert norm.std[2] == pytest.approx(np.sqrt(VAR_FLOOR))
 
 
-def _poet(terrain_cfg: TerrainConfig, episodes: int) -> EPOET:
+def _epoet(terrain_cfg: TerrainConfig, episodes: int) -> Epoet:
     paper = load(["budget=paper"])
     agent = replace(paper.agent, max_episode_steps=30, settle_steps=2)
     es = replace(paper.algo.es, obs_norm_episodes=episodes)
@@ -66,14 +66,14 @@ def _poet(terrain_cfg: TerrainConfig, episodes: int) -> EPOET:
 
 
 def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainConfig) -> None:
-    poet = _poet(terrain_cfg, episodes=2)
-    metrics = poet.run_iteration()
-    norm = poet.service.obs_norm
+    loop = _epoet(terrain_cfg, episodes=2)
+    metrics = loop.run_iteration()
+    norm = loop.service.obs_norm
     assert 0 < norm.count <= 2 * 30 and metrics["obs_norm/count"] == norm.count
     assert not np.allclose(norm.std, 1.0)
-    pair = poet.pool.active[0]
+    pair = loop.pool.active[0]
     # the evaluation ran the folded policy: replaying it from the same starts gives the score
-    service = poet.service
+    service = loop.service
     seeds = service.seeds(service.eval_episodes, Key.EVAL, pair.env.index, 0)
     again = service.evaluator.run(
         [Request(service.terrain(pair.env, 0), Agents.of(service.policy(pair.theta)[None], seeds))]
@@ -81,7 +81,7 @@ def test_the_loop_standardises_with_the_recorded_episodes(terrain_cfg: TerrainCo
     assert again[0].returns.mean() == pytest.approx(pair.score, abs=1e-9)
     np.testing.assert_array_equal(pair.best_theta, service.policy(pair.theta))
     # without normalisation the same seed runs other policies
-    plain = _poet(terrain_cfg, episodes=0)
+    plain = _epoet(terrain_cfg, episodes=0)
     plain.run_iteration()
     assert plain.service.obs_norm is None and plain.pool.active[0].score != pair.score
 
@@ -96,8 +96,8 @@ def test_an_epoet_run_with_normalisation_exports_raw_policies_and_resumes(
         compose(SMOKE + norm + ["budget.iterations=3", f"resume={tmp_path / 'killed'}"]),
         tmp_path / "resumed",
     )
-    straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")["poet"]
-    resumed = load_checkpoint(tmp_path / "resumed" / "checkpoint.pkl")["poet"]
+    straight = load_checkpoint(tmp_path / "straight" / "checkpoint.pkl")["open_ended"]
+    resumed = load_checkpoint(tmp_path / "resumed" / "checkpoint.pkl")["open_ended"]
     assert straight["obs_norm"]["count"] > 0
     for key in ("count", "sum", "sumsq"):
         np.testing.assert_array_equal(straight["obs_norm"][key], resumed["obs_norm"][key])

@@ -18,7 +18,8 @@ from analysis.store import AnalysisError
 from analysis.tables import make_tables, tables_from_records
 from conftest import subset_suite
 from epoet.config import compose, validate
-from epoet.eval.evaluate import COLUMNS, evaluate_run
+from epoet.eval.episodes import COLUMNS
+from epoet.eval.evaluate import evaluate_run
 from epoet.eval.suite import load_suite
 from pipeline.records import export
 
@@ -308,11 +309,15 @@ def test_records_on_other_terrains_are_refused_and_records_without_the_suite_nam
 COMPUTE_RECORD = Path(__file__).resolve().parent.parent / "docs" / "results" / "compute" / "ppo_s1"
 # (the file damaged, how, the commands that read it): one sentence naming the file for each
 DAMAGES = [
-    ("run.json", lambda text: text[: len(text) // 2], ("analysis.tables", "analysis.compute")),
-    ("run.json", lambda text: "[1, 2]", ("analysis.tables", "analysis.compute")),
+    (
+        "run.json",
+        lambda text: text[: len(text) // 2],
+        ("analysis.tables", "analysis.success_vs_compute"),
+    ),
+    ("run.json", lambda text: "[1, 2]", ("analysis.tables", "analysis.success_vs_compute")),
     ("paper/episodes.csv", lambda text: "not,the columns\n1,2\n", ("analysis.tables",)),
-    ("cpu60/policy/paper/episodes.csv", lambda text: "", ("analysis.compute",)),
-    ("curves.csv", lambda text: text.replace("cpu_time", "cpu"), ("analysis.compute",)),
+    ("cpu60/policy/paper/episodes.csv", lambda text: "", ("analysis.success_vs_compute",)),
+    ("curves.csv", lambda text: text.replace("cpu_time", "cpu"), ("analysis.success_vs_compute",)),
 ]
 
 
@@ -339,7 +344,7 @@ def test_runs_of_different_episodes_per_terrain_are_refused_not_tabled(tmp_path)
     """One protocol per table: a run's end-of-run evaluation (1 episode per terrain) beside
     another's 5 is refused, naming the runs of each, by the tables (records or store: both
     write through `write_tables`) and by success against compute."""
-    from analysis.compute import compute_table
+    from analysis.success_vs_compute import compute_table
     from analysis.tables import write_tables
 
     shipped = load_suite("shipped")

@@ -54,7 +54,7 @@ def _no_run_in(store: Path) -> bool:
 
 
 def _pool(run_dir: Path) -> list[dict]:
-    return load_checkpoint(run_dir / "checkpoint.pkl")["poet"]["active"]
+    return load_checkpoint(run_dir / "checkpoint.pkl")["open_ended"]["active"]
 
 
 def _assert_same_pool(a: list[dict], b: list[dict]) -> None:

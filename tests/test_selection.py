@@ -14,9 +14,9 @@ from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.eval.agents import policy_in
 from epoet.eval.reference import FOLDER
-from epoet.poet.exported_agent import candidates, export_agent, niches_of
-from epoet.poet.loop import EPOET
-from epoet.poet.pairs import Environment
+from epoet.open_ended.exported_agent import candidates, export_agent, niches_of
+from epoet.open_ended.loop import Epoet
+from epoet.open_ended.pairs import Environment
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, read_es_policy
 from epoet.rollout.selection import CHOICE_FILE, held_out_terrains, rank
 
@@ -28,7 +28,7 @@ def run_config(*overrides: str):
     return load(["budget=paper", "selection.terrains=3", "selection.generations=1", *overrides])
 
 
-def pool_with_a_misleading_own_score(cfg) -> EPOET:
+def pool_with_a_misleading_own_score(cfg) -> Epoet:
     """A pool whose root agent stands still but holds the best own-terrain score, beside a
     niche with the authors' walker and a poor own score."""
     agent = replace(cfg.agent, max_episode_steps=120)
@@ -39,7 +39,7 @@ def pool_with_a_misleading_own_score(cfg) -> EPOET:
     loop.pool.record(root, 5000.0)
     walker, _ = read_es_policy(WALKER)
     env = Environment(index=1, genome=root.env.genome, generation=1, parent=0, created_at=1)
-    pair = loop.pool.admit(env, loop.service.optimiser_for(env, walker))
+    pair = loop.pool.admit(env, loop.service.optimizer_for(env, walker))
     loop.pool.record(pair, 10.0)
     return loop
 

@@ -1,5 +1,5 @@
 """`algo.es.terrain_variants`: an ES step's mirrored pairs spread over renderings of the niche's
-genome (epoet/poet/service.py `es_requests`, `merge_variants`)."""
+genome (epoet/open_ended/service.py `es_requests`, `merge_variants`)."""
 
 from __future__ import annotations
 
@@ -9,14 +9,14 @@ import numpy as np
 
 from conftest import serial_loop
 from epoet.config import load
-from epoet.poet.keys import Key
-from epoet.poet.loop import EPOET
+from epoet.open_ended.keys import Key
+from epoet.open_ended.loop import Epoet
 from epoet.rollout.populations import Mirrored, Request
 
 SIZES = (53, 8, 18)
 
 
-def make_loop(variants: int) -> EPOET:
+def make_loop(variants: int) -> Epoet:
     cfg = load(["budget=paper", f"algo.es.terrain_variants={variants}"])
     agent = replace(cfg.agent, max_episode_steps=15, settle_steps=2)
     terrain = replace(cfg.terrain, grid=40, max_height=0.3)

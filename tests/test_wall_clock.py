@@ -53,7 +53,7 @@ def test_epoet_stops_at_the_wall_clock_budget_and_a_resume_goes_on(
     folder = tmp_path / "run"
     run(compose(EPOET + [TINY]), folder)
     first = load_checkpoint(folder / "checkpoint.pkl")
-    assert first["poet"]["iteration"] == 1  # the first boundary, with a checkpoint
+    assert first["open_ended"]["iteration"] == 1  # the first boundary, with a checkpoint
     assert (
         "stopped at the wall-clock budget (budget.hours=1e-09) after 1 iterations"
         in capsys.readouterr().out
@@ -61,12 +61,14 @@ def test_epoet_stops_at_the_wall_clock_budget_and_a_resume_goes_on(
     assert _stop_reason(mlflow_uri, first["run_id"]) == "hours"
     run(compose(EPOET + ["budget.hours=1", f"resume={folder}"]), folder)
     second = load_checkpoint(folder / "checkpoint.pkl")
-    assert second["run_id"] == first["run_id"] and second["poet"]["iteration"] == 4
-    assert second["poet"]["elapsed"] > first["poet"]["elapsed"]  # summed over the resume
+    assert second["run_id"] == first["run_id"] and second["open_ended"]["iteration"] == 4
+    assert (
+        second["open_ended"]["elapsed"] > first["open_ended"]["elapsed"]
+    )  # summed over the resume
     assert _stop_reason(mlflow_uri, first["run_id"]) == "iterations"
     assert len(_history(mlflow_uri, first["run_id"], "time/iteration")) == 4
     _assert_summed_over_the_resume(
-        mlflow_uri, first["run_id"], "time/iteration", second["poet"]["elapsed"]
+        mlflow_uri, first["run_id"], "time/iteration", second["open_ended"]["elapsed"]
     )
 
 

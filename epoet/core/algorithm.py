@@ -18,7 +18,7 @@ from typing import Any, ClassVar, Self
 # What every algorithm logs, each at every step that has a `score`: the score (ePOET: its best
 # active pair's evaluation; a baseline: its deterministic evaluation return), the best so far and
 # the x-axes. The learning-curve figure (analysis/figures.py) draws `score` against `env_steps`
-# and `elapsed`; a run's record keeps them all (pipeline/compute.py `CURVE_KEYS`).
+# and `elapsed`; a run's record keeps them all (pipeline/snapshots.py `CURVE_KEYS`).
 SCORE = "score"
 AXES = ("env_steps", "elapsed", "cpu_time")
 SCORE_METRICS = (SCORE, "best_score", *AXES)
@@ -30,7 +30,7 @@ class Family(Enum):
     conf/algo_budget/<value>/<budget>.yaml. Declaration order is table and legend order."""
 
     BASELINE = "baselines"  # one agent learning from environment frames
-    POOL = "poet"  # an open-ended pool of environment-agent pairs, trained by ES
+    OPEN_ENDED = "open_ended"  # an open-ended pool of environment-agent pairs, trained by ES
 
     @property
     def counts(self) -> str:

@@ -7,7 +7,8 @@ load silently (a damaged float array still unpickles). Pickle runs code on load:
 checkpoints this project wrote.
 
 Layout: a run folder (Hydra's job output directory) holds its checkpoint as `checkpoint.pkl`;
-`find_checkpoint` accepts either the folder or the file.
+`find_checkpoint` accepts either the folder or the file. A checkpoint written before a rename
+loads as today's (`RENAMED_MODULES`, `RENAMED_KEYS`), so old runs resume and are recorded.
 """
 
 from __future__ import annotations
@@ -28,10 +29,25 @@ _MAGIC = b"EPOETCKP"
 # magic, format version (uint32), payload length (uint64), CRC-32 of the payload (uint32)
 _HEADER = struct.Struct("<8sIQI")
 _CHUNK = 1 << 24  # 16 MiB reads when verifying the CRC: bounded memory for large replay buffers
+# Names older checkpoints hold that have since changed, mapped on load (the format is the same,
+# so no version bump): the packages of the classes they pickled (ePOET's package was
+# epoet/poet/ before issue 47) and the runners' top-level keys (ePOET's loop state was "poet").
+RENAMED_MODULES = {"epoet.poet": "epoet.open_ended"}
+RENAMED_KEYS = {"poet": "open_ended"}
 
 
 class CheckpointError(ValueError):
     """A checkpoint that cannot be written or read; the message is one sentence naming the path."""
+
+
+class _RenamingUnpickler(pickle.Unpickler):
+    """Finds a class an older checkpoint pickled under a module path since renamed."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        for old, new in RENAMED_MODULES.items():
+            if module == old or module.startswith(f"{old}."):
+                module = new + module[len(old) :]
+        return super().find_class(module, name)
 
 
 class _CrcWriter:
@@ -120,7 +136,7 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
             if actual != crc:
                 raise CheckpointError(f"checkpoint {file_path} is corrupt: CRC mismatch.")
             file.seek(_HEADER.size)
-            state = pickle.load(file)
+            state = _RenamingUnpickler(file).load()
     except OSError as exc:
         raise CheckpointError(f"cannot read checkpoint {file_path}: {exc.strerror}.") from exc
     except CheckpointError:
@@ -131,4 +147,4 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
         ) from exc
     if not isinstance(state, dict):
         raise CheckpointError(f"checkpoint {file_path} does not hold a dict.")
-    return state
+    return {RENAMED_KEYS.get(key) or key: value for key, value in state.items()}

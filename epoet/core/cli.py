@@ -14,6 +14,9 @@ from omegaconf.errors import ConfigAttributeError, ConfigKeyError
 from epoet.core.errors import first_line
 from epoet.core.schema import closest, unknown_key
 
+# Config paths a user may have typed that have since been renamed: refused with today's name.
+RENAMED = {"algo_budget/poet": "algo_budget/open_ended"}  # the open-ended family's values
+
 
 def fail(err: BaseException) -> NoReturn:
     """Exit 2 with one line: the error's first line, plus its cause's (Hydra wraps OmegaConf's
@@ -26,6 +29,8 @@ def fail(err: BaseException) -> NoReturn:
 def message(err: BaseException) -> str:
     cause = err.__cause__
     if isinstance(cause, (ConfigAttributeError, ConfigKeyError)) and cause.full_key:
+        if (renamed := RENAMED.get(cause.full_key)) is not None:
+            return f"{cause.full_key} is now {renamed}: override {renamed}=<budget>."
         parent = cause.parent_node  # the node the key was set on: its valid keys
         valid = list(parent.keys()) if isinstance(parent, DictConfig) else []
         return unknown_key(cause.full_key, [str(k) for k in valid])

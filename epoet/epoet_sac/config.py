@@ -7,7 +7,7 @@ from typing import ClassVar, Optional
 
 from epoet.core.algorithm import Algorithm, Family
 from epoet.core.schema import check, non_negative, positive
-from epoet.poet.config import PoetConfig
+from epoet.open_ended.config import EpoetConfig
 from epoet.rl.config import SacLearnerConfig
 
 # --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
@@ -70,7 +70,7 @@ class WarmConfig:
 
 
 @dataclass
-class EpoetSacConfig(PoetConfig):
+class EpoetSacConfig(EpoetConfig):
     """ePOET plus a SAC learner trained every iteration (Algorithm 1's red steps)."""
 
     sac: SacLearnerConfig
@@ -119,7 +119,7 @@ class EpoetSacConfig(PoetConfig):
 
 EPOET_SAC = Algorithm(
     name="epoet_sac",
-    family=Family.POOL,
+    family=Family.OPEN_ENDED,
     schema=EpoetSacConfig,
     runner="epoet.epoet_sac.runner.train",
     label="ePOET-SAC",

@@ -28,9 +28,9 @@ from epoet.epoet_sac.bridge import (
 from epoet.epoet_sac.config import DaggerConfig, DistillConfig
 from epoet.epoet_sac.dagger import dagger_into_es
 from epoet.epoet_sac.keys import SacKey
-from epoet.poet.keys import Key
-from epoet.poet.pairs import Pair, Pool
-from epoet.poet.service import Service
+from epoet.open_ended.keys import Key
+from epoet.open_ended.pairs import Pair, Pool
+from epoet.open_ended.service import Service
 from epoet.rl.env import OBS
 from epoet.rollout.policy import init_params
 from epoet.rollout.populations import Agents, Request

@@ -1,5 +1,6 @@
-"""What each keyed seed of ePOET-SAC's own steps is for (epoet.poet.keys names ePOET's): with the
-ids after it, a key names one random stream of the run seed (epoet.poet.service `Service.seeds`).
+"""What each keyed seed of ePOET-SAC's own steps is for (epoet.open_ended.keys names ePOET's):
+with the ids after it, a key names one random stream of the run seed (epoet.open_ended.service
+`Service.seeds`).
 The numbers continue after ePOET's, so no stream of one is a stream of the other."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """ePOET-SAC (paper Section 3): the ePOET loop with a SAC learner beside the pool.
 
-`EpoetSac` extends ePOET's loop (epoet/poet/loop.py) with Algorithm 1's red steps: `pretrain`
+`EpoetSac` extends ePOET's loop (epoet/open_ended/loop.py) with Algorithm 1's red steps: `pretrain`
 (before iteration 0), ePOET's `reproduce`, its `optimize` with the first episodes of every ES
 step recorded for SAC's replay, `sac` (Algorithm 2), ePOET's `transfer` then
 `update_actor_from_pool`, and at t mod (k N_transfer) = k N_transfer - 2 the `join` with
@@ -29,8 +29,8 @@ from epoet.epoet_sac.exchange import ActorExchange
 from epoet.epoet_sac.keys import SacKey
 from epoet.epoet_sac.replay_mix import ReplayMix
 from epoet.epoet_sac.warm_start import WarmStart, scale_mapping_for, warm_start_alpha
-from epoet.poet.loop import EPOET, Step, every_iteration, loop_settings
-from epoet.poet.pairs import Environment, Pair
+from epoet.open_ended.loop import Epoet, Step, every_iteration, loop_settings
+from epoet.open_ended.pairs import Environment, Pair
 from epoet.rl.env import episode_metrics, make_env, terrain_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
@@ -45,12 +45,12 @@ if TYPE_CHECKING:  # the tracking module imports mlflow
     from epoet.tracking import Tracker
 
 
-class EpoetSac(EPOET):
+class EpoetSac(Epoet):
     """The ePOET loop (its pool, service and steps), a SAC learner and the steps that move agents
     between them."""
 
     cfg: EpoetSacConfig
-    EVENTS = (*EPOET.EVENTS, "joined", "replaced")
+    EVENTS = (*Epoet.EVENTS, "joined", "replaced")
 
     def __init__(
         self,
@@ -63,7 +63,6 @@ class EpoetSac(EPOET):
         n_pairs: int,
         eval_episodes: int,
         score_scale: float,
-        layer_sizes: tuple[int, ...],
         warm_start: WarmStart | None = None,
     ) -> None:
         super().__init__(
@@ -74,7 +73,6 @@ class EpoetSac(EPOET):
             n_pairs=n_pairs,
             eval_episodes=eval_episodes,
             score_scale=score_scale,
-            layer_sizes=layer_sizes,
         )
         torch.manual_seed(self.service.seed(SacKey.SAC))  # the networks' initial weights
         self.sac_env = sac_env
@@ -320,7 +318,7 @@ class EpoetSac(EPOET):
             parent=home.env.index,
             created_at=t,
         )
-        pair = self.pool.admit(env, self.service.optimiser_for(env, mapped.theta))
+        pair = self.pool.admit(env, self.service.optimizer_for(env, mapped.theta))
         self.join_of[env.index] = joins
         self.service.keep_terrain(env, t, terrain)
         self.pool.record(pair, mapped.score)

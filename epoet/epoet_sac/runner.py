@@ -1,5 +1,5 @@
-"""`algo=epoet_sac`: ePOET's run of iterations (epoet.poet.runner.train_loop) over the ePOET-SAC
-loop.
+"""`algo=epoet_sac`: ePOET's run of iterations (epoet.open_ended.runner.train_loop) over the
+ePOET-SAC loop.
 
 Imported only when a config names it: torch and TorchRL are heavy imports that ePOET runs never
 need.
@@ -15,7 +15,7 @@ from epoet.config import Config
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.warm_start import WarmStart, load_warm_start
-from epoet.poet.runner import layer_sizes, train_loop
+from epoet.open_ended.runner import layer_sizes, train_loop
 from epoet.rollout.evaluators import evaluator_for
 from epoet.tracking import Tracker
 

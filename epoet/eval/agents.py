@@ -41,7 +41,7 @@ RECORD_CONFIG = "config.yaml"  # a record's resolved run config (docs/results/RE
 
 def policy_in(folder: Path) -> tuple[AgentSource, str] | None:
     """A run folder's exported agent and its name: the pool agent the run chose (`agent.npz`,
-    epoet/poet/exported_agent.py), else (a run from before the choice, or one still training
+    epoet/open_ended/exported_agent.py), else (a run from before the choice, or one still training
     towards its first snapshot) the best pool agent (highest score), or the exported torch
     policy; None if it has none."""
     if (folder / ES_POLICIES / EXPORTED_AGENT).is_file():
@@ -118,7 +118,7 @@ def _from_folder(folder: Path, tracking_uri: str | None) -> TrainedRun:
             state = load_checkpoint(folder)
         except CheckpointError as err:
             raise AgentError(str(err)) from err
-    elif (folder / RECORD_CONFIG).is_file():  # a record (pipeline.compute): the run's config
+    elif (folder / RECORD_CONFIG).is_file():  # a record (pipeline.snapshots): the run's config
         loaded = OmegaConf.to_container(OmegaConf.load(folder / RECORD_CONFIG))
         state = {"config": loaded, "algo": cast(dict[str, Any], loaded)["algo"]["name"]}
     config = state.get("config")

@@ -17,7 +17,7 @@ from torchrl.envs import EnvBase, ExplorationType
 from torchrl.modules import ProbabilisticActor
 
 from epoet.config import BaselineBudgetConfig, Config
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.rl.config import RlConfig, SacConfig
 
 # --- the compute plan and the collector -----------------------------------------------------------

@@ -29,7 +29,7 @@ from epoet.rollout.policy import num_params
 
 TORCH_POLICY = "policy.pt"
 ES_POLICIES = "policies"
-# in policies/: the pool's agent a run exports (poet/exported_agent.py)
+# in policies/: the pool's agent a run exports (open_ended/exported_agent.py)
 EXPORTED_AGENT = "agent.npz"
 # beside a baseline's exported policy when that is not its last (rl/candidates.py)
 LAST_POLICY = "policy_last.pt"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from epoet.core.compute import default_workers
+from epoet.core.cores import default_workers
 from epoet.envs.config import AgentConfig
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.backends.pool import PoolEvaluator

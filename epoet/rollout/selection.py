@@ -33,7 +33,7 @@ from epoet.terrain import Terrain, generator_for
 from epoet.terrain.config import RENDERINGS, MutationError, TerrainConfig
 
 # The seeds of held-out terrains and their episodes: their own stream of the run seed, apart
-# from every keyed stream of a run's training (epoet.poet.keys numbers those from 0).
+# from every keyed stream of a run's training (epoet.open_ended.keys numbers those from 0).
 HELD_OUT_STREAM = 1000
 RULES = ("validation", "own")
 LAST = "last"  # a baseline's own rule: its last policy (epoet/rl/candidates.py)

@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from epoet.poet.config import PoetConfig
-from epoet.poet.keys import Key
-from epoet.poet.novelty import pata_ec, rank_by_novelty
-from epoet.poet.pairs import Child, Environment, Pair, Pool
-from epoet.poet.service import FineTune, Service
+from epoet.open_ended.config import EpoetConfig
+from epoet.open_ended.keys import Key
+from epoet.open_ended.novelty import pata_ec, rank_by_novelty
+from epoet.open_ended.pairs import Child, Environment, Pair, Pool
+from epoet.open_ended.service import FineTune, Service
 from epoet.terrain import MutationError
 
 
-def reproduce(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
+def reproduce(pool: Pool, service: Service, cfg: EpoetConfig, t: int) -> int:
     """Propose children of eligible environments and admit the most novel that pass; returns
     how many were admitted."""
     parents = [p for p in pool.active if p.score >= pool.thresholds.repro]
@@ -29,7 +29,7 @@ def reproduce(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> int:
 
 
 def propose_children(
-    service: Service, cfg: PoetConfig, parents: list[Pair], t: int
+    service: Service, cfg: EpoetConfig, parents: list[Pair], t: int
 ) -> list[tuple[Child, Pair]]:
     """Up to `num_children` valid mutations (the terrain generator's) of randomly chosen
     eligible parents."""
@@ -75,7 +75,7 @@ def minimal_criterion(
 
 
 def admit_most_novel(
-    pool: Pool, service: Service, cfg: PoetConfig, passing: list[Child], t: int
+    pool: Pool, service: Service, cfg: EpoetConfig, passing: list[Child], t: int
 ) -> int:
     """In order of PATA-EC novelty, admit children whose best transferred agent also passes
     the minimal criterion (the reference's rule), at most `max_admitted` of them."""
@@ -97,7 +97,7 @@ def admit_most_novel(
         if not th.passes_mc(score):
             continue
         child.env.index = pool.next_index
-        pool.admit(child.env, service.optimiser_for(child.env, theta))
+        pool.admit(child.env, service.optimizer_for(child.env, theta))
         service.keep_terrain(child.env, t, child.terrain)
         admitted += 1
         if admitted == cfg.max_admitted:
@@ -106,7 +106,7 @@ def admit_most_novel(
 
 
 def best_agent_for(
-    pool: Pool, service: Service, cfg: PoetConfig, child: Child, t: int
+    pool: Pool, service: Service, cfg: EpoetConfig, child: Child, t: int
 ) -> tuple[float, np.ndarray]:
     """(score, theta) of the best active agent on a child, directly or after one fine-tuning ES
     step (`proposal_step`) with a fresh optimiser, as the reference's candidate pair takes it."""

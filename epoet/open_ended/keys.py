@@ -1,5 +1,5 @@
 """What each keyed seed of an ePOET run is for: with the ids after it, a key names one random
-stream, a function of the run seed alone (epoet.poet.service `Service.seeds`)."""
+stream, a function of the run seed alone (epoet.open_ended.service `Service.seeds`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ class Key(IntEnum):
 
     ROOT_GENOME = 0  # (0,)
     ROOT_AGENT = 1  # (0,)
-    OPTIMISER = 2  # (env, iteration admitted): the pair's ES noise stream
+    OPTIMIZER = 2  # (env, iteration admitted): the pair's ES noise stream
     BOWL = 3  # (env, iteration): the bowl part of an environment's terrain
     ES_SPAWN = 4  # (env, iteration): starts of the ES episodes
     EVAL = 5  # (env, iteration): starts of the evaluation episodes

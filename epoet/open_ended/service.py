@@ -19,8 +19,8 @@ import numpy as np
 from epoet.es.config import EsConfig
 from epoet.es.obs_norm import ObsNormalizer
 from epoet.es.optimizer import OpenAIES
-from epoet.poet.keys import Key
-from epoet.poet.pairs import Environment
+from epoet.open_ended.keys import Key
+from epoet.open_ended.pairs import Environment
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.rollout.policy import Standardizer
@@ -51,7 +51,6 @@ class Service:
         seed: int,
         n_pairs: int,
         eval_episodes: int,
-        layer_sizes: tuple[int, ...],
     ) -> None:
         self.evaluator = evaluator
         self.terrain_cfg = terrain
@@ -60,11 +59,11 @@ class Service:
         self.run_seed = seed
         self.n_pairs = n_pairs
         self.eval_episodes = eval_episodes
-        self.layer_sizes = layer_sizes
+        self.layer_sizes = evaluator.layer_sizes  # the policy's, derived once: runner.py
         self.env_steps = 0  # counted here only: `run`, `count_steps`, `load_state_dict`
         # Observation normalisation: every theta of the pool acts on standardised observations
         # (one set of statistics per run, as Salimans et al.); what runs is `policy(theta)`.
-        self.obs_norm = ObsNormalizer(layer_sizes[0]) if es.obs_norm_episodes else None
+        self.obs_norm = ObsNormalizer(self.layer_sizes[0]) if es.obs_norm_episodes else None
         # One iteration's terrains: every step of an iteration asks for the same ones, and a
         # child admitted (or a pair joined) at t keeps the terrain it was judged on until t ends.
         self._terrains: dict[int, Terrain] = {}
@@ -139,9 +138,9 @@ class Service:
     def new_es(self, theta: np.ndarray, seed: int) -> OpenAIES:
         return OpenAIES(theta, seed, self.es_cfg, self.n_pairs)
 
-    def optimiser_for(self, env: Environment, theta: np.ndarray) -> OpenAIES:
+    def optimizer_for(self, env: Environment, theta: np.ndarray) -> OpenAIES:
         """The ES of a pair admitted with `env`: its noise stream keyed by the environment."""
-        return self.new_es(theta, self.seed(Key.OPTIMISER, env.index, env.created_at))
+        return self.new_es(theta, self.seed(Key.OPTIMIZER, env.index, env.created_at))
 
     def standardizer(self) -> Standardizer | None:
         return None if self.obs_norm is None else self.obs_norm.standardizer(self.layer_sizes)

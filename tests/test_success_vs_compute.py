@@ -1,4 +1,4 @@
-"""Success against compute (pipeline.compute): a run's CPU-time snapshots become a record that
+"""Success against compute (pipeline.snapshots): a run's CPU-time snapshots become a record that
 holds each snapshot's agents and their evaluations, the run's curves and config, and that
 evaluates anywhere as `run=<record>`; a second export evaluates only what is new."""
 
@@ -13,7 +13,7 @@ import pytest
 from conftest import BUSY_LOOP, TINY_EPOET, subset_suite
 from epoet.eval.agents import resolve_run
 from epoet.run import run
-from pipeline.compute import main
+from pipeline.snapshots import main
 
 EPOET = [*TINY_EPOET, "budget.iterations=4", *BUSY_LOOP, "snapshot_cpu_minutes=[1e-6,1e-5,1000]"]
 
@@ -69,7 +69,7 @@ def test_success_against_compute_is_drawn_from_records_alone(
     store removed first), an ePOET pool read both ways."""
     import shutil
 
-    from analysis.compute import main as figures
+    from analysis.success_vs_compute import main as figures
 
     folder, out = tmp_path / "run", tmp_path / "records"
     run(compose(EPOET), folder)
@@ -105,7 +105,7 @@ def test_success_against_compute_is_drawn_from_records_alone(
 def test_comparisons_pair_the_algorithms_at_the_marks_both_reached() -> None:
     """P(X > Y) per mark with X after Y in table order, from the best agents only; a mark one
     algorithm never reached has no row."""
-    from analysis.compute import comparisons
+    from analysis.success_vs_compute import comparisons
 
     rows = [
         {"algo": algo, "seed": seed, "minutes": minutes, "reading": reading, "terrains": terrains}

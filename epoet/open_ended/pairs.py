@@ -40,7 +40,7 @@ class Pair:
     es: OpenAIES
     scores: list[float] = field(default_factory=list)  # evaluation score per iteration
     best_score: float = -np.inf  # the best evaluation score on this environment so far,
-    best_theta: np.ndarray | None = None  # and the policy that scored it (EPOET.policy)
+    best_theta: np.ndarray | None = None  # and the policy that scored it (Epoet.policy)
 
     @property
     def theta(self) -> np.ndarray:

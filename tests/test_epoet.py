@@ -15,10 +15,10 @@ import pytest
 from conftest import BUSY_LOOP, TINY_EPOET, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
-from epoet.poet.keys import Key
-from epoet.poet.loop import EPOET
-from epoet.poet.reproduction import best_agent_for, minimal_criterion, propose_children
-from epoet.poet.runner import layer_sizes
+from epoet.open_ended.keys import Key
+from epoet.open_ended.loop import Epoet
+from epoet.open_ended.reproduction import best_agent_for, minimal_criterion, propose_children
+from epoet.open_ended.runner import layer_sizes
 from epoet.rollout.backends.serial import SerialEvaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.run import run
@@ -31,10 +31,10 @@ PAPER = load(["budget=paper"])  # the paper's agent (RK4) and ePOET settings
 SMOKE = TINY_EPOET
 
 
-def make_poet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> EPOET:
+def make_epoet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> Epoet:
     agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
     evaluator = SerialEvaluator(agent, terrain_cfg, batch=8, layer_sizes=SIZES)
-    return EPOET(
+    return Epoet(
         replace(PAPER.algo, **algo),
         terrain_cfg,
         evaluator,
@@ -42,7 +42,6 @@ def make_poet(terrain_cfg: TerrainConfig, seed: int = 3, **algo) -> EPOET:
         n_pairs=2,
         eval_episodes=1,
         score_scale=1.0,
-        layer_sizes=SIZES,
     )
 
 
@@ -50,48 +49,48 @@ OPEN = dict(repro_threshold=-1e9, mc_lower=-1e9, mc_upper=1e9)  # every child pa
 
 
 def test_reproduction_admits_at_most_one_child(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=4, **OPEN)
-    poet.run_iteration()
-    assert poet.reproduce(poet.iteration) == 1
-    child = poet.pool.active[-1]
-    assert len(poet.pool.active) == 2 and child.env.index == 1
+    loop = make_epoet(terrain_cfg, num_children=4, **OPEN)
+    loop.run_iteration()
+    assert loop.reproduce(loop.iteration) == 1
+    child = loop.pool.active[-1]
+    assert len(loop.pool.active) == 2 and child.env.index == 1
     assert child.env.generation == 1 and child.env.parent == 0
-    assert child.env.genome is not poet.pool.active[0].env.genome
-    terrain = poet.service.terrain(child.env, poet.iteration)
+    assert child.env.genome is not loop.pool.active[0].env.genome
+    terrain = loop.service.terrain(child.env, loop.iteration)
     assert terrain.generation == 1 and terrain.parent_id == "env0"
 
 
 def test_reproduction_requires_minimal_criterion(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=-1e9, mc_lower=1e8, mc_upper=1e9)
-    poet.run_iteration()
-    assert poet.reproduce(poet.iteration) == 0 and len(poet.pool.active) == 1
+    loop = make_epoet(terrain_cfg, num_children=3, repro_threshold=-1e9, mc_lower=1e8, mc_upper=1e9)
+    loop.run_iteration()
+    assert loop.reproduce(loop.iteration) == 0 and len(loop.pool.active) == 1
 
 
 def test_reproduction_requires_threshold(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=3, repro_threshold=1e9, mc_lower=-1e9, mc_upper=1e9)
-    poet.run_iteration()
-    assert poet.reproduce(poet.iteration) == 0
+    loop = make_epoet(terrain_cfg, num_children=3, repro_threshold=1e9, mc_lower=-1e9, mc_upper=1e9)
+    loop.run_iteration()
+    assert loop.reproduce(loop.iteration) == 0
 
 
 def test_oldest_pair_is_archived(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=2, max_num_envs=1, **OPEN)
-    poet.run_iteration()
-    poet.reproduce(poet.iteration)
-    assert [p.env.index for p in poet.pool.active] == [1]
-    assert [p.env.index for p in poet.pool.archived] == [0]
-    metrics = poet.run_iteration()
+    loop = make_epoet(terrain_cfg, num_children=2, max_num_envs=1, **OPEN)
+    loop.run_iteration()
+    loop.reproduce(loop.iteration)
+    assert [p.env.index for p in loop.pool.active] == [1]
+    assert [p.env.index for p in loop.pool.archived] == [0]
+    metrics = loop.run_iteration()
     assert metrics["archived_envs"] == 1 and metrics["active_envs"] == 1
 
 
 def test_transfer_replaces_a_beaten_agent(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    poet.run_iteration()
-    poet.reproduce(poet.iteration)
-    target = poet.pool.active[1]
+    loop = make_epoet(terrain_cfg, num_children=2, **OPEN)
+    loop.run_iteration()
+    loop.reproduce(loop.iteration)
+    target = loop.pool.active[1]
     target.scores[:] = [-1e9]  # any other agent beats this incumbent
     target.es.tell(*_fake_step(target))  # move its optimiser away from the initial state
     before = target.theta.copy()
-    assert poet.transfer(poet.iteration) >= 1
+    assert loop.transfer(loop.iteration) >= 1
     assert not np.array_equal(target.theta, before)
     assert target.es.state_dict()["t"] == 0  # Adam state reset on acceptance
 
@@ -102,11 +101,11 @@ def _fake_step(pair):
 
 
 def test_annecs_counts_solved_children(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    poet.run_iteration()
-    poet.reproduce(poet.iteration)
+    loop = make_epoet(terrain_cfg, num_children=2, **OPEN)
+    loop.run_iteration()
+    loop.reproduce(loop.iteration)
     # every score clears the (open) threshold: the child is solved
-    assert poet.run_iteration()["annecs"] == 1
+    assert loop.run_iteration()["annecs"] == 1
 
 
 def test_best_score_is_the_best_score_so_far(
@@ -114,16 +113,16 @@ def test_best_score_is_the_best_score_so_far(
 ) -> None:
     """`score` is this iteration's best active score, `best_score` the best of any iteration so
     far (it equalled `score` before): evaluations scripted to fall and rise again."""
-    poet = make_poet(terrain_cfg)
+    loop = make_epoet(terrain_cfg)
     scripted = iter([5.0, 3.0, 4.0, 6.0])
     monkeypatch.setattr(
-        poet.service, "scores", lambda requests: [np.array([next(scripted)]) for _ in requests]
+        loop.service, "scores", lambda requests: [np.array([next(scripted)]) for _ in requests]
     )
-    logged = [poet.run_iteration() for _ in range(4)]
+    logged = [loop.run_iteration() for _ in range(4)]
     assert [m["score"] for m in logged] == [5.0, 3.0, 4.0, 6.0]
     assert [m["best_score"] for m in logged] == [5.0, 5.0, 5.0, 6.0]
-    restored = make_poet(terrain_cfg)
-    restored.load_state_dict(poet.state_dict())
+    restored = make_epoet(terrain_cfg)
+    restored.load_state_dict(loop.state_dict())
     assert restored.best_score == 6.0
 
 
@@ -134,7 +133,7 @@ def _runs(uri: str) -> list:
 
 
 def test_smoke_run_is_tracked(compose, mlflow_uri: str, tmp_path: Path) -> None:
-    poet = run(compose(SMOKE), tmp_path / "run")
+    loop = run(compose(SMOKE), tmp_path / "run")
     (r,) = _runs(mlflow_uri)
     assert r.info.status == "FINISHED"
     for key in (
@@ -162,11 +161,11 @@ def test_smoke_run_is_tracked(compose, mlflow_uri: str, tmp_path: Path) -> None:
     terrains = {a.path for a in client.list_artifacts(r.info.run_id, "terrains")}
     assert {"terrains/env0.npz", "terrains/env0.png"} <= terrains
     policy = np.load(tmp_path / "run" / "policies" / "env0.npz")
-    np.testing.assert_array_equal(policy["theta"], poet.pool.active[0].theta)
+    np.testing.assert_array_equal(policy["theta"], loop.pool.active[0].theta)
 
 
 def _state(run_dir: Path) -> dict:
-    return load_checkpoint(run_dir / "checkpoint.pkl")["poet"]
+    return load_checkpoint(run_dir / "checkpoint.pkl")["open_ended"]
 
 
 def _assert_same(a: dict, b: dict) -> None:
@@ -227,14 +226,14 @@ def test_multirun_has_one_parent_and_two_children(mlflow_uri: str, tmp_path: Pat
 
 
 def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    poet.run_iteration()
-    poet.reproduce(poet.iteration)
-    for pair in poet.pool.active:
+    loop = make_epoet(terrain_cfg, num_children=2, **OPEN)
+    loop.run_iteration()
+    loop.reproduce(loop.iteration)
+    for pair in loop.pool.active:
         pair.scores[:] = [-1e9]  # every direct transfer clears the bar
-    before = [p.theta.copy() for p in poet.pool.active]
-    assert poet.transfer(poet.iteration) == len(poet.pool.active)
-    for pair in poet.pool.active:
+    before = [p.theta.copy() for p in loop.pool.active]
+    assert loop.transfer(loop.iteration) == len(loop.pool.active)
+    for pair in loop.pool.active:
         # A proposal is a fine-tuned agent: it equals none of the agents as they were.
         assert not any(np.array_equal(pair.theta, theta) for theta in before)
 
@@ -242,30 +241,30 @@ def test_transfer_accepts_only_fine_tuned_proposals(terrain_cfg: TerrainConfig) 
 def test_the_transfer_bar_is_the_best_of_the_last_evaluations(terrain_cfg: TerrainConfig) -> None:
     """The reference's bar: the best of the target's last 5 evaluations; a great score 6
     evaluations ago no longer guards the agent."""
-    poet = make_poet(terrain_cfg, num_children=2, **OPEN)
-    assert poet.cfg.transfer_bar_window == 5
-    poet.run_iteration()
-    poet.reproduce(poet.iteration)
-    for pair in poet.pool.active:
+    loop = make_epoet(terrain_cfg, num_children=2, **OPEN)
+    assert loop.cfg.transfer_bar_window == 5
+    loop.run_iteration()
+    loop.reproduce(loop.iteration)
+    for pair in loop.pool.active:
         pair.scores[:] = [1e9] + [-1e9] * 5
-    assert poet.transfer(poet.iteration) == len(poet.pool.active)
-    for pair in poet.pool.active:
+    assert loop.transfer(loop.iteration) == len(loop.pool.active)
+    for pair in loop.pool.active:
         pair.scores[:] = [-1e9] + [1e9] + [-1e9] * 4
-    assert poet.transfer(poet.iteration) == 0
+    assert loop.transfer(loop.iteration) == 0
 
 
 @pytest.mark.parametrize("later, due", [(5, [75, 150, 225]), (1, [75, 90, 105, 120])])
 def test_reproduction_schedule(terrain_cfg: TerrainConfig, later, due) -> None:
     """The paper reproduces every 75 iterations; the reference at 75 and then every 15."""
-    poet = make_poet(terrain_cfg, later_adjust_interval=later)
-    assert [t for t in range(1, 121 if later == 1 else 226) if poet.reproduce_due(t)] == due
+    loop = make_epoet(terrain_cfg, later_adjust_interval=later)
+    assert [t for t in range(1, 121 if later == 1 else 226) if loop.reproduce_due(t)] == due
 
 
 def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
     terrain_cfg: TerrainConfig,
 ) -> None:
     # Learn the child's scores on the real engine (they do not depend on the thresholds) ...
-    probe = make_poet(terrain_cfg, num_children=1, **OPEN)
+    probe = make_epoet(terrain_cfg, num_children=1, **OPEN)
     probe.run_iteration()
     service, t = probe.service, probe.iteration
     ((child, parent),) = propose_children(service, probe.cfg, probe.pool.active, t)
@@ -279,26 +278,26 @@ def test_a_child_whose_best_agent_fails_the_minimal_criterion_is_not_admitted(
     # ... then set the window so that the parent's agent passes and the best agent does not.
     middle = (mc_score + best_score) / 2
     window = (mc_score - 1.0, middle) if best_score > mc_score else (middle, mc_score + 1.0)
-    poet = make_poet(
+    loop = make_epoet(
         terrain_cfg, num_children=1, repro_threshold=-1e9, mc_lower=window[0], mc_upper=window[1]
     )
-    poet.run_iteration()
-    t = poet.iteration
-    children = propose_children(poet.service, poet.cfg, poet.pool.active, t)
-    assert len(minimal_criterion(poet.pool, poet.service, children, t)) == 1
-    assert poet.reproduce(poet.iteration) == 0 and len(poet.pool.active) == 1
+    loop.run_iteration()
+    t = loop.iteration
+    children = propose_children(loop.service, loop.cfg, loop.pool.active, t)
+    assert len(minimal_criterion(loop.pool, loop.service, children, t)) == 1
+    assert loop.reproduce(loop.iteration) == 0 and len(loop.pool.active) == 1
 
 
 def test_admission_fine_tunes_with_a_fresh_optimiser(terrain_cfg: TerrainConfig) -> None:
-    poet = make_poet(terrain_cfg, seed=4, num_children=1, **OPEN)
-    poet.run_iteration()
-    t = poet.iteration
-    ((child, _),) = propose_children(poet.service, poet.cfg, poet.pool.active, t)
-    score, theta = best_agent_for(poet.pool, poet.service, poet.cfg, child, t)
-    assert not np.array_equal(theta, poet.pool.active[0].theta), "seed 4: a fine-tuned agent wins"
-    es = poet.pool.active[0].es  # the incumbent's optimiser state must not matter
+    loop = make_epoet(terrain_cfg, seed=4, num_children=1, **OPEN)
+    loop.run_iteration()
+    t = loop.iteration
+    ((child, _),) = propose_children(loop.service, loop.cfg, loop.pool.active, t)
+    score, theta = best_agent_for(loop.pool, loop.service, loop.cfg, child, t)
+    assert not np.array_equal(theta, loop.pool.active[0].theta), "seed 4: a fine-tuned agent wins"
+    es = loop.pool.active[0].es  # the incumbent's optimiser state must not matter
     es.m[:], es.v[:], es.t, es.lr, es.sigma = 1.0, 1.0, 50, 0.5, 0.3
-    again, theta_again = best_agent_for(poet.pool, poet.service, poet.cfg, child, t)
+    again, theta_again = best_agent_for(loop.pool, loop.service, loop.cfg, child, t)
     assert again == score
     np.testing.assert_array_equal(theta_again, theta)
 
@@ -308,7 +307,7 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
         agent = replace(PAPER.agent, max_episode_steps=20, settle_steps=2)
         with make_evaluator(agent, terrain_cfg, workers, batch=3, layer_sizes=SIZES) as ev:
             every = dict(iterations_before_transfer=1, adjust_interval=1, later_adjust_interval=1)
-            poet = EPOET(
+            loop = Epoet(
                 replace(PAPER.algo, num_children=2, **every, **OPEN),
                 terrain_cfg,
                 ev,
@@ -316,11 +315,10 @@ def test_one_and_two_workers_run_the_same_loop(terrain_cfg: TerrainConfig) -> No
                 n_pairs=3,
                 eval_episodes=2,
                 score_scale=1.0,
-                layer_sizes=SIZES,
             )
             for _ in range(3):
-                poet.run_iteration()
-            return poet.state_dict()
+                loop.run_iteration()
+            return loop.state_dict()
 
     one, two = final_state(1), final_state(2)
     assert len(one["active"]) == 3 and one["transfers"] > 0
@@ -346,7 +344,7 @@ def test_every_budget_composes_and_only_the_paper_keeps_the_papers_schedule(budg
     the paper's RK4 and S schedule), and every smaller one trades something."""
     cfg = load([f"budget={budget}"])
     assert cfg.agent.max_episode_steps == cfg.budget.episode_steps
-    loop = EPOET.from_config(cfg, SerialEvaluator(cfg.agent, cfg.terrain, 1, layer_sizes(cfg)))
+    loop = Epoet.from_config(cfg, SerialEvaluator(cfg.agent, cfg.terrain, 1, layer_sizes(cfg)))
     runs_with = (
         cfg.budget.score_scale,
         loop.transfer_interval,
@@ -375,7 +373,7 @@ def test_a_run_exports_each_pairs_best_or_final_agent(
             compose(SMOKE + [f"budget.iterations={iterations}", f"agent_choice={choice}", *resume]),
             folder,
         )
-        (pair,) = load_checkpoint(folder / "checkpoint.pkl")["poet"]["active"]  # no child yet
+        (pair,) = load_checkpoint(folder / "checkpoint.pkl")["open_ended"]["active"]  # no child yet
         evaluated.append((pair["es"]["theta"].copy(), pair["scores"][-1]))
     scores = [score for _, score in evaluated]
     assert pair["scores"] == scores

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from epoet.poet.config import PoetConfig
-from epoet.poet.keys import Key
-from epoet.poet.pairs import Pool
-from epoet.poet.service import FineTune, Service
+from epoet.open_ended.config import EpoetConfig
+from epoet.open_ended.keys import Key
+from epoet.open_ended.pairs import Pool
+from epoet.open_ended.service import FineTune, Service
 
 
-def transfer(pool: Pool, service: Service, cfg: PoetConfig, t: int) -> dict[int, int]:
+def transfer(pool: Pool, service: Service, cfg: EpoetConfig, t: int) -> dict[int, int]:
     """Try every other agent on each environment; the best fine-tuned one that beats the
     incumbent's recent best replaces it, resetting its optimiser. Returns the replacements,
     {target environment index: source environment index}.

@@ -1,4 +1,4 @@
-"""`python -m pipeline.compute --runs <run folder>... --out docs/results/<name>`: success against
+"""`python -m pipeline.snapshots --runs <run folder>... --out docs/results/<name>`: success against
 compute. Every CPU-time snapshot of each run (`<run folder>/snapshots/cpu<minutes>/`, written
 at the marks of `snapshot_cpu_minutes` while it trains) is evaluated on the suites with the
 paper's protocol (5 episodes per terrain; solved = finish line and return >= 2000), every agent
@@ -23,14 +23,13 @@ agent with the best score on its own environment, the one `evaluate run=<run fol
 
 Examples:
 
-    python -m pipeline.compute --runs runs/epoet_s1 runs/ppo_s1 --out docs/results/compute
-    python -m pipeline.compute --runs outputs/<date>/<run> --out /tmp/records --suites paper
+    python -m pipeline.snapshots --runs runs/epoet_s1 runs/ppo_s1 --out docs/results/compute
+    python -m pipeline.snapshots --runs outputs/<date>/<run> --out /tmp/records --suites paper
 """
 
 from __future__ import annotations
 
 import json
-import shlex
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -39,24 +38,25 @@ from typing import Any
 import pandas as pd
 import yaml
 from mlflow import MlflowClient
-from mlflow.utils.mlflow_tags import MLFLOW_GIT_COMMIT
 
 from analysis.joins import JOIN_KEYS
-from analysis.records import EPISODES, FORMAT, RUN_FILE, SUMMARY
+from analysis.records import EPISODES, RUN_FILE, SUMMARY
 from analysis.store import AnalysisError, connect, run_command
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.files import atomic_write
 from epoet.core.help import HelpParser
 from epoet.eval.agents import RECORD_CONFIG, TrainedRun, policy_in, resolve_run
 from epoet.eval.config import EvaluateConfig
-from epoet.eval.evaluate import evaluate, evaluation_pool, write_results
+from epoet.eval.episodes import evaluation_pool
+from epoet.eval.evaluate import evaluate, write_results
 from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import Suite, load_suite
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, LAST_POLICY, TORCH_POLICY
 from epoet.rollout.selection import CHOICE_FILE, LAST
 from epoet.run_state import SNAPSHOT_INFO, SNAPSHOTS
 from epoet.tracking.provenance import git_commit
-from pipeline.records import command_of, iso, load_of, write_json
+from pipeline.records import write_json
+from pipeline.run_header import command_of, load_of, overrides_command, run_header
 
 CURVES = "curves.csv"
 # What a learning curve holds: the score (ePOET: its best active pair's evaluation; baselines:
@@ -170,7 +170,7 @@ def evaluate_snapshot(
             out = target / path.stem / suite.name
             if not (out / SUMMARY).is_file():
                 agent = evaluated_agent(path, snapshot.name, trained)
-                print(f"[compute] {agent.label} at {snapshot.name} on {suite.name}", flush=True)
+                print(f"[snapshots] {agent.label} at {snapshot.name} on {suite.name}", flush=True)
                 result = evaluate(agent, suite, cfg, pool, progress=False)
                 write_results(
                     result,
@@ -256,7 +256,7 @@ def promote_latest(record: Path, snapshots: dict[str, dict[str, Any]]) -> dict[s
     return evaluations
 
 
-def export_run(
+def record_snapshots(
     run_dir: Path,
     out: Path,
     suites: Sequence[Suite],
@@ -287,41 +287,27 @@ def export_run(
     with atomic_write(record / RECORD_CONFIG) as file:
         file.write(yaml.safe_dump(config, sort_keys=False).encode())
     evaluations = promote_latest(record, snapshots)
-    overrides = run_dir / ".hydra" / "overrides.yaml"
-    command = (
-        {
-            "command": shlex.join(
-                ["python", "-m", "epoet", *yaml.safe_load(overrides.read_text())]
-            ),
-            "command_source": "overrides",
-        }
-        if overrides.is_file()
-        else command_of(client, run)  # from its params
+    # the run folder's own overrides, else its sweep job's or its params' (run_header)
+    command = overrides_command(run_dir)
+    header = run_header(
+        client,
+        run,
+        record.name,
+        uri,
+        {"command": command, "command_source": "overrides"} if command else command_of(client, run),
+        status=True,  # a run still training is recorded as far as it got
     )
-    poet = state.get("poet")
+    pool = state.get("open_ended")
     loop = state.get("loop", {})
     write_json(
         record / RUN_FILE,
         {
-            "format": FORMAT,
-            "record": record.name,
-            "algo": state["algo"],
-            "seed": str(config["seed"]),
-            "budget": config["budget"]["name"],
-            "run_name": run.info.run_name,
-            "run_id": run.info.run_id,
-            "experiment": client.get_experiment(run.info.experiment_id).name,
-            "store": uri,
-            "status": run.info.status,
-            **command,
-            "commit": run.data.tags.get(MLFLOW_GIT_COMMIT),
-            "started": iso(run.info.start_time),
-            "ended": iso(run.info.end_time),
+            **header,
             "training": {
-                "cpu_time_s": poet["cpu_time"] if poet else loop.get("cpu_time"),
-                "wall_time_s": poet["elapsed"] if poet else loop.get("wall_time"),
-                "env_steps": poet["env_steps"] if poet else loop.get("frames"),
-                **({"iterations": poet["iteration"]} if poet else {"frames": loop.get("frames")}),
+                "cpu_time_s": pool["cpu_time"] if pool else loop.get("cpu_time"),
+                "wall_time_s": pool["elapsed"] if pool else loop.get("wall_time"),
+                "env_steps": pool["env_steps"] if pool else loop.get("frames"),
+                **({"iterations": pool["iteration"]} if pool else {"frames": loop.get("frames")}),
                 "workers": config["workers"]["num"],
                 "stop_reason": run.data.tags.get("stop_reason"),
             },
@@ -347,7 +333,7 @@ def add_evaluation_arguments(parser: HelpParser) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = HelpParser("python -m pipeline.compute", __doc__)
+    parser = HelpParser("python -m pipeline.snapshots", __doc__)
     parser.add_argument(
         "--runs", nargs="+", type=Path, required=True, help="run folders, training or finished"
     )
@@ -373,8 +359,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for run_dir in args.runs:
                 overrides = [f"run={run_dir}", f"episodes={args.episodes}"]
                 cfg = validate(compose(overrides, config_name="evaluate"))
-                record = export_run(run_dir, args.out, suites, cfg, pool, args.tracking_uri)
-                print(f"[compute] {run_dir} -> {record}", flush=True)
+                record = record_snapshots(run_dir, args.out, suites, cfg, pool, args.tracking_uri)
+                print(f"[snapshots] {run_dir} -> {record}", flush=True)
 
     return run_command(export)
 

@@ -7,11 +7,11 @@ import time
 from pathlib import Path
 from typing import Any, cast
 
-from epoet.config import Config, PoetBudgetConfig
+from epoet.config import Config, OpenEndedBudgetConfig
 from epoet.core.lifecycle import raise_if_stopped, stop_requested
-from epoet.poet.config import PoetConfig
-from epoet.poet.exported_agent import export_agent
-from epoet.poet.loop import EPOET
+from epoet.open_ended.config import EpoetConfig
+from epoet.open_ended.exported_agent import export_agent
+from epoet.open_ended.loop import Epoet
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import policy_sizes
 from epoet.run_state import report_stop, save_run_state, take_snapshots
@@ -19,30 +19,30 @@ from epoet.tracking import Tracker
 
 
 def layer_sizes(cfg: Config) -> tuple[int, ...]:
-    """The ES policy's sizes, derived here only: the evaluator takes them, the loop reads them
-    from it."""
-    return policy_sizes(cfg.agent, PoetConfig.of(cfg).es.hidden)
+    """The ES policy's sizes, derived here only: the evaluator takes them, the loop (its
+    service) reads them from it."""
+    return policy_sizes(cfg.agent, EpoetConfig.of(cfg).es.hidden)
 
 
-def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EPOET:
+def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> Epoet:
     """Train ePOET for the budget's iterations (or hours)."""
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator:
-        loop = EPOET.from_config(cfg, evaluator)
+        loop = Epoet.from_config(cfg, evaluator)
         train_loop(loop, cfg, tracker, run_dir, resume)
     return loop
 
 
 def train_loop(
-    loop: EPOET, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
+    loop: Epoet, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> None:
     """Run `loop`'s iterations until `budget.iterations` (or `budget.hours`, `budget.cpu_hours`),
     logging each one's metrics, saving the pool's agents at each CPU-time mark of
     `snapshot_cpu_minutes`, and checkpointing (with the pool's agents, so a run evaluates
     mid-training) every `checkpoint_every` iterations, at the end and on a stop signal; then tag
     why it stopped and log the pool's artifacts."""
-    budget = cast(PoetBudgetConfig, cfg.budget)  # ePOET's YAML picks the ePOET family's
+    budget = cast(OpenEndedBudgetConfig, cfg.budget)  # ePOET's YAML picks the ePOET family's
     if resume is not None:
-        loop.load_state_dict(resume["poet"])
+        loop.load_state_dict(resume["open_ended"])
         print(f"[{cfg.algo.name}] resumed at iteration {loop.iteration}", flush=True)
     started = time.perf_counter()
     evaluator = loop.service.evaluator
@@ -85,7 +85,7 @@ def train_loop(
         ):
             print(f"[{cfg.algo.name}] snapshot of the pool at {minutes} CPU minutes", flush=True)
         if loop.iteration % cfg.checkpoint_every == 0 or done() or stop_requested():
-            save_run_state(run_dir, tracker, cfg, {"poet": loop.state_dict()})
+            save_run_state(run_dir, tracker, cfg, {"open_ended": loop.state_dict()})
             save_agents(run_dir)
             raise_if_stopped(f"after iteration {loop.iteration}")
     report_stop(
@@ -102,8 +102,8 @@ def train_loop(
     loop.log_artifacts(run_dir, tracker, cfg.agent_choice)
 
 
-def _progress(cfg: Config, loop: EPOET, metrics: dict[str, float], elapsed: float) -> None:
-    iterations = cast(PoetBudgetConfig, cfg.budget).iterations
+def _progress(cfg: Config, loop: Epoet, metrics: dict[str, float], elapsed: float) -> None:
+    iterations = cast(OpenEndedBudgetConfig, cfg.budget).iterations
     print(
         f"[{cfg.algo.name}] it {loop.iteration}/{iterations} "
         f"pairs={int(metrics['active_envs'])} archived={int(metrics['archived_envs'])} "

@@ -12,9 +12,9 @@ from epoet.terrain.config import evolving_kinds, generator_for
 
 
 @dataclass
-class PoetConfig(AlgoSettings):
+class EpoetConfig(AlgoSettings):
     """ePOET (paper Table 4); score thresholds are for 2000-step episodes (see BudgetConfig).
-    Its compute (iterations, ES pairs) is the budget's (`PoetBudgetConfig`)."""
+    Its compute (iterations, ES pairs) is the budget's (`OpenEndedBudgetConfig`)."""
 
     es: EsConfig
     iterations_before_transfer: int  # the transfer interval
@@ -64,9 +64,9 @@ class PoetConfig(AlgoSettings):
 
 EPOET = Algorithm(
     name="epoet",
-    family=Family.POOL,
-    schema=PoetConfig,
-    runner="epoet.poet.runner.train",
+    family=Family.OPEN_ENDED,
+    schema=EpoetConfig,
+    runner="epoet.open_ended.runner.train",
     label="ePOET",
     colour="tab:red",
 )

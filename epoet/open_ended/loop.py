@@ -1,6 +1,6 @@
 """The ePOET loop (paper Algorithm 1; docs/reference.md).
 
-`EPOET.run_iteration` is one iteration, as Enhanced POET's `optimize()` runs each of its own:
+`Epoet.run_iteration` is one iteration, as Enhanced POET's `optimize()` runs each of its own:
 its `steps`, each run when it is due and timed under its name:
 1. `reproduce`, every `reproduce_interval` iterations (reproduction.py): eligible parents
    propose mutated children, the minimal criterion filters them, and the most novel are
@@ -27,21 +27,21 @@ import numpy as np
 
 from epoet.core.clock import CpuMeter
 from epoet.core.timing import PhaseTimer
-from epoet.poet.config import PoetConfig
-from epoet.poet.keys import Key
-from epoet.poet.pairs import Environment, Pair, Pool, Thresholds, annecs, best_by_lineage
-from epoet.poet.reproduction import reproduce
-from epoet.poet.service import Service
-from epoet.poet.transfer import transfer
+from epoet.open_ended.config import EpoetConfig
+from epoet.open_ended.keys import Key
+from epoet.open_ended.pairs import Environment, Pair, Pool, Thresholds, annecs, best_by_lineage
+from epoet.open_ended.reproduction import reproduce
+from epoet.open_ended.service import Service
+from epoet.open_ended.transfer import transfer
 from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
-from epoet.rollout.policy import init_params, policy_sizes
+from epoet.rollout.policy import init_params
 from epoet.terrain import max_height_at
 from epoet.terrain.config import TerrainConfig
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
-    from epoet.config import Config, PoetBudgetConfig
+    from epoet.config import Config, OpenEndedBudgetConfig
     from epoet.tracking import Tracker
 
 
@@ -58,7 +58,7 @@ def every_iteration(t: int) -> bool:
     return True
 
 
-class EPOET:
+class Epoet:
     """The pool of environment-agent pairs and the three steps that change it."""
 
     EVENTS: tuple[str, ...] = (
@@ -68,7 +68,7 @@ class EPOET:
 
     def __init__(
         self,
-        algo: PoetConfig,
+        algo: EpoetConfig,
         terrain: TerrainConfig,
         evaluator: Evaluator,
         *,
@@ -76,7 +76,6 @@ class EPOET:
         n_pairs: int,
         eval_episodes: int,
         score_scale: float,
-        layer_sizes: tuple[int, ...],
     ) -> None:
         self.cfg = algo
         self.service = Service(
@@ -86,7 +85,6 @@ class EPOET:
             seed=seed,
             n_pairs=n_pairs,
             eval_episodes=eval_episodes,
-            layer_sizes=layer_sizes,
         )
         self.pool = Pool(
             algo.max_num_envs,
@@ -97,7 +95,6 @@ class EPOET:
             ),
             self.service.policy,
         )
-        self.layer_sizes = layer_sizes
         every = algo.iterations_before_transfer
         self.transfer_interval = every
         self.reproduce_interval = algo.adjust_interval * every
@@ -118,13 +115,15 @@ class EPOET:
         )
         self.pool.admit(
             root,
-            service.optimiser_for(root, init_params(service.seed(Key.ROOT_AGENT, 0), layer_sizes)),
+            service.optimizer_for(
+                root, init_params(service.seed(Key.ROOT_AGENT, 0), service.layer_sizes)
+            ),
         )
 
     @classmethod
-    def from_config(cls, cfg: Config, evaluator: Evaluator) -> EPOET:
+    def from_config(cls, cfg: Config, evaluator: Evaluator) -> Epoet:
         """The `algo=epoet` loop of a run."""
-        return cls(PoetConfig.of(cfg), cfg.terrain, evaluator, **loop_settings(cfg))
+        return cls(EpoetConfig.of(cfg), cfg.terrain, evaluator, **loop_settings(cfg))
 
     # --- one iteration ----------------------------------------------------------------------
     def run_iteration(self) -> dict[str, float]:
@@ -298,7 +297,7 @@ class EPOET:
                 write_es_policy(
                     folder / ES_POLICIES / f"env{pair.env.index}.npz",
                     *chosen,
-                    self.layer_sizes,
+                    self.service.layer_sizes,
                     self.service.evaluator.agent,
                     choice=choice,
                     best_theta=best,
@@ -372,13 +371,12 @@ class EPOET:
 
 
 def loop_settings(cfg: Config) -> dict[str, Any]:
-    """What a loop takes of a run's config besides its algorithm and terrain: the seed, the
-    budget's population, evaluations and score scale, and the ES policy's layers."""
-    budget = cast("PoetBudgetConfig", cfg.budget)  # the ePOET family's YAML picks its budget
+    """What a loop takes of a run's config besides its algorithm, terrain and evaluator (whose
+    policy sizes it runs): the seed, and the budget's population, evaluations and score scale."""
+    budget = cast("OpenEndedBudgetConfig", cfg.budget)  # the ePOET family's YAML picks its budget
     return {
         "seed": cfg.seed,
         "n_pairs": budget.n_pairs,
         "eval_episodes": budget.eval_episodes,
         "score_scale": budget.score_scale,
-        "layer_sizes": policy_sizes(cfg.agent, PoetConfig.of(cfg).es.hidden),
     }

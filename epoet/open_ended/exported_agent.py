@@ -23,7 +23,7 @@ from epoet.rollout.selection import es_held_out, write_choice
 if TYPE_CHECKING:
     from epoet.config import Config
     from epoet.envs.config import AgentConfig
-    from epoet.poet.loop import EPOET
+    from epoet.open_ended.loop import Epoet
 
 
 class Niche(NamedTuple):
@@ -36,7 +36,7 @@ class Niche(NamedTuple):
     final_score: float
 
 
-def niches_of(loop: EPOET) -> list[Niche]:
+def niches_of(loop: Epoet) -> list[Niche]:
     """Every pair of the pool (active and archived) as raw-observation parameters."""
     niches = []
     for pair in loop.pool.pairs:
@@ -112,7 +112,9 @@ def choose(
     return record
 
 
-def export_agent(loop: EPOET, folder: Path, cfg: Config) -> dict[str, Any]:
+def export_agent(loop: Epoet, folder: Path, cfg: Config) -> dict[str, Any]:
     """Choose the run's agent among its pool's, at iteration `loop.iteration`."""
     agent = loop.service.evaluator.agent
-    return choose(folder, niches_of(loop), cfg, agent, loop.layer_sizes, iteration=loop.iteration)
+    return choose(
+        folder, niches_of(loop), cfg, agent, loop.service.layer_sizes, iteration=loop.iteration
+    )

@@ -1,5 +1,5 @@
-"""`python -m analysis.compute --records docs/results/<name> [--suite paper]`: success against
-compute, and the learning curves, from records alone (pipeline.compute writes them).
+"""`python -m analysis.success_vs_compute --records docs/results/<name> [--suite paper]`: success
+against compute, and the learning curves, from records alone (pipeline.snapshots writes them).
 
 For each algorithm and CPU-time mark (the runs' `snapshot_cpu_minutes`), first the paper's
 statistic: the mean success over the suite's terrains of each run's agent at that mark, each
@@ -13,17 +13,17 @@ authors' agents are the horizontal references, in the same statistic: the mean s
 algorithm's published agents in the reference records (docs/results/reference).
 
 Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/compute):
-success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment
-steps and against CPU hours), levels.md (per level, and where the failed medium episodes stop: analysis.levels),
-comparisons.md where they hold two algorithms or more (the
-paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
+success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment steps and
+against CPU hours), levels.md (per level, and where the failed medium episodes stop:
+analysis.levels), comparisons.md where they hold two algorithms or more (the paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
 ties ceiling, at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what
 their joins did to the pool: analysis.joins).
 
 Examples:
 
-    python -m analysis.compute --records docs/results/compute
-    python -m analysis.compute --records docs/results/compute --suite shipped --out /tmp/fig
+    python -m analysis.success_vs_compute --records docs/results/compute
+    python -m analysis.success_vs_compute --records docs/results/compute --suite shipped \
+        --out /tmp/fig
 """
 
 from __future__ import annotations
@@ -142,7 +142,7 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
     if not rows:
         raise AnalysisError(
             f"no record in {records} has a CPU-time snapshot evaluated on suite {suite}: "
-            f"run python -m pipeline.compute --runs <run folders> --out {records}."
+            f"run python -m pipeline.snapshots --runs <run folders> --out {records}."
         )
     one_protocol({f"{r['algo']} s{r['seed']} at {r['minutes']:g} min": r["episodes"] for r in rows})
     return pd.DataFrame(rows)
@@ -164,7 +164,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     only where the pool held more than one agent)."""
     out = []
     for (algo, minutes, reading), rows in table.groupby(["algo", "minutes", "reading"]):
-        if reading == "niches" and algorithm(algo).family is not Family.POOL:
+        if reading == "niches" and algorithm(algo).family is not Family.OPEN_ENDED:
             continue
         matrix = np.stack([t.to_numpy() for t in rows.terrains])
         mean, low, high = mean_interval(rows.success)
@@ -364,9 +364,9 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = HelpParser("python -m analysis.compute", __doc__)
+    parser = HelpParser("python -m analysis.success_vs_compute", __doc__)
     parser.add_argument(
-        "--records", type=Path, required=True, help="records folder (pipeline.compute's)"
+        "--records", type=Path, required=True, help="records folder (pipeline.snapshots's)"
     )
     parser.add_argument(
         "--suite", default=PAPER_NAME, help="suite whose evaluations are read (name or folder)"

@@ -1,1 +1,0 @@
-"""The ePOET loop: environment-agent pairs, PATA-EC novelty, reproduction and transfer."""
