@@ -1,0 +1,240 @@
+"""How large a held-out validation set must be for `selection` to export a good agent.
+
+A run exports the candidate (every niche's best and last parameters) that solves most of its
+held-out CPPN terrains (conf/config.yaml `selection`, epoet/rollout/selection.py; default: 8
+terrains, 1 episode each). This bench re-chooses, at several validation sizes, among the
+candidates of every CPU-time snapshot of ePOET records (docs/results/.../epoet_s<seed>), with the
+real selection code (`epoet.open_ended.exported_agent.candidates`,
+`epoet.rollout.selection.es_held_out` on the terrains generated from the run's seed, never an
+evaluation suite), and judges each choice
+by the chosen candidate's paper-suite success (32 terrains x 5 episodes, the protocol of
+pipeline/snapshots.py).
+
+Per size it prints: the mean paper-suite success of the chosen agents over the snapshots, how
+often the choice is the snapshot's best-on-paper candidate (the oracle), the mean regret (oracle
+minus chosen, percentage points) and the CPU seconds the selection took (mean per snapshot and
+total); the run's own-terrain choice (choice.json `own`) and the oracle are printed for reference.
+
+A candidate's paper-suite success is read from the record when one of the snapshot's evaluated
+agent files holds its parameters (a niche file holds its best; `agent.npz` the exported one);
+otherwise it is evaluated here (`pipeline.snapshots.evaluated_agent` + `epoet.eval.evaluate`, the
+record's evaluate config, 5 episodes per terrain). Those evaluations and every selection (its
+record and CPU seconds) are cached in --cache, so a second call with more sizes only adds what
+is new. Runs in one process.
+
+A size is `T` (T terrains, `selection.episodes` of the config) or `TxE` (T terrains, E episodes).
+
+Examples:
+
+    python bench/selection_size.py --records docs/results/compute/epoet_s1 --sizes 8 16 32 64
+    python bench/selection_size.py --records docs/results/levers/*/epoet_s1 --sizes 8 8x2 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from epoet.config import compose, load, validate
+from epoet.eval.agents import resolve_run
+from epoet.eval.evaluate import evaluate
+from epoet.eval.keys import PAPER_NAME
+from epoet.eval.suite import load_suite
+from epoet.open_ended.exported_agent import candidates
+from epoet.rollout.agent_files import ES_POLICIES, read_es_policy
+from epoet.rollout.selection import CHOICE_FILE, es_held_out
+from pipeline.choose import run_overrides, snapshot_niches
+from pipeline.snapshots import evaluated_agent, niches_of
+
+PAPER_EPISODES = 5  # pipeline/snapshots.py's protocol: the paper's 5 episodes per terrain
+SUCCESS = f"suite/{PAPER_NAME}/success_rate"
+
+
+@dataclass
+class Snapshot:
+    """One CPU-time snapshot of a record: its candidates and their paper-suite success."""
+
+    label: str  # e.g. compute/epoet_s1 cpu30
+    folder: Path
+    names: list[str]
+    thetas: np.ndarray
+    layer_sizes: tuple[int, ...]
+    paper: dict[str, float]  # candidate name -> paper-suite success
+    own: str  # the run's own-terrain choice (choice.json)
+    recorded: dict[str, Any]  # the record's choice.json
+
+
+def parse_size(text: str, default_episodes: int) -> tuple[int, int]:
+    """`T` or `TxE` -> (terrains, episodes)."""
+    terrains, _, episodes = text.lower().partition("x")
+    return int(terrains), int(episodes) if episodes else default_episodes
+
+
+def theta_key(theta: np.ndarray) -> str:
+    """A short hash of parameters: a cache entry is for these exact candidates."""
+    return hashlib.sha1(np.ascontiguousarray(theta, dtype=np.float64).tobytes()).hexdigest()[:16]
+
+
+def cached(path: Path, compute) -> dict[str, Any]:
+    """`compute()`'s JSON result, stored at `path` the first time."""
+    if path.is_file():
+        return json.loads(path.read_text())
+    result = compute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def paper_success(
+    record: Path, folder: Path, name: str, theta: np.ndarray, evaluated: dict, cache: Path
+) -> float:
+    """The candidate's paper-suite success: the record's when an evaluated agent file holds
+    `theta`, else evaluated here with the record's protocol (cached)."""
+    for stem, success in evaluated.items():
+        path = folder / ES_POLICIES / f"{stem}.npz"
+        if path.is_file() and np.array_equal(read_es_policy(path)[0], theta):
+            return float(success)
+
+    tag = f"{record.parent.name}_{record.name}_{folder.name}_{name.replace('/', '_')}"
+
+    def run() -> dict[str, Any]:
+        # The niche's file with `theta` swapped in: its layout, integrator and sizes kept.
+        niche = folder / ES_POLICIES / f"{name.split('/')[0]}.npz"
+        agent_file = cache / "agents" / f"{tag}.npz"
+        agent_file.parent.mkdir(parents=True, exist_ok=True)
+        with np.load(niche, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+        np.savez(agent_file, **{**arrays, "theta": theta, "choice": np.array("final")})
+        cfg = validate(
+            compose([f"run={record}", f"episodes={PAPER_EPISODES}"], config_name="evaluate")
+        )
+        agent = evaluated_agent(agent_file, folder.name, resolve_run(str(record)))
+        started = time.process_time()
+        print(f"[paper] evaluating {record} {folder.name} {name}", flush=True)
+        result = evaluate(agent, load_suite(PAPER_NAME), cfg, None, progress=False)
+        return {"success": result.metrics[SUCCESS], "cpu_s": time.process_time() - started}
+
+    return float(cached(cache / "paper" / f"{tag}_{theta_key(theta)}.json", run)["success"])
+
+
+def snapshots_of(record: Path, cache: Path) -> list[Snapshot]:
+    """Every snapshot of the record (run.json `snapshots`), its candidates as a run names them."""
+    info = json.loads((record / "run.json").read_text())
+    found = []
+    for minutes, entry in info["snapshots"].items():
+        folder = record / f"cpu{minutes}"
+        names, thetas, _ = candidates(snapshot_niches(folder))
+        evaluated = entry["evaluations"][PAPER_NAME]["agents"]  # agent file stem -> success
+        paper = {
+            n: paper_success(record, folder, n, t, evaluated, cache) for n, t in zip(names, thetas)
+        }
+        recorded = json.loads((folder / ES_POLICIES / CHOICE_FILE).read_text())
+        found.append(
+            Snapshot(
+                f"{record.parent.name}/{record.name} cpu{minutes}",
+                folder,
+                names,
+                thetas,
+                read_es_policy(niches_of(folder)[0])[1],
+                paper,
+                recorded["own"],
+                recorded,
+            )
+        )
+    return found
+
+
+def select(
+    record: Path, cfg: Any, snap: Snapshot, terrains: int, episodes: int, cache: Path
+) -> dict[str, Any]:
+    """The held-out choice at this size, by the run's selection code and its config `cfg`
+    (the record's command's, as pipeline/choose.py composes it; cached)."""
+
+    def run() -> dict[str, Any]:
+        sel = replace(cfg.selection, terrains=terrains, episodes=episodes)
+        started = time.process_time()
+        held_out = es_held_out(
+            snap.thetas,
+            snap.names,
+            cfg.agent,
+            cfg.terrain,
+            sel,
+            cfg.seed,
+            snap.layer_sizes,
+            cfg.workers.batch,
+            cfg.budget.score_scale,
+        )
+        return {**held_out, "cpu_s": time.process_time() - started}
+
+    key = f"{record.parent.name}_{record.name}_{snap.folder.name}_{terrains}x{episodes}"
+    print(f"[select] {snap.label} {terrains}x{episodes}", flush=True)
+    return cached(cache / "select" / f"{key}_{theta_key(snap.thetas)}.json", run)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--records", nargs="+", type=Path, required=True, help="ePOET records")
+    parser.add_argument(
+        "--sizes", nargs="+", default=["8", "16", "32", "64"], help="T or TxE (terrains x eps)"
+    )
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/hsel_cache"))
+    args = parser.parse_args()
+
+    default_episodes = load().selection.episodes
+    sizes = [parse_size(s, default_episodes) for s in args.sizes]
+    rows: dict[str, list[tuple[float, float, float]]] = {}  # size -> (chosen, best, cpu_s)
+    detail = []
+    started = time.process_time()
+    for record in args.records:
+        cfg = load(run_overrides(json.loads((record / "run.json").read_text())["command"]))
+        for snap in snapshots_of(record, args.cache):
+            best = max(snap.paper.values())
+            line = [snap.label, f"{len(snap.names)}", f"{100 * best:5.1f}"]
+            line.append(f"{snap.own}={100 * snap.paper[snap.own]:.1f}")
+            rows.setdefault("own", []).append((snap.paper[snap.own], best, 0.0))
+            rows.setdefault("oracle", []).append((best, best, 0.0))
+            for terrains, episodes in sizes:
+                chosen = select(record, cfg, snap, terrains, episodes, args.cache)
+                name = chosen["chosen"]
+                rows.setdefault(f"{terrains}x{episodes}", []).append(
+                    (snap.paper[name], best, chosen["cpu_s"])
+                )
+                line.append(f"{name}={100 * snap.paper[name]:.1f}")
+                if (terrains, episodes) == (
+                    snap.recorded["selection"]["terrains"],
+                    snap.recorded["selection"]["episodes"],
+                ) and name != snap.recorded["validation"]:
+                    line[-1] += "(!=record)"
+            detail.append(line)
+
+    head = ["snapshot", "K", "oracle", "own", *(f"{t}x{e}" for t, e in sizes)]
+    print("\nPer snapshot: candidates K, oracle paper success %, each choice=its paper success %")
+    print(" | ".join(head))
+    for line in detail:
+        print(" | ".join(line))
+
+    n = len(detail)
+    print(f"\nSummary over {n} snapshots (paper suite: 32 terrains x 5 episodes)")
+    print(
+        f"{'choice':>8} {'mean success %':>15} {'picks oracle':>13} {'mean regret pts':>16} "
+        f"{'CPU s/snapshot':>15} {'CPU s total':>12}"
+    )
+    for label, values in rows.items():
+        chosen, best, cpu = (np.array(v) for v in zip(*values))
+        print(
+            f"{label:>8} {100 * chosen.mean():15.1f} "
+            f"{f'{int(np.isclose(chosen, best).sum())}/{n}':>13} "
+            f"{100 * (best - chosen).mean():16.2f} {cpu.mean():15.1f} {cpu.sum():12.1f}"
+        )
+    print(f"\n(this call's CPU: {time.process_time() - started:.0f} s; cached work not redone)")
+
+
+if __name__ == "__main__":
+    main()
