@@ -5,6 +5,7 @@ the page (or, if the page was right, the change)."""
 
 from __future__ import annotations
 
+import json
 import re
 from functools import cache
 from pathlib import Path
@@ -164,3 +165,53 @@ def test_the_output_folders_in_the_docs_are_the_commands_defaults(capsys) -> Non
     assert f"writes to `{store}/<input>/<suite name>/`" in tables
     records = out_default("analysis.success_vs_compute", capsys)
     assert f"[--out {records}]" in figures and f"into `{records}/<name>/<suite name>/`" in figures
+
+
+def timing_record() -> dict[str, Any]:
+    """bench/make_times.json: what bench/make_times.py measured of `make train` and `make test`."""
+    return json.loads((ROOT / "bench" / "make_times.json").read_text(encoding="utf-8"))
+
+
+def stated_time(entry: dict[str, Any]) -> str:
+    """How the docs cite one timed command: its minutes, then the record's commit and date."""
+    return (
+        f"took {entry['wall_s'] / 60:.0f} minutes (commit {entry['commit'][:7]}, "
+        f"{entry['date'][:10]}, mean load {entry['load1']['mean']:.1f})"
+    )
+
+
+def test_the_times_of_the_two_commands_are_the_timing_records() -> None:
+    """README and the test page give `make train`'s and `make test`'s time, and when the main
+    job's loop first shows, as the timing record has them; the record's commands succeeded."""
+    record = timing_record()
+    train, test = record["train"], record["test"]
+    assert train["exit_code"] == 0 and test["exit_code"] == 0
+    loop = train["milestones_s"]
+    assert all(loop.values()), f"the timed `make train` never showed the loop: {loop}"
+    readme = page("README.md")
+    assert f"`make train` {stated_time(train)}" in readme
+    assert f"`make test` {stated_time(test)}" in readme
+    shown = (
+        f"admitted its first child after {loop['first_admission']:.0f} s, had ANNECS above 1 "
+        f"after {loop['annecs_above_1']:.0f} s and transferred first after "
+        f"{loop['first_transfer']:.0f} s"
+    )
+    assert shown in readme
+    assert f"`make test` {stated_time(test)}" in page("getting-started.md")
+    last = [line for line in train["tail"] if "[epoet] it " in line][-1]
+    pairs, annecs = (re.search(rf"\b{key}=(\d+)", last).group(1) for key in ("pairs", "annecs"))
+    assert f"(`pairs={pairs} ... annecs={annecs}`)" in readme
+    assert any("done after" in line and "of the shipped suite" in line for line in train["tail"])
+
+
+def test_the_test_files_the_docs_name_exist() -> None:
+    """A renamed test file leaves no page naming the old one (getting-started named
+    tests/test_poet.py after it became tests/test_epoet.py)."""
+    pages = [ROOT / "README.md", *DOCS.glob("*.md"), *DOCS.glob("algorithms/*.md")]
+    named = {
+        (path.name, name)
+        for path in pages
+        for name in re.findall(r"tests/(test_\w+\.py)", path.read_text(encoding="utf-8"))
+    }
+    assert named
+    assert not [(p, n) for p, n in named if not (ROOT / "tests" / n).exists()]
