@@ -35,7 +35,7 @@ LONGEST_FIRST = (
     "test_bad_input.py",
     "test_help.py",
     "test_faults.py",
-    "test_poet.py",
+    "test_epoet.py",
     "test_render.py",
     "test_bad_agents.py",
     "test_analysis.py",
@@ -44,6 +44,9 @@ LONGEST_FIRST = (
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    # A renamed file would silently fall to the end of the order (test_poet.py did).
+    missing = [name for name in LONGEST_FIRST if not (Path(__file__).parent / name).exists()]
+    assert not missing, f"LONGEST_FIRST names test files that do not exist: {missing}"
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable within a file
 
