@@ -20,6 +20,7 @@ import json
 import os
 import platform
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -102,17 +103,22 @@ def time_target(target: str, cwd: Path) -> dict[str, object]:
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        start_new_session=True,  # its own process group, ended with the bench however it ends
     )
     assert process.stdout is not None
     lines: list[str] = []
     milestones: dict[str, float | None] = dict.fromkeys(MILESTONES)
-    for line in process.stdout:
-        print(line, end="", flush=True)
-        lines.append(line.rstrip("\n"))
-        for name, pattern in MILESTONES.items():
-            if milestones[name] is None and pattern.search(line):
-                milestones[name] = round(time.perf_counter() - start, 1)
-    code = process.wait()
+    try:
+        for line in process.stdout:
+            print(line, end="", flush=True)
+            lines.append(line.rstrip("\n"))
+            for name, pattern in MILESTONES.items():
+                if milestones[name] is None and pattern.search(line):
+                    milestones[name] = round(time.perf_counter() - start, 1)
+        code = process.wait()
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
     wall = time.perf_counter() - start
     load.stopped.set()
     record: dict[str, object] = {
