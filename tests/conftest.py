@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -137,6 +140,20 @@ def without_evaluation(args: list[str]) -> list[str]:
     must be one run of arguments: before the first one, after any flags)."""
     at = next((i for i, a in enumerate(args) if "=" in a and not a.startswith("-")), len(args))
     return [*args[:at], "evaluate=false", *args[at:]]
+
+
+def run_epoet(
+    args: list[str], cwd: Path, uri: str, timeout: float = 300, **env: str
+) -> subprocess.CompletedProcess:
+    """`python -m epoet <args>` without its evaluation, in `cwd`, tracked in the store `uri`."""
+    return subprocess.run(
+        [sys.executable, "-m", "epoet", *without_evaluation(args)],
+        cwd=cwd,
+        env={**os.environ, "MLFLOW_TRACKING_URI": uri, **env},
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 @pytest.fixture

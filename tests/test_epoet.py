@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,7 +9,7 @@ import mlflow
 import numpy as np
 import pytest
 
-from conftest import BUSY_LOOP, TINY_EPOET, without_evaluation
+from conftest import BUSY_LOOP, TINY_EPOET, run_epoet
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.open_ended.keys import Key
@@ -196,25 +193,13 @@ def test_resume_ends_in_the_uninterrupted_state(compose, mlflow_uri: str, tmp_pa
     assert sorted(m.step for m in history) == [0, 1, 2, 3, 4]
 
 
-def _cli(args: list[str], uri: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    return subprocess.run(
-        [sys.executable, "-m", "epoet", *without_evaluation(args)],
-        cwd=cwd,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-
-
 def test_multirun_has_one_parent_and_two_children(mlflow_uri: str, tmp_path: Path) -> None:
     # Parent and children do not depend on the algorithm; every algorithm's multirun is
     # exercised by test_evaluation's `make paper` call.
-    out = _cli(
+    out = run_epoet(
         ["-m", *SMOKE, "budget.iterations=1", "seed=1,2", f"hydra.sweep.dir={tmp_path / 'sweep'}"],
-        mlflow_uri,
         tmp_path,
+        mlflow_uri,
     )
     assert out.returncode == 0, out.stderr
     runs = _runs(mlflow_uri)

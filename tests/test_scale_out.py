@@ -20,7 +20,7 @@ import mlflow
 import numpy as np
 import pytest
 
-from conftest import ES_SIZES, without_evaluation
+from conftest import ES_SIZES, run_epoet, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.rollout.evaluators import make_evaluator
@@ -33,15 +33,7 @@ RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
 
 
 def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db", **env}
-    return subprocess.run(
-        [sys.executable, "-m", "epoet", *without_evaluation(args)],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=400,
-    )
+    return run_epoet(args, tmp_path, f"sqlite:///{tmp_path}/mlflow.db", timeout=400, **env)
 
 
 def _no_run_in(store: Path) -> bool:
