@@ -4,6 +4,7 @@ observation statistics for the pool and the learner, and exact resume."""
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import mlflow
@@ -245,6 +246,9 @@ def test_resume_ends_in_the_uninterrupted_state(
     assert a["iteration"] == b["iteration"] == 5 and a["env_steps"] == b["env_steps"]
     assert a["join_of"] == b["join_of"] and len(a["join_of"]) == 1 and a["mix"] == b["mix"]
     assert any(k.startswith("replay.") for k in _flat(a["sac"]))  # the SAC state has its replay
+    # ... and only its filled rows: a view of the storage would pickle every reserved row
+    replay = a["sac"]["replay"]
+    assert len(pickle.dumps(replay)) < 2 * replay.bytes() + 100_000
     if start:  # the statistics, and the learner standardising with them
         assert a["obs_norm"]["count"] > 0
         stats = _flat(a["sac"])
