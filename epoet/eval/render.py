@@ -46,16 +46,31 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from tqdm import tqdm
+# MuJoCo reads MUJOCO_GL once, when it is first imported, and the imports below import it
+# (epoet.cli reads the config schemas, which name the rollout engine): the user's backend, else
+# egl, is chosen before them. A backend whose libraries are missing fails in mujoco's import;
+# MuJoCo is then imported with GL off, so the command still reads its input and open_gl says in
+# one line what to install.
+GL_BACKEND = os.environ.get("MUJOCO_GL") or "egl"
+os.environ["MUJOCO_GL"] = GL_BACKEND
+try:
+    import mujoco  # noqa: F401
+except Exception:  # missing libraries surface as ImportError, AttributeError, ...
+    os.environ["MUJOCO_GL"] = "disable"
 
-from epoet.cli import KeyValueCommand
-from epoet.core.cli import fail
-from epoet.core.schema import ConfigError
-from epoet.eval.agents import AgentError, TrainedRun, resolve_run
-from epoet.eval.config import RenderConfig
-from epoet.eval.film import Film, caption_text
-from epoet.terrain import Terrain, TerrainFileError
-from epoet.tracking import TrackingError
+from tqdm import tqdm  # noqa: E402
+
+from epoet.cli import KeyValueCommand  # noqa: E402
+from epoet.core.cli import fail  # noqa: E402
+from epoet.core.schema import ConfigError  # noqa: E402
+from epoet.envs.model import TerrainMismatchError  # noqa: E402
+from epoet.envs.terrain_env import TerrainEnv  # noqa: E402
+from epoet.eval.agents import AgentError, TrainedRun, resolve_run  # noqa: E402
+from epoet.eval.config import RenderConfig  # noqa: E402
+from epoet.eval.film import Film, caption_text  # noqa: E402
+from epoet.eval.suite import SuiteError, load_suite, terrain_config_for  # noqa: E402
+from epoet.terrain import Terrain, TerrainFileError  # noqa: E402
+from epoet.tracking import TrackingError  # noqa: E402
 
 VIDEOS = "videos"  # the default output folder, and the artifact folder in the MLflow run
 NO_GL = "MuJoCo cannot render offscreen"
@@ -97,20 +112,9 @@ def require_imageio() -> ModuleType:
     return imageio
 
 
-def choose_gl() -> str:
-    """MuJoCo's OpenGL backend: the user's MUJOCO_GL, else egl. MuJoCo reads MUJOCO_GL once,
-    when first imported, so this runs before anything may import it (reading a run folder's
-    checkpoint does: its pickled pool imports the rollout engine)."""
-    backend = os.environ["MUJOCO_GL"] = os.environ.get("MUJOCO_GL") or "egl"
-    return backend
-
-
 def open_gl() -> str:
-    """Prove the chosen backend (choose_gl) renders offscreen; its name. A backend whose
-    libraries are missing can fail in mujoco's import already, so the env and the suite modules
-    are imported after this, inside functions. The proof is a tiny Renderer, as the env makes:
-    a GL context alone can "succeed" without a display (glfw)."""
-    backend = choose_gl()
+    """Prove the chosen backend (GL_BACKEND) renders offscreen; its name. The proof is a tiny
+    Renderer, as the env makes: a GL context alone can "succeed" without a display (glfw)."""
     try:
         import mujoco
 
@@ -118,8 +122,8 @@ def open_gl() -> str:
             warnings.simplefilter("ignore")  # glfw warns, then the Renderer fails: one line
             mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16).close()
     except Exception as err:  # missing libraries surface as ImportError, AttributeError, ...
-        raise RenderError(f"{NO_GL} with MUJOCO_GL={backend}; {GL_HELP}") from err
-    return backend
+        raise RenderError(f"{NO_GL} with MUJOCO_GL={GL_BACKEND}; {GL_HELP}") from err
+    return GL_BACKEND
 
 
 def load_terrain(spec: str, suite: str | None) -> tuple[Any, str, Any]:
@@ -127,8 +131,6 @@ def load_terrain(spec: str, suite: str | None) -> tuple[Any, str, Any]:
     the suite's course for a suite terrain (None for a file: the run's own course)."""
     if spec.endswith(".npz") or Path(spec).is_file():
         return Terrain.load(spec), Path(spec).stem, None
-    from epoet.eval.suite import load_suite  # imports mujoco: after open_gl
-
     loaded = load_suite(suite)
     return loaded.by_name(spec), spec, loaded.course
 
@@ -192,9 +194,6 @@ def record(
 ) -> Video:
     """One episode of the run's agent on the terrain (on `course`, as evaluation runs it, when
     it is a suite terrain), every frame (captioned, see `Film`) into the mp4."""
-    from epoet.envs.terrain_env import TerrainEnv  # imports mujoco: after open_gl
-    from epoet.eval.suite import terrain_config_for
-
     agent = run.agent_config(cfg.agent)
     if course is not None:
         agent = course.rules(agent)
@@ -238,7 +237,6 @@ def record(
 def main(argv: list[str] | None = None) -> None:
     """CLI: bad input ends in one line and exit code 2; Ctrl-C leaves no partial video."""
     try:
-        choose_gl()
         cfg = parse_args(sys.argv[1:] if argv is None else argv)
         imageio = require_imageio()
         assert cfg.run is not None and cfg.terrain is not None  # required: RenderConfig checks
@@ -252,10 +250,6 @@ def main(argv: list[str] | None = None) -> None:
         OSError,
     ) as err:
         fail(err)
-    # Imported only now, as in `record`: they import mujoco.
-    from epoet.envs.model import TerrainMismatchError
-    from epoet.eval.suite import SuiteError
-
     try:
         terrain, name, course = load_terrain(cfg.terrain, cfg.suite)
         video = record(cfg, run, terrain, name, course, imageio)
