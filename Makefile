@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install test docs train gallery tables figures compute paper epoet-sac-starts reference records suite bench bench-learning clean-venv
+.PHONY: install test typecheck docs-strict pytest docs train gallery tables figures compute paper epoet-sac-starts reference records suite bench bench-learning clean-venv
 
 install: $(STAMP)
 
@@ -15,17 +15,25 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check -c constraints.txt -e '.[dev]'
 	touch $(STAMP)
 
-# One test process per core; a file's tests share a process (module fixtures run once, and the Ray
-# tests, which stop every Ray process on the machine, never overlap one another); the longest
-# files first (tests/conftest.py LONGEST_FIRST).
-# Style first (ruff format and import order, then mypy on epoet/, analysis/, pipeline/: the
-# paths and options are pyproject.toml's), then the documentation's strict build, so CI checks
-# them too.
+# Style first (ruff format and import order: seconds, and a failure stops here); then mypy on
+# epoet/, analysis/, pipeline/ (the paths and options are pyproject.toml's) and the
+# documentation's strict build run beside pytest, so CI checks them too: each keeps one core busy
+# for up to half a minute, which run one after the other left the second core idle.
+# pytest: one test process per core; a file's tests share a process (module fixtures run once,
+# and the Ray tests, which stop every Ray process on the machine, never overlap one another); the
+# longest files first (tests/conftest.py LONGEST_FIRST). Each part can be run alone too.
 test: install
 	$(PY) -m ruff format --check epoet analysis pipeline tests
 	$(PY) -m ruff check epoet analysis pipeline tests
+	$(MAKE) --no-print-directory -j3 typecheck docs-strict pytest
+
+typecheck: install
 	$(PY) -m mypy
+
+docs-strict: install
 	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict --quiet
+
+pytest: install
 	$(PY) -m pytest -q -n auto --dist loadfile --no-loadscope-reorder --durations=10 tests
 
 # The documentation site (mkdocs.yml, pages under docs/) into site/, strictly: a broken link, a

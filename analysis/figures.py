@@ -41,7 +41,6 @@ import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from mlflow import MlflowClient  # noqa: E402
 from mlflow.entities import Run  # noqa: E402
-from sklearn.manifold import TSNE  # noqa: E402
 
 from analysis.store import (  # noqa: E402
     add_store_arguments,
@@ -273,6 +272,10 @@ def tsne_table(
             mask = np.isin(episodes.terrain.to_numpy()[row], terrains)
             if mask.sum() < 5:
                 continue
+            # sklearn is imported here, not with the module: it takes about as long to import
+            # as the rest of the analysis, and every command importing the figures paid it
+            from sklearn.manifold import TSNE
+
             points = TSNE(
                 2, perplexity=min(30.0, (mask.sum() - 1) / 3), random_state=seed, init="pca"
             ).fit_transform(action[mask])
