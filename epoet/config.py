@@ -29,8 +29,7 @@ from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.schema import ConfigError, check, check_known_keys, positive
 from epoet.envs.config import BODY_KEYS, HEXAPOD, AgentConfig
 from epoet.registry import algorithms
-from epoet.rollout.config import WorkersConfig
-from epoet.rollout.selection import SelectionConfig
+from epoet.rollout.config import SelectionConfig, WorkersConfig
 from epoet.terrain.config import REFERENCE_SIZE, TerrainConfig
 from epoet.tracking.config import TrackingConfig
 

@@ -1,7 +1,9 @@
-"""The rollout folder's settings (conf/workers/*.yaml) and the activations a policy may use.
+"""The rollout folder's settings (conf/workers/*.yaml, the `selection` of conf/config.yaml)
+and the activations a policy may use.
 
-They live here, beside the code that reads them, so that rollouts import nothing above their
-folder; epoet/config.py composes them into the run's config, and epoet/rl/config.py checks a
+They live here, in the folder whose code reads them, so that rollouts import nothing above their
+folder, and apart from that code, so that composing a config (epoet/config.py, which every
+command imports) does not import the rollout engine and MuJoCo; epoet/rl/config.py checks a
 baseline's `activation` against the names a torch policy file may record.
 """
 
@@ -11,7 +13,8 @@ import importlib.util
 from dataclasses import dataclass
 from typing import ClassVar, Optional
 
-from epoet.core.schema import check, positive
+from epoet.core.schema import check, non_negative, positive
+from epoet.terrain.config import RENDERINGS
 
 # What a torch policy's hidden layers may apply (`activation` of the baselines and of their
 # policy files, epoet.rollout.agent_files); epoet.rollout.torch_policy maps them to torch.
@@ -44,4 +47,39 @@ class WorkersConfig:
             self.backend != "ray" or importlib.util.find_spec("ray") is not None,
             "workers=ray needs Ray, the 'distributed' extra: "
             "pip install -c constraints.txt -e '.[distributed]'.",
+        )
+
+
+RULES = ("validation", "own")  # how a run chooses the agent it exports (epoet/rollout/selection.py)
+
+
+@dataclass
+class SelectionConfig:
+    """Which agent a run exports (conf/config.yaml `selection`)."""
+
+    KEY: ClassVar[str] = "selection"
+
+    rule: str  # validation: most held-out terrains solved | own: the run's own rule
+    terrains: int  # held-out terrains (0: none, and `rule` must be own)
+    generations: int  # mutations from a root genome to a held-out terrain
+    max_height: float  # S of the held-out terrains, metres
+    rendering: str  # clean | reference: how the held-out terrains are rendered
+    episodes: int  # episodes per candidate and terrain
+    episode_ratio: float  # episodes may last this x the training's (the suites')
+
+    def __post_init__(self) -> None:
+        check(
+            self.rule in RULES,
+            f"selection.rule must be {' or '.join(map(repr, RULES))}, got {self.rule!r}.",
+        )
+        check(
+            self.rendering in RENDERINGS,
+            f"selection.rendering must be {' or '.join(map(repr, RENDERINGS))}, "
+            f"got {self.rendering!r}.",
+        )
+        non_negative(self, "terrains", "generations")
+        positive(self, "max_height", "episodes", "episode_ratio")
+        check(
+            self.terrains > 0 or self.rule == "own",
+            "selection.rule=validation needs held-out terrains (selection.terrains > 0).",
         )

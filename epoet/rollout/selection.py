@@ -20,58 +20,25 @@ import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
 from epoet.core.files import atomic_write
-from epoet.core.schema import check, non_negative, positive
 from epoet.envs.config import AgentConfig
 from epoet.rollout.backends.serial import SerialEvaluator
+from epoet.rollout.config import SelectionConfig
 from epoet.rollout.populations import Agents, Request
 from epoet.terrain import Terrain, generator_for
-from epoet.terrain.config import RENDERINGS, MutationError, TerrainConfig
+from epoet.terrain.config import MutationError, TerrainConfig
 
 # The seeds of held-out terrains and their episodes: their own stream of the run seed, apart
 # from every keyed stream of a run's training (epoet.open_ended.keys numbers those from 0).
 HELD_OUT_STREAM = 1000
-RULES = ("validation", "own")
 LAST = "last"  # a baseline's own rule: its last policy (epoet/rl/candidates.py)
 CHOICE_FILE = "choice.json"  # beside an exported agent: both choices and every candidate's record
 SOLVED = 2000.0  # the paper's success: the finish line and a return of at least this x the
 # budget's score scale (the suites' `solve_score`)
-
-
-@dataclass
-class SelectionConfig:
-    """Which agent a run exports (conf/config.yaml `selection`)."""
-
-    KEY: ClassVar[str] = "selection"
-
-    rule: str  # validation: most held-out terrains solved | own: the run's own rule
-    terrains: int  # held-out terrains (0: none, and `rule` must be own)
-    generations: int  # mutations from a root genome to a held-out terrain
-    max_height: float  # S of the held-out terrains, metres
-    rendering: str  # clean | reference: how the held-out terrains are rendered
-    episodes: int  # episodes per candidate and terrain
-    episode_ratio: float  # episodes may last this x the training's (the suites')
-
-    def __post_init__(self) -> None:
-        check(
-            self.rule in RULES,
-            f"selection.rule must be {' or '.join(map(repr, RULES))}, got {self.rule!r}.",
-        )
-        check(
-            self.rendering in RENDERINGS,
-            f"selection.rendering must be {' or '.join(map(repr, RENDERINGS))}, "
-            f"got {self.rendering!r}.",
-        )
-        non_negative(self, "terrains", "generations")
-        positive(self, "max_height", "episodes", "episode_ratio")
-        check(
-            self.terrains > 0 or self.rule == "own",
-            "selection.rule=validation needs held-out terrains (selection.terrains > 0).",
-        )
 
 
 def stream(run_seed: int, *ids: int) -> np.random.SeedSequence:
