@@ -55,7 +55,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 # The ES policy's layer sizes of the default config's robot (the hexapod) and hidden layers.
-ES_SIZES = policy_sizes(load([]).agent, load([]).algo.es.hidden)
+_DEFAULT = load([])
+ES_SIZES = policy_sizes(_DEFAULT.agent, _DEFAULT.algo.es.hidden)
 OBS_DIM, ACT_DIM = ES_SIZES[0], ES_SIZES[-1]  # the hexapod's observation and action sizes
 
 # ePOET's tiny run (small network and grid, one worker), and the settings that make every step
