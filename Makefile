@@ -21,11 +21,12 @@ $(STAMP): pyproject.toml constraints.txt
 # for up to half a minute, which run one after the other left the second core idle.
 # pytest: one test process per core; a file's tests share a process (module fixtures run once,
 # and the Ray tests, which stop every Ray process on the machine, never overlap one another); the
-# longest files first (tests/conftest.py LONGEST_FIRST). Each part can be run alone too.
+# longest files first (tests/conftest.py LONGEST_FIRST). Each part can be run alone too; here
+# `-o $(STAMP)` tells the inner make the install is done (it does not pass on the outer -o).
 test: install
 	$(PY) -m ruff format --check epoet analysis pipeline tests
 	$(PY) -m ruff check epoet analysis pipeline tests
-	$(MAKE) --no-print-directory -j3 typecheck docs-strict pytest
+	$(MAKE) --no-print-directory -o $(STAMP) -j3 typecheck docs-strict pytest
 
 typecheck: install
 	$(PY) -m mypy

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import os
 import sys
 from collections.abc import Sequence
@@ -98,6 +99,9 @@ def run_hydra_app(app: Callable[[], None]) -> None:
     errors become one line (`epoet.core.cli.fail`) instead of Hydra's report."""
     register_configs()
     OmegaConf.register_new_resolver("epoet_run_options", run_options, replace=True)
+    # Under MUJOCO_GL=egl or osmesa, MuJoCo's import makes PyOpenGL log a notice (no
+    # OpenGL_accelerate) at INFO, which Hydra's logging would print in every run's output.
+    logging.getLogger("OpenGL").setLevel(logging.WARNING)
     os.environ["HYDRA_FULL_ERROR"] = "1"  # make Hydra re-raise instead of printing its report
     # Hydra's own flags are read by its argparse parser, whose errors print a usage block: the
     # same parser reads them first here, with a one-line error (Hydra then reads them again).

@@ -174,8 +174,9 @@ def timing_record() -> dict[str, Any]:
 
 def stated_time(entry: dict[str, Any]) -> str:
     """How the docs cite one timed command: its minutes, then the record's commit and date."""
+    minutes, seconds = divmod(round(entry["wall_s"]), 60)
     return (
-        f"took {entry['wall_s'] / 60:.0f} minutes (commit {entry['commit'][:7]}, "
+        f"took {minutes} min {seconds:02d} s (commit {entry['commit'][:7]}, "
         f"{entry['date'][:10]}, mean load {entry['load1']['mean']:.1f})"
     )
 

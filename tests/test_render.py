@@ -244,3 +244,18 @@ def test_every_frame_has_a_caption(snapshots):
     # The rest of the picture is the same.
     assert np.array_equal(captioned[125:], bare[125:])
     assert np.array_equal(captioned[:, 135:], bare[:, 135:])
+
+
+def test_importing_the_command_leaves_the_environment_as_it_was():
+    """The command chooses MuJoCo's backend when imported; the processes its importer starts
+    later (a test's subprocesses, a sweep's jobs) inherit no MUJOCO_GL or PYOPENGL_PLATFORM."""
+    probe = (
+        "import os; before = dict(os.environ); import epoet.eval.render; "
+        "print(sorted(k for k in ('MUJOCO_GL', 'PYOPENGL_PLATFORM') "
+        "if os.environ.get(k) != before.get(k)))"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    done = subprocess.run(
+        [sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stdout + done.stderr

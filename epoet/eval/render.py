@@ -46,17 +46,29 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-# MuJoCo reads MUJOCO_GL once, when it is first imported, and the imports below import it
-# (epoet.cli reads the config schemas, which name the rollout engine): the user's backend, else
-# egl, is chosen before them. A backend whose libraries are missing fails in mujoco's import;
-# MuJoCo is then imported with GL off, so the command still reads its input and open_gl says in
-# one line what to install.
-GL_BACKEND = os.environ.get("MUJOCO_GL") or "egl"
-os.environ["MUJOCO_GL"] = GL_BACKEND
-try:
-    import mujoco  # noqa: F401
-except Exception:  # missing libraries surface as ImportError, AttributeError, ...
-    os.environ["MUJOCO_GL"] = "disable"
+GL_BACKEND = os.environ.get("MUJOCO_GL") or "egl"  # MuJoCo's OpenGL: the user's, else egl
+
+
+def _import_mujoco() -> None:
+    """MuJoCo reads MUJOCO_GL once, when it is first imported, and the imports below import it
+    (epoet.cli reads the config schemas, which name the env): it is imported here first, with
+    GL_BACKEND. A backend whose libraries are missing fails in that import; MuJoCo is then
+    imported with GL off, so the command still reads its input and open_gl says in one line
+    what to install. The environment is left as it was: importing this module changes nothing
+    for the processes a program (or a test) starts later."""
+    before = dict(os.environ)
+    os.environ["MUJOCO_GL"] = GL_BACKEND
+    try:
+        import mujoco  # noqa: F401
+    except Exception:  # missing libraries surface as ImportError, AttributeError, ...
+        os.environ["MUJOCO_GL"] = "disable"
+        import mujoco  # noqa: F401
+    finally:  # MUJOCO_GL, and PYOPENGL_PLATFORM that MuJoCo sets for PyOpenGL
+        os.environ.clear()
+        os.environ.update(before)
+
+
+_import_mujoco()
 
 from tqdm import tqdm  # noqa: E402
 
