@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from dataclasses import replace
@@ -13,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from filelock import FileLock
 
 from epoet.config import compose as compose_config
 from epoet.config import load
@@ -22,6 +24,7 @@ from epoet.registry import algorithm
 from epoet.rollout.policy import policy_sizes
 from epoet.terrain import Terrain
 from epoet.terrain.config import TerrainConfig
+from epoet.tracking.store import open_store
 
 torch.set_num_threads(1)
 
@@ -171,10 +174,33 @@ def compose():
     return compose_training
 
 
+@pytest.fixture(scope="session")
+def empty_store(tmp_path_factory) -> Path:
+    """A new MLflow sqlite store, made once for the whole session by the product's
+    `open_store` (the test processes share it through a lock): MLflow builds a store by running
+    its schema migrations, about 6 CPU seconds each time, and the suite's tests start some 60
+    stores. Each test's store is a copy of this file (`new_store`)."""
+    shared = tmp_path_factory.getbasetemp().parent  # the xdist workers' common folder
+    db = shared / "empty_mlflow.db"
+    with FileLock(str(shared / "empty_mlflow.lock")):
+        if not db.exists():
+            building = shared / "building_mlflow.db"
+            open_store(f"sqlite:///{building}")
+            building.rename(db)
+    return db
+
+
+def new_store(empty: Path, folder: Path, name: str = "mlflow.db") -> str:
+    """The URI of an empty MLflow store at folder/name: a copy of the session's `empty_store`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(empty, folder / name)
+    return f"sqlite:///{folder / name}"
+
+
 @pytest.fixture
-def mlflow_uri(tmp_path, monkeypatch) -> str:
+def mlflow_uri(tmp_path, monkeypatch, empty_store) -> str:
     """A private sqlite store for the test (never the project's mlflow.db)."""
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    uri = new_store(empty_store, tmp_path)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     return uri
 

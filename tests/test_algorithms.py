@@ -20,7 +20,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from analysis.figures import curve_table
-from conftest import subset_suite, tiny_run
+from conftest import new_store, subset_suite, tiny_run
 from epoet.config import CONF_DIR, compose
 from epoet.core.algorithm import AXES, SCORE, Algorithm, Family
 from epoet.core.checkpoint import load_checkpoint
@@ -150,13 +150,13 @@ def _run(args: list[str], cwd: Path, uri: str) -> subprocess.CompletedProcess:
     return proc
 
 
-def test_a_toy_algorithm_trains_is_evaluated_and_tabled(tmp_path: Path) -> None:
+def test_a_toy_algorithm_trains_is_evaluated_and_tabled(tmp_path: Path, empty_store) -> None:
     """The toy's record, schema, runner and YAML are tests/toy_algorithm.py's only: it trains
     through `python -m epoet`, takes the baselines family's smoke frames (algo_budget/
     baselines/smoke.yaml) without a file of its own, its agent is evaluated by the plain
     `python -m epoet.eval.evaluate`, and `make tables` (analysis.tables) reads it from MLflow."""
     assert not [p for p in (*CONF_DIR.rglob("*toy*"), *(ROOT / "epoet").rglob("*toy*"))]
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    uri = new_store(empty_store, tmp_path)
     run_dir, suite = (
         tmp_path / "run",
         subset_suite(tmp_path / "suite", [("easy", 0), ("medium", 0)]),

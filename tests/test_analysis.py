@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 
 from analysis.curves import BASELINE_COLUMNS, EPOET_COLUMNS, main
+from conftest import new_store
 from epoet.run import run
 from epoet.tracking import MlflowTracker
 
@@ -147,14 +148,16 @@ def test_store_without_usable_runs_exits_2_in_one_line(
     assert not (tmp_path / "f").exists()
 
 
-def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path) -> None:
+def test_tables_refuse_runs_evaluated_at_different_course_scales(
+    tmp_path: Path, empty_store
+) -> None:
     """A laptop run's "solved" (a fifth of the course) is not a paper run's: never one table."""
     from analysis.store import AnalysisError
     from analysis.tables import course_scale
     from epoet.eval.suite import load_suite
 
     suite = load_suite()
-    client = mlflow.MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    client = mlflow.MlflowClient(new_store(empty_store, tmp_path))
     exp = client.create_experiment("scales")
     runs = []
     for scale, other in (("0.2", "1"), ("1", "0.2"), ("0.2", "1")):
@@ -174,14 +177,14 @@ def test_tables_refuse_runs_evaluated_at_different_course_scales(tmp_path: Path)
 
 
 def test_tables_only_read_the_store_and_name_the_command_for_unevaluated_runs(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, empty_store
 ) -> None:
     """A finished run with no evaluation on the suite is one sentence naming the run and the
     command, and nothing is evaluated, logged or written."""
     from analysis.store import AnalysisError
     from analysis.tables import make_tables
 
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    uri = new_store(empty_store, tmp_path)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     run_id = _tracked("ppo", 1, [(0, 1.0)])
     before = mlflow.MlflowClient(uri).get_run(run_id)

@@ -17,7 +17,7 @@ from pathlib import Path
 import mlflow
 import pytest
 
-from conftest import without_evaluation
+from conftest import new_store, without_evaluation
 
 SMOKE = [
     "budget=smoke",
@@ -139,10 +139,10 @@ def _runs(uri: str) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def good(tmp_path_factory) -> tuple[Path, str]:
+def good(tmp_path_factory, empty_store) -> tuple[Path, str]:
     """A finished smoke run with its checkpoint, which no bad input may touch."""
     tmp = tmp_path_factory.mktemp("bad_input")
-    uri = f"sqlite:///{tmp}/mlflow.db"
+    uri = new_store(empty_store, tmp)
     proc = _epoet([*SMOKE, f"hydra.run.dir={tmp / 'good'}"], tmp, uri)
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err[-2000:]

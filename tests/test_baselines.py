@@ -7,7 +7,6 @@ sqlite store in tmp_path); sizes are tiny: 30-step episodes, batches of 60 frame
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -44,10 +43,8 @@ ALGO_METRICS = {
 
 
 @pytest.fixture
-def store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> MlflowClient:
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
-    return MlflowClient(uri)
+def store(mlflow_uri: str) -> MlflowClient:
+    return MlflowClient(mlflow_uri)
 
 
 def deterministic_rollout(raw: DictConfig, actor, checkpoint: dict, steps: int = 30):

@@ -11,7 +11,7 @@ import mlflow
 import pandas as pd
 import pytest
 
-from conftest import subset_suite
+from conftest import new_store, subset_suite
 from epoet.config import compose, validate
 from epoet.eval import suite as suite_module
 from epoet.eval.episodes import COLUMNS
@@ -31,13 +31,13 @@ STATS = ("success_rate", "return_mean", "forward_distance_mean", "finish_rate")
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
+def trained(tmp_path_factory, empty_store):
     """(store uri, run folder, MLflow run id) of one tiny trained run, not yet evaluated."""
     from epoet.core.checkpoint import load_checkpoint
     from epoet.run import run
 
     tmp = tmp_path_factory.mktemp("trained")
-    uri = f"sqlite:///{tmp}/mlflow.db"
+    uri = new_store(empty_store, tmp)
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MLFLOW_TRACKING_URI", uri)
         run(compose(SMOKE), tmp / "run")
@@ -161,7 +161,7 @@ def test_a_repeated_evaluation_logs_each_metric_once(trained, tmp_path):
     assert client.get_run(run_id).data.metrics[key] == more.metrics[key]  # the latest wins
 
 
-def test_runs_logged_with_the_unkeyed_names_are_read_as_before(tmp_path):
+def test_runs_logged_with_the_unkeyed_names_are_read_as_before(tmp_path, empty_store):
     """A run evaluated before evaluations were keyed by suite (`eval_suite`,
     `eval_course_scale`, `evaluation/episodes.csv`, `suite/success_rate`) is tabled on the
     suite its `eval_suite` fingerprint names, and on no other."""
@@ -170,7 +170,7 @@ def test_runs_logged_with_the_unkeyed_names_are_read_as_before(tmp_path):
     from epoet.sweep import job_lines
 
     delta = load_suite(subset_suite(tmp_path / "delta", [("easy", 0), ("medium", 0)]))
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    uri = new_store(empty_store, tmp_path)
     client = mlflow.MlflowClient(uri)
     exp = client.create_experiment("old")
     run_id = client.create_run(exp, tags={"algo": "ppo", "seed": "1"}).info.run_id

@@ -23,7 +23,7 @@ import pytest
 from mlflow.types import DataType
 
 from analysis.tables import formatted, table1, table2
-from conftest import ACT_DIM, ES_SIZES, OBS_DIM, one_terrain_suite
+from conftest import ACT_DIM, ES_SIZES, OBS_DIM, new_store, one_terrain_suite
 from epoet import registry
 from epoet.core.cores import default_workers
 from epoet.eval.agents import resolve_run
@@ -50,10 +50,10 @@ def small_suite(folder: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def paper(tmp_path_factory):
+def paper(tmp_path_factory, empty_store):
     """A smoke `make paper` into a private store; (store uri, results folder, stdout)."""
     tmp = tmp_path_factory.mktemp("paper")
-    uri = f"sqlite:///{tmp}/mlflow.db"
+    uri = new_store(empty_store, tmp)
     suite = small_suite(tmp / "suite")
     proc = subprocess.run(
         [

@@ -16,7 +16,7 @@ import pytest
 from analysis.records import read_records, record_episodes
 from analysis.store import AnalysisError
 from analysis.tables import make_tables, tables_from_records
-from conftest import subset_suite
+from conftest import new_store, subset_suite
 from epoet.config import compose, validate
 from epoet.eval.episodes import COLUMNS
 from epoet.eval.evaluate import evaluate_run
@@ -32,13 +32,13 @@ RUNS = {
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
+def store(tmp_path_factory, empty_store):
     """(uri, suite folder): three tiny runs (ePOET seeds 1-2, PPO seed 1) each evaluated on a
     two-terrain suite, two episodes per terrain."""
     from epoet.run import run
 
     tmp = tmp_path_factory.mktemp("records")
-    uri = f"sqlite:///{tmp}/mlflow.db"
+    uri = new_store(empty_store, tmp)
     suite = subset_suite(tmp / "duo", [("easy", 0), ("medium", 0)])
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("MLFLOW_TRACKING_URI", uri)
@@ -164,10 +164,10 @@ def test_exporting_again_overwrites_its_runs_and_keeps_other_records(store, tmp_
     assert again == first  # the same store gives the same files; the stale folder is gone
 
 
-def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path):
+def test_records_of_authors_agents_and_of_old_unkeyed_evaluations(tmp_path, empty_store):
     """An authors' agent is named by its agent, with its provenance instead of a command; a run
     logged before evaluations were keyed by suite is exported under its suite's name."""
-    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    uri = new_store(empty_store, tmp_path)
     client = mlflow.MlflowClient(uri)
     shipped, paper = load_suite("shipped"), load_suite("paper")
     episodes = pd.DataFrame(

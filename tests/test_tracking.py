@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from mlflow import MlflowClient
 
+from conftest import new_store
 from epoet.tracking import (
     DEFAULT_TRACKING_URI,
     PARENT_RUN_ENV,
@@ -30,12 +31,10 @@ from epoet.tracking.writer import LOAD_METRIC
 
 
 @pytest.fixture(scope="module")
-def store(tmp_path_factory) -> tuple[str, Path]:
+def store(tmp_path_factory, empty_store) -> tuple[str, Path]:
     """A migrated sqlite store shared by this module's tests; each test uses its own experiment."""
     root = tmp_path_factory.mktemp("store")
-    uri = f"sqlite:///{root / 'mlflow.db'}"
-    MlflowClient(uri).search_experiments(max_results=1)
-    return uri, root
+    return new_store(empty_store, root), root
 
 
 @pytest.fixture
