@@ -177,10 +177,12 @@ def compose():
 @pytest.fixture(scope="session")
 def empty_store(tmp_path_factory) -> Path:
     """A new MLflow sqlite store, made once for the whole session by the product's
-    `open_store` (the test processes share it through a lock): MLflow builds a store by running
-    its schema migrations, about 6 CPU seconds each time, and the suite's tests start some 60
-    stores. Each test's store is a copy of this file (`new_store`)."""
-    shared = tmp_path_factory.getbasetemp().parent  # the xdist workers' common folder
+    `open_store` (the xdist workers share it through a lock): MLflow builds a store by running
+    its schema migrations, seconds each time, and the suite's tests start dozens of stores.
+    Each test's store is a copy of this file (`new_store`)."""
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # this session's folder, common to its workers
     db = shared / "empty_mlflow.db"
     with FileLock(str(shared / "empty_mlflow.lock")):
         if not db.exists():

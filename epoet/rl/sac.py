@@ -227,7 +227,7 @@ class SacLearner:
         """Networks, optimiser and the replay buffer's filled rows only (in storage order, with
         the write cursor), so a checkpoint grows with the data, not with the capacity. The rows
         are copied: a slice shares the storage's memory, and pickling a view writes the whole
-        reserved storage (505 MB for a smoke run's few hundred rows before this copy)."""
+        reserved storage, however few rows it holds."""
         rows = self.buffer[:].exclude("index").clone() if len(self.buffer) else None
         return {
             "loss": self.loss.state_dict(),
