@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from epoet.cli import KeyValueCommand
+
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("epoet", "analysis", "pipeline")
 
@@ -88,14 +90,19 @@ def unread() -> dict[tuple[str, ...], subprocess.CompletedProcess]:
         return dict(zip(calls, pool.map(lambda call: run_unread(*call), calls)))
 
 
+def key_value_command(module: str) -> KeyValueCommand | None:
+    """The command's KeyValueCommand, if it is one (the reference's is in its convert module)."""
+    imported = importlib.import_module(
+        module if module != "epoet.eval.reference" else f"{module}.convert"
+    )
+    return getattr(imported, "COMMAND", None)
+
+
 def kind_of(module: str) -> str:
     """Which parser reads the command's arguments: Hydra's, KeyValueCommand's or HelpParser's."""
     if module == "epoet":
         return "hydra"
-    imported = importlib.import_module(
-        module if module != "epoet.eval.reference" else f"{module}.convert"
-    )
-    return "key=value" if getattr(imported, "COMMAND", None) is not None else "argparse"
+    return "key=value" if key_value_command(module) is not None else "argparse"
 
 
 def test_short_holds_one_command_of_each_kind():
@@ -110,10 +117,7 @@ def options_of(module: str, text: str) -> list[str]:
 
     if module == "epoet":
         return [f"{f.name}=" for f in dataclasses.fields(Config)]
-    imported = importlib.import_module(
-        module if module != "epoet.eval.reference" else f"{module}.convert"
-    )
-    if (command := getattr(imported, "COMMAND", None)) is not None:
+    if (command := key_value_command(module)) is not None:
         return [f"{f.name}" for f in dataclasses.fields(command.schema)]
     usage = text.split("\n\n")[0]
     options = re.findall(r"\[(--[\w-]+)|\s(--[\w-]+) ", usage)
