@@ -200,6 +200,12 @@ def new_store(empty: Path, folder: Path, name: str = "mlflow.db") -> str:
 
 
 @pytest.fixture
+def store_in_tmp_path(tmp_path, empty_store) -> str:
+    """An empty store at tmp_path/mlflow.db, for tests whose subprocesses write there."""
+    return new_store(empty_store, tmp_path)
+
+
+@pytest.fixture
 def mlflow_uri(tmp_path, monkeypatch, empty_store) -> str:
     """A private sqlite store for the test (never the project's mlflow.db)."""
     uri = new_store(empty_store, tmp_path)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import ES_SIZES, new_store, without_evaluation
+from conftest import ES_SIZES, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from epoet.core.lifecycle import StopOnSignal, Stopped, raise_if_stopped, stop_requested
@@ -40,10 +40,8 @@ def _tagged_processes(tag: str) -> list[int]:
     return processes_with_env("EPOET_TEST_TAG", tag)
 
 
-@pytest.fixture(autouse=True)
-def _store(empty_store: Path, tmp_path: Path) -> None:
-    """Each test's runs write into tmp_path/mlflow.db: an empty store, ready (conftest)."""
-    new_store(empty_store, tmp_path)
+# each test's runs write into tmp_path/mlflow.db, an empty store made ready (conftest)
+pytestmark = pytest.mark.usefixtures("store_in_tmp_path")
 
 
 def _launch(args: list[str], tmp_path: Path, tag: str) -> subprocess.Popen:

@@ -20,7 +20,7 @@ import mlflow
 import numpy as np
 import pytest
 
-from conftest import ES_SIZES, new_store, run_epoet, without_evaluation
+from conftest import ES_SIZES, run_epoet, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.rollout.evaluators import make_evaluator
@@ -32,10 +32,8 @@ SMOKE = ["budget=smoke", "algo.es.hidden=[8]", "terrain.grid=40", "budget.iterat
 RAY = shutil.which("ray", path=os.path.dirname(sys.executable))
 
 
-@pytest.fixture(autouse=True)
-def _store(empty_store: Path, tmp_path: Path) -> None:
-    """Each test's runs write into tmp_path/mlflow.db: an empty store, ready (conftest)."""
-    new_store(empty_store, tmp_path)
+# each test's runs write into tmp_path/mlflow.db, an empty store made ready (conftest)
+pytestmark = pytest.mark.usefixtures("store_in_tmp_path")
 
 
 def _epoet(args: list[str], tmp_path: Path, **env: str) -> subprocess.CompletedProcess:
