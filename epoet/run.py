@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
 
 AUTO = "auto"  # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
+# (unless the budget asked for is larger than the one it finished on)
 DONE = "DONE"  # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
@@ -91,6 +92,17 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
         for key in ("iterations", "n_pairs"):
             del budget[key]
     return {**saved, "budget": budget, "algo": algo}
+
+
+def extends_budget(saved: dict[str, Any], cfg: Config) -> bool:
+    """Whether `cfg` gives a run more than its checkpoint's config (`saved`) did: a larger limit
+    (null: none) on one of the budget's RESUMABLE keys. A finished run asked for more continues,
+    as its stop message says it can; asked for the same or less, it stays finished."""
+    old, new = saved_config(saved)["budget"], dataclasses.asdict(cfg.budget)
+    keys = [key.removeprefix("budget.") for key in RESUMABLE if key.startswith("budget.")]
+    return any(
+        old.get(k) is not None and (new.get(k) is None or new[k] > old[k]) for k in keys if k in new
+    )
 
 
 def config_changes(
@@ -162,8 +174,9 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
     """Validate a run as it would start in `run_dir`: the config's ranges and combinations,
     the checkpoint to resume (its algorithm and config), a Ray address, the algorithm's inputs.
     and, last (it imports mlflow), the tracking store. Raises ConfigError, CheckpointError or
-    TrackingError in one sentence; None: `resume=auto` finds `run_dir` finished (DONE). Writes
-    nothing (a new sqlite store is not made yet), so `check=true` calls it too."""
+    TrackingError in one sentence; None: `resume=auto` finds `run_dir` finished (DONE) and the
+    budget no larger. Writes nothing (a new sqlite store is not made yet), so `check=true` calls
+    it too."""
     cfg: Config = validate(raw)
     from epoet.envs.mjcf import robot_spec  # imports MuJoCo
 
@@ -171,15 +184,20 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
     resume = None
     resume_from: str | Path | None = cfg.resume
     path = None
+    finished = False
     if resume_from == AUTO:
         # `make paper` calls the same sweep again after an interruption: finished jobs are
-        # skipped, interrupted ones continue from their checkpoint, the rest start.
-        if (run_dir / DONE).is_file():
-            return None
+        # skipped, interrupted ones continue from their checkpoint, the rest start. A finished
+        # job given a larger budget continues (its checkpoint is its final state).
+        finished = (run_dir / DONE).is_file()
         resume_from = run_dir if (run_dir / CHECKPOINT_NAME).is_file() else None
+        if finished and resume_from is None:
+            return None
     if resume_from:
         path = find_checkpoint(resume_from)
         resume = load_checkpoint(path)
+        if finished and not extends_budget(resume["config"], cfg):
+            return None
         if resume.get("algo") != cfg.algo.name:
             raise CheckpointError(
                 f"checkpoint {path} is from algo={resume.get('algo')}, so it "
@@ -243,6 +261,9 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
     from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    # A finished run being continued is not finished until it ends again: an interruption now
+    # must leave it for `resume=auto` to continue, not to skip.
+    (run_dir / DONE).unlink(missing_ok=True)
     resolved = cast(dict[str, Any], OmegaConf.to_container(raw, resolve=True))  # a DictConfig's
     tags = {
         "algo": cfg.algo.name,

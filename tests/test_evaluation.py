@@ -427,6 +427,25 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(
     steps = client.get_metric_history(stopped["run_id"], "best_score")
     assert sorted(m.step for m in steps) == list(range(first.iteration))  # each once
 
+    # Asked for more than it finished on, a finished job continues from its final state; its
+    # DONE is gone while it trains (an interruption would leave it to continue), then back.
+    done_while_training = []
+
+    def log_and_look(self, step, metrics):
+        log_metrics(self, step, metrics)
+        trained.append(step)
+        done_while_training.append((finished / DONE).exists())
+
+    monkeypatch.setattr(MlflowTracker, "log_metrics", log_and_look)
+    trained.clear()
+    longer = [*overrides, f"budget.iterations={first.iteration + 1}"]
+    more = run(compose(longer), finished)
+    assert more is not None and more.iteration == first.iteration + 1
+    assert trained == [first.iteration] and done_while_training == [False]
+    assert (finished / DONE).is_file()
+    assert load_checkpoint(finished)["run_id"] == straight["run_id"]  # the same MLflow run
+    assert run(compose(longer), finished) is None  # that budget reached: skipped again
+
 
 def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str, tmp_path: Path) -> None:
     """Without a second command the run's MLflow record carries the suite's metrics, at the
