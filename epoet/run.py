@@ -27,8 +27,9 @@ from epoet.envs.spaces import robot_sizes
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
 
-AUTO = "auto"  # resume=auto: continue this run folder's checkpoint if any, skip it if DONE
-# (unless the budget asked for is larger than the one it finished on)
+# resume=auto: continue this run folder's checkpoint if any; skip it if DONE, unless the budget
+# asked for is larger than the one it finished on
+AUTO = "auto"
 DONE = "DONE"  # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
@@ -252,7 +253,7 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
     if prepared is None:
         cfg: Config = validate(raw)
         print(
-            f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped",
+            f"[epoet] {cfg.algo.name} seed={cfg.seed}: {run_dir} already finished; skipped (a larger budget continues it)",
             flush=True,
         )
         return None

@@ -378,7 +378,7 @@ def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monk
     assert not default.exists() and list(cwd.iterdir()) == []
 
 
-def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_one(
+def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_or_extended_one(
     compose, mlflow_uri, tmp_path, monkeypatch
 ):
     from epoet.core.checkpoint import load_checkpoint
