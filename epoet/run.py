@@ -20,9 +20,9 @@ from omegaconf import DictConfig, OmegaConf
 from epoet.config import Config, compose, saved_agent, validate
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.core.cores import default_workers
-from epoet.core.files import atomic_write
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import robot_sizes
+from epoet.run_state import BUDGET_LIMITS, DONE, extends_budget, finished_limits, mark_done
 
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
@@ -30,7 +30,6 @@ if TYPE_CHECKING:
 # resume=auto: continue this run folder's checkpoint if any; skip it if DONE, unless the budget
 # asked for is larger than the one it finished on
 AUTO = "auto"
-DONE = "DONE"  # written into the run folder when a run finished (holds its MLflow run id)
 
 # What a resume may change: where and how it runs, and how long it goes on.
 # (`algo._target_` says where the algorithm's code lives, not how it runs: checkpoints from
@@ -41,9 +40,7 @@ RESUMABLE = (
     "workers",
     "tracking",
     "checkpoint_every",
-    "budget.iterations",
-    "budget.hours",
-    "budget.cpu_hours",
+    *(f"budget.{key}" for key in BUDGET_LIMITS),
     "snapshot_cpu_minutes",
     "algo._target_",
     "selection",  # which agent the run exports, not how it trains
@@ -93,17 +90,6 @@ def saved_config(saved: dict[str, Any]) -> dict[str, Any]:
         for key in ("iterations", "n_pairs"):
             del budget[key]
     return {**saved, "budget": budget, "algo": algo}
-
-
-def extends_budget(saved: dict[str, Any], cfg: Config) -> bool:
-    """Whether `cfg` gives a run more than its checkpoint's config (`saved`) did: a larger limit
-    (null: none) on one of the budget's RESUMABLE keys. A finished run asked for more continues,
-    as its stop message says it can; asked for the same or less, it stays finished."""
-    old, new = saved_config(saved)["budget"], dataclasses.asdict(cfg.budget)
-    keys = [key.removeprefix("budget.") for key in RESUMABLE if key.startswith("budget.")]
-    return any(
-        old.get(k) is not None and (new.get(k) is None or new[k] > old[k]) for k in keys if k in new
-    )
 
 
 def config_changes(
@@ -185,20 +171,18 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
     resume = None
     resume_from: str | Path | None = cfg.resume
     path = None
-    finished = False
     if resume_from == AUTO:
         # `make paper` calls the same sweep again after an interruption: finished jobs are
         # skipped, interrupted ones continue from their checkpoint, the rest start. A finished
         # job given a larger budget continues (its checkpoint is its final state).
-        finished = (run_dir / DONE).is_file()
-        resume_from = run_dir if (run_dir / CHECKPOINT_NAME).is_file() else None
-        if finished and resume_from is None:
+        checkpointed = (run_dir / CHECKPOINT_NAME).is_file()
+        limits = finished_limits(run_dir)
+        if limits is not None and not (checkpointed and extends_budget(limits, cfg.budget)):
             return None
+        resume_from = run_dir if checkpointed else None
     if resume_from:
         path = find_checkpoint(resume_from)
         resume = load_checkpoint(path)
-        if finished and not extends_budget(resume["config"], cfg):
-            return None
         if resume.get("algo") != cfg.algo.name:
             raise CheckpointError(
                 f"checkpoint {path} is from algo={resume.get('algo')}, so it "
@@ -295,8 +279,7 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
     if cfg.evaluate:
         evaluate_agent(cfg, run_dir)
     assert tracker.run_id is not None  # start() set it
-    with atomic_write(run_dir / DONE) as f:  # after the run and its evaluation are done
-        f.write(f"{tracker.run_id}\n".encode())
+    mark_done(run_dir, tracker.run_id, cfg.budget)  # after the run and its evaluation are done
     print(
         "\n".join(
             ending(

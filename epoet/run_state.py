@@ -1,5 +1,5 @@
 """What every runner does at a run's boundaries: checkpoint the run's state together with its
-config and the MLflow run it continues, and say why the run stopped.
+config and the MLflow run it continues, say why the run stopped, and mark it finished.
 
 Run-level code, so it sits above `core` (which imports nothing else of the package) and below the
 algorithms that call it; `epoet/run.py` makes the run these belong to.
@@ -19,6 +19,14 @@ from epoet.core.files import atomic_write
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
     from epoet.config import BudgetConfig, Config
     from epoet.tracking import Tracker
+
+
+# The budget's limits a resume may raise (epoet/run.py RESUMABLE), where the family has them.
+BUDGET_LIMITS = ("iterations", "hours", "cpu_hours")
+# Written into the run folder when a run finished: its MLflow run id, then (JSON) the budget
+# limits it finished on, so `resume=auto` decides without loading a checkpoint (a SAC replay
+# buffer makes one hundreds of MB).
+DONE = "DONE"
 
 
 def save_run_state(run_dir: Path, tracker: Tracker, cfg: Config, state: dict[str, Any]) -> Path:
@@ -93,3 +101,31 @@ def take_snapshots(
             file.write(json.dumps({"cpu_minutes": minutes, **info}, indent=1).encode())
         saved.append(minutes)
     return saved
+
+
+def mark_done(run_dir: Path, run_id: str, budget: BudgetConfig) -> None:
+    """Write the run folder's DONE: the run id, then the limits of the budget it finished on."""
+    limits = {key: getattr(budget, key) for key in BUDGET_LIMITS if hasattr(budget, key)}
+    with atomic_write(Path(run_dir) / DONE) as f:
+        f.write(f"{run_id}\n{json.dumps(limits)}\n".encode())
+
+
+def finished_limits(run_dir: Path) -> dict[str, Any] | None:
+    """The budget limits the run in `run_dir` finished on (its DONE file); None: not finished.
+    A DONE from before it held them reads as no limits, so that run stays finished."""
+    done = Path(run_dir) / DONE
+    if not done.is_file():
+        return None
+    limits = done.read_text().partition("\n")[2].strip()
+    return json.loads(limits) if limits else {}
+
+
+def extends_budget(limits: dict[str, Any], budget: BudgetConfig) -> bool:
+    """Whether `budget` gives a finished run more than the `limits` it ended on: a larger limit,
+    or none, where it had one. Asked for more, a finished run continues, as its stop message
+    says it can; asked for the same or less, it stays finished."""
+    for key, old in limits.items():
+        new = getattr(budget, key, old)
+        if old is not None and (new is None or new > old):
+            return True
+    return False

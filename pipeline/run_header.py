@@ -27,7 +27,7 @@ from analysis.store import history, seed_of
 from epoet.core.errors import first_line
 from epoet.tracking.writer import LOAD_METRIC
 
-DONE = "DONE"  # epoet.run.DONE: a finished job folder, holding its run id
+DONE = "DONE"  # epoet.run_state.DONE: a finished job folder, its first line the run id
 
 
 def run_header(
@@ -86,7 +86,7 @@ def job_folder(run: Run, sweep: dict[str, str] | None) -> Path | None:
     if not sweep_dir or not Path(sweep_dir).is_dir():
         return None
     for done in sorted(Path(sweep_dir).glob(f"*/{DONE}")):
-        if done.read_text().strip() == run.info.run_id:
+        if done.read_text().partition("\n")[0].strip() == run.info.run_id:
             return done.parent
     return None
 

@@ -383,7 +383,8 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_or_extend
 ):
     from epoet.core.checkpoint import load_checkpoint
     from epoet.core.lifecycle import Stopped
-    from epoet.run import DONE, run
+    from epoet.run import run
+    from epoet.run_state import DONE
     from epoet.tracking.writer import MlflowTracker
 
     overrides = ["algo=epoet", "budget=smoke", "workers.num=1", "resume=auto"]
@@ -394,11 +395,12 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_or_extend
 
     # The other job gets a Ctrl-C in its first iteration (when that iteration's metrics are
     # logged): it stops at the iteration's end with a checkpoint, as `make paper` interrupted.
-    log_metrics, trained = MlflowTracker.log_metrics, []
+    log_metrics, trained, finished_marked = MlflowTracker.log_metrics, [], []
 
     def log_and_interrupt(self, step, metrics):
         log_metrics(self, step, metrics)
         trained.append(step)
+        finished_marked.append((finished / DONE).exists())
         if trained == [0]:
             os.kill(os.getpid(), signal.SIGINT)
 
@@ -429,22 +431,18 @@ def test_resume_auto_skips_a_finished_job_and_continues_an_interrupted_or_extend
 
     # Asked for more than it finished on, a finished job continues from its final state; its
     # DONE is gone while it trains (an interruption would leave it to continue), then back.
-    done_while_training = []
-
-    def log_and_look(self, step, metrics):
-        log_metrics(self, step, metrics)
-        trained.append(step)
-        done_while_training.append((finished / DONE).exists())
-
-    monkeypatch.setattr(MlflowTracker, "log_metrics", log_and_look)
     trained.clear()
+    finished_marked.clear()
     longer = [*overrides, f"budget.iterations={first.iteration + 1}"]
     more = run(compose(longer), finished)
     assert more is not None and more.iteration == first.iteration + 1
-    assert trained == [first.iteration] and done_while_training == [False]
+    assert trained == [first.iteration] and finished_marked == [False]
     assert (finished / DONE).is_file()
     assert load_checkpoint(finished)["run_id"] == straight["run_id"]  # the same MLflow run
     assert run(compose(longer), finished) is None  # that budget reached: skipped again
+    # A DONE from before it recorded the budget (the run id alone) stays finished.
+    (finished / DONE).write_text(f"{straight['run_id']}\n")
+    assert run(compose([*overrides, f"budget.iterations={first.iteration + 2}"]), finished) is None
 
 
 def test_a_training_run_ends_with_its_evaluation(compose, mlflow_uri: str, tmp_path: Path) -> None:
