@@ -96,7 +96,7 @@ epoet-sac-starts: install
 records: install
 	$(PY) -m pipeline.records --experiment $(EXPERIMENT) --out $(RECORDS)
 
-# The authors' published agents (epoet/reference/) on the paper's suite, tabled (results/reference/);
+# The authors' published agents (read from their files: docs/authors.md) on the paper's suite, tabled (results/reference/);
 # RECORDS=docs/results/reference also exports their evaluation records.
 reference: install
 	$(PY) -m pipeline.reference $(if $(RECORDS),--records $(RECORDS))

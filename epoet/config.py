@@ -122,6 +122,8 @@ class Config:
     resume: Optional[str]  # a run folder or checkpoint file to continue; auto: this
     # job's own folder if it has a checkpoint
     check: bool  # validate the config as the run would, print one line, run nothing
+    epoet_3d: Optional[str]  # a copy of ml-tue/ePOET_3D, the authors' files (docs/authors.md);
+    # null: the environment variable EPOET_3D, else ../shared/ePOET_3D beside the project
 
     def __post_init__(self) -> None:
         check(0 <= self.seed < 2**32, f"seed must be in [0, 2**32), got {self.seed}.")

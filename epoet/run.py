@@ -22,6 +22,7 @@ from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpo
 from epoet.core.cores import default_workers
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import robot_sizes
+from epoet.eval.reference.files import configure
 from epoet.run_state import BUDGET_LIMITS, DONE, extends_budget, finished_limits, mark_done
 
 if TYPE_CHECKING:
@@ -44,6 +45,7 @@ RESUMABLE = (
     "snapshot_cpu_minutes",
     "algo._target_",
     "selection",  # which agent the run exports, not how it trains
+    "epoet_3d",  # where the authors' files are read from (checked against their hashes)
 )
 # Settings added after checkpoints were written, with the value that reproduces what those runs
 # did: a checkpoint without them resumes only where they keep that value.
@@ -165,6 +167,7 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
     budget no larger. Writes nothing (a new sqlite store is not made yet), so `check=true` calls
     it too."""
     cfg: Config = validate(raw)
+    configure(cfg.epoet_3d)
     from epoet.envs.mjcf import robot_spec  # imports MuJoCo
 
     robot_spec(cfg.agent)  # the robot's MJCF fits its config (ConfigError otherwise)

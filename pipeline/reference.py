@@ -1,5 +1,5 @@
 """`make reference` (`python -m pipeline.reference [--episodes 5] [--suite paper]`): the
-authors' published agents (epoet/reference/) on the paper's suite, tabled like runs.
+authors' published agents (read from their files: epoet.eval.reference) on the paper's suite, tabled like runs.
 
 1. evaluates every shipped `reference:<run>/<agent>` that has no evaluation on the suite yet
    (each agent's MLflow run in the experiment `reference`; one process pool for all of them);

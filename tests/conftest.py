@@ -118,6 +118,28 @@ def tiny_run(algo: str) -> list[str]:
 tiny_baseline = tiny_run  # a baseline's tiny run, by the name the baselines' tests use
 
 
+@pytest.fixture(autouse=True)
+def _authors_setting_kept(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A command run in-process takes `epoet_3d=` / `source=` into the environment, as a real
+    command does for its workers; each test starts from the session's setting again."""
+    from epoet.eval.reference.files import ENV
+
+    monkeypatch.setenv(ENV, os.environ.get(ENV, ""))  # restored on teardown; empty: unset
+
+
+def authors(*parts: str) -> Path:
+    """A file of the authors' files' conversion (epoet.eval.reference, made on first use); the
+    test is skipped where their files are absent (the tests that need them run in CI, which has
+    ../shared/ePOET_3D beside the clone)."""
+    from epoet.eval.reference import folder
+    from epoet.eval.reference.files import MissingReferenceFiles
+
+    try:
+        return folder().joinpath(*parts)
+    except MissingReferenceFiles as err:
+        pytest.skip(str(err))
+
+
 @pytest.fixture
 def terrain_cfg() -> TerrainConfig:
     return replace(

@@ -18,6 +18,7 @@ import mlflow
 import pytest
 
 from conftest import new_store, without_evaluation
+from epoet.eval.reference.files import ENV
 
 SMOKE = [
     "budget=smoke",
@@ -90,7 +91,7 @@ ROWS = [
     ),
     (
         "ePOET-SAC start of other layer sizes",
-        ["algo=epoet_sac", "algo.sac.hidden=[64,64]"],
+        ["algo=epoet_sac", "algo.sac_init=reference:sac/42", "algo.sac.hidden=[64,64]"],
         "has a [256, 256] relu actor, but algo.sac.hidden=[64, 64]",
     ),
     ("ray for a baseline", ["algo=ppo", "workers=ray"], "use workers=local"),
@@ -275,17 +276,14 @@ def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> 
 # Every other command's bad input, as users type it: per command a missing file, a wrong type
 # (or a malformed value) and an unknown key, set and `+`added; a misspelt suite where one is
 # read (SUITE_TYPO: the suites there are, and the one meant). {tmp}: a scratch folder.
-SUITE_TYPO = (
-    "there is no suite papre: a suite is shipped, paper or a suite folder; did you mean paper?"
-)
-AGENT = Path(__file__).resolve().parent.parent / "epoet" / "reference" / "agents" / "sac" / "42.pt"
+SUITE_TYPO = "there is no suite papre: a suite is shipped, paper, admitted or a suite folder; did you mean paper?"
 COMMAND_ROWS = [
     ("epoet.eval.evaluate", "missing", ["run={tmp}/missing"], "missing: there is no such file"),
     ("epoet.eval.evaluate", "type", ["run=x", "episodes=abc"], "converted to Integer"),
     ("epoet.eval.evaluate", "key", ["run=x", "episode=3"], "key episode: did you mean episodes?"),
     ("epoet.eval.evaluate", "added", ["run=x", "+episode=3"], "did you mean episodes?"),
     ("epoet.eval.evaluate", "unknown", ["run=x", "bogus=1"], "bogus: the top-level keys are run,"),
-    ("epoet.eval.evaluate", "suite", [f"run={AGENT}", "suite=papre"], SUITE_TYPO),
+    ("epoet.eval.evaluate", "suite", ["run=reference:sac/42", "suite=papre"], SUITE_TYPO),
     (
         "epoet.eval.render",
         "missing",
@@ -308,7 +306,7 @@ COMMAND_ROWS = [
     ("epoet.eval.gallery", "type", ["n=abc"], "converted to Integer"),
     ("epoet.eval.gallery", "key", ["terain=bowl"], "unknown key terain: did you mean terrain?"),
     ("epoet.eval.gallery", "added", ["+terain=bowl"], "unknown key terain: did you mean terrain?"),
-    ("epoet.eval.reference", "missing", ["source={tmp}/missing"], "is not a checkout"),
+    ("epoet.eval.reference", "missing", ["source={tmp}/missing"], "is not a copy of the authors'"),
     ("epoet.eval.reference", "type", ["source=x", "check=maybe"], "'maybe' is not a valid bool"),
     ("epoet.eval.reference", "key", ["sorce=x"], "unknown key sorce: did you mean source?"),
     ("epoet.eval.reference", "added", ["+sorce=x"], "unknown key sorce: did you mean source?"),
@@ -406,8 +404,10 @@ def test_every_command_answers_bad_input_in_one_line(tmp_path, monkeypatch, caps
     monkeypatch.chdir(tmp_path)
     for module, kind, args, message in COMMAND_ROWS:
         main = importlib.import_module(MAINS.get(module, module)).main
-        with pytest.raises(SystemExit) as exited:
-            raise SystemExit(main([a.format(tmp=tmp_path) for a in args]))
+        with monkeypatch.context() as each:  # `source=` sets EPOET_3D: undone on leaving
+            each.setenv(ENV, os.environ.get(ENV, ""))  # empty: unset
+            with pytest.raises(SystemExit) as exited:
+                raise SystemExit(main([a.format(tmp=tmp_path) for a in args]))
         lines = capsys.readouterr().err.strip().splitlines()
         assert exited.value.code == 2, (module, kind, lines)
         assert len(lines) == 1 and lines[0].startswith("error: "), (module, kind, lines)

@@ -14,7 +14,7 @@ import torch
 from tensordict import TensorDictBase
 
 from analysis.joins import descendants, joins_table
-from conftest import subset_suite
+from conftest import authors, subset_suite
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
@@ -393,9 +393,6 @@ def test_bad_settings_fail_in_one_sentence(override: str, message: str) -> None:
         load(["algo=epoet_sac", override])
 
 
-REFERENCE_SAC = Path(__file__).resolve().parent.parent / "epoet" / "reference" / "agents" / "sac"
-
-
 def _actions(loop: EpoetSac, obs: np.ndarray) -> np.ndarray:
     with torch.no_grad():
         return torch.tanh(loop.actor_net(torch.as_tensor(obs, dtype=torch.float32))[0]).numpy()
@@ -409,15 +406,15 @@ def test_a_warm_start_acts_as_the_authors_sac_through_the_moving_statistics(tmp_
     and still compute the same functions of the raw observation; the exported policy too."""
     loop, evaluator = _loop(AUTHORS)
     cold, _ = _loop(["algo.sac.hidden=[256,256]", "algo.sac_init=null"])
-    policy = load_policy(REFERENCE_SAC / "42.pt")
-    critics = read_critics(REFERENCE_SAC / "42.critics.pt")["state_dict"]
+    policy = load_policy(authors("agents", "sac", "42.pt"))
+    critics = read_critics(authors("agents", "sac", "42.critics.pt"))["state_dict"]
     with evaluator:
         _, episodes = loop.es_step(0, record=2)  # updates the statistics
     obs = np.concatenate([e.transitions["obs"] for e in episodes])[::7]
     assert len(obs) >= 8
     np.testing.assert_allclose(_actions(loop, obs), policy(obs), atol=1e-6)
     assert np.abs(_actions(cold, obs) - policy(obs)).max() > 0.1  # a cold actor does not
-    spec = torch.load(REFERENCE_SAC / "42.pt", weights_only=True)["state_dict"]
+    spec = torch.load(authors("agents", "sac", "42.pt"), weights_only=True)["state_dict"]
     x = torch.as_tensor(obs)
     for i in (0, 2):
         x = torch.relu(x @ spec[f"{i}.weight"].T + spec[f"{i}.bias"])

@@ -67,10 +67,12 @@ def test_one_run_keeps_each_suites_evaluation_side_by_side(trained, tmp_path, mo
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     alpha = subset_suite(tmp_path / "alpha", [("easy", 0), ("medium", 0)])
     # the paper suite (the other engineer's data may or may not be there): other terrains
+    monkeypatch.setenv("EPOET_CACHE", str(tmp_path))  # so its folder counts as converted
+    paper_data = subset_suite(tmp_path / "paper_data", [("easy", 1), ("medium", 1)])
     monkeypatch.setitem(
         suite_module.SUITES,
         "paper",
-        subset_suite(tmp_path / "paper_data", [("easy", 1), ("medium", 1)]),
+        lambda: paper_data,
     )
     printed = {}
     for name, arg in (("alpha", str(alpha)), ("paper", "paper")):

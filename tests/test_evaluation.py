@@ -23,7 +23,7 @@ import pytest
 from mlflow.types import DataType
 
 from analysis.tables import formatted, table1, table2
-from conftest import ACT_DIM, ES_SIZES, OBS_DIM, new_store, one_terrain_suite
+from conftest import ACT_DIM, ES_SIZES, OBS_DIM, authors, new_store, one_terrain_suite
 from epoet import registry
 from epoet.core.cores import default_workers
 from epoet.eval.agents import resolve_run
@@ -279,13 +279,12 @@ def test_an_episode_is_solved_when_it_finishes_with_the_scaled_return(mlflow_uri
     from epoet.config import compose, load, validate
     from epoet.core.checkpoint import save_checkpoint
     from epoet.eval.evaluate import evaluate_run
-    from epoet.eval.reference import FOLDER
     from epoet.rollout.policy import init_params
 
     suite = flat_course(tmp_path / "suite")
     walker = tmp_path / "walker"
     (walker / "policies").mkdir(parents=True)
-    shutil.copy(FOLDER / "agents" / "poet_hexA8" / "flat.npz", walker / "policies" / "env0.npz")
+    shutil.copy(authors("agents", "poet_hexA8", "flat.npz"), walker / "policies" / "env0.npz")
     config = load(["budget=paper", "budget.score_scale=0.5"])  # the paper's agent: RK4
     save_checkpoint(
         walker / "checkpoint.pkl", {"algo": "epoet", "config": dataclasses.asdict(config)}

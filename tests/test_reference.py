@@ -1,6 +1,8 @@
-"""The authors' published agents and terrains, converted (epoet/reference/, epoet.eval.reference):
-they walk in our env as far as their logs say, the layout is what makes them walk, the paper
-suite is the reference's arithmetic, and what cannot be read is refused in one sentence."""
+"""The authors' published agents and terrains, read from their files and converted on use
+(epoet.eval.reference): they walk in our env as far as their logs say, the layout is what makes
+them walk, the paper suite is the reference's arithmetic, and what cannot be read is refused in
+one sentence. (tests/test_authors_files.py: where the files are read from, the cache, and that
+none of theirs is in the repository.)"""
 
 from __future__ import annotations
 
@@ -16,12 +18,22 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from conftest import authors
 from epoet.env_factory import ENV_ID
 from epoet.eval.agents import AgentError, AgentSource, resolve_run
-from epoet.eval.reference import FOLDER, manifest
-from epoet.eval.reference.pickles import ReferenceFileError, read_genome, read_pickle
+from epoet.eval.reference import folder, manifest
+from epoet.eval.reference.files import GENOMES, ReferenceFileError, source
+from epoet.eval.reference.pickles import read_genome, read_pickle
 from epoet.eval.suite import load_suite
 from epoet.rollout.policy import forward
+
+pytestmark = pytest.mark.usefixtures("authors_files")
+
+
+@pytest.fixture(scope="module")
+def authors_files():
+    """Every test here reads the authors' files: skipped where they are absent."""
+    authors()
 
 
 def _returns(policy, seeds=(0, 1, 2), steps: int = 2000) -> list[float]:
@@ -41,13 +53,13 @@ def _returns(policy, seeds=(0, 1, 2), steps: int = 2000) -> list[float]:
     return totals
 
 
-def _shipped(name: str) -> AgentSource:
+def _theirs(name: str) -> AgentSource:
     entry = manifest()["agents"][name]
-    return AgentSource(entry["kind"], FOLDER / entry["file"])
+    return AgentSource(entry["kind"], folder() / entry["file"])
 
 
 def test_the_authors_epoet_agent_walks_as_far_as_its_log_says():
-    returns = _returns(_shipped("poet_hexA8/flat").load())
+    returns = _returns(_theirs("poet_hexA8/flat").load())
     assert manifest()["agents"]["poet_hexA8/flat"]["logged_score"] == pytest.approx(
         2602.175, abs=1e-3
     )
@@ -55,7 +67,7 @@ def test_the_authors_epoet_agent_walks_as_far_as_its_log_says():
 
 
 def test_the_same_vector_in_our_leg_order_does_not_walk():
-    with np.load(FOLDER / manifest()["agents"]["poet_hexA8/flat"]["file"]) as data:
+    with np.load(folder() / manifest()["agents"]["poet_hexA8/flat"]["file"]) as data:
         raw, sizes = data["reference_theta"], tuple(data["layer_sizes"])
         assert not np.array_equal(raw, data["theta"])
     returns = _returns(lambda obs: forward(raw, obs, sizes))
@@ -63,7 +75,7 @@ def test_the_same_vector_in_our_leg_order_does_not_walk():
 
 
 def test_the_authors_ppo_agent_walks_with_its_normaliser():
-    source = _shipped("ppo/0")
+    source = _theirs("ppo/0")
     spec = __import__("torch").load(source.path, weights_only=True)
     assert spec["obs_loc"] is not None and spec["activation"] == "tanh"
     assert np.mean(_returns(source.load())) >= 2300
@@ -126,7 +138,7 @@ def _reference_heights(genome: dict, seed: int, s: float = 1.0) -> np.ndarray:
 
 @pytest.mark.parametrize("name", ["r0c0", "r2c5"])
 def test_a_paper_terrain_is_the_reference_arithmetic_on_its_genome(name):
-    genomes = json.loads((FOLDER / "genomes.json").read_text())
+    genomes = json.loads((folder() / "genomes.json").read_text())
     suite = load_suite("paper")
     terrain = suite.by_name(name)
     expected = _reference_heights(genomes[name], terrain.info["seed"])
@@ -136,9 +148,9 @@ def test_a_paper_terrain_is_the_reference_arithmetic_on_its_genome(name):
 
 
 def test_the_authors_pickles_are_read_without_running_their_code(tmp_path):
-    # tests/reference_genome.pickle: the first genome of the authors' cppngenomes_b, as published
-    genome = read_genome(FOLDER.parent.parent / "tests" / "reference_genome.pickle")
-    shipped = json.loads((FOLDER / "genomes.json").read_text())["r0c0"]
+    # the first genome of the authors' cppngenomes_b, as published
+    genome = read_genome(sorted((source() / GENOMES).glob("*.pickle"))[0])
+    shipped = json.loads((folder() / "genomes.json").read_text())["r0c0"]
     assert genome == {k: v for k, v in shipped.items() if k != "source"}
     assert genome["nodes"][0][:4] == [0, genome["nodes"][0][1], 10.0, "sin"]
     # a pickle that would call os.system gets a harmless record instead
@@ -205,10 +217,10 @@ def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
     from epoet.rl.sac_loss import TwinQ
 
     entry = manifest()["agents"]["sac/42"]
-    spec = torch.load(FOLDER / entry["critics"], weights_only=True)
+    spec = torch.load(folder() / entry["critics"], weights_only=True)
     critics = TwinQ(53 + 18, spec["hidden"], nn.ReLU)
     critics.load_state_dict(spec["state_dict"])
-    actor = _shipped("sac/42").load()
+    actor = _theirs("sac/42").load()
     env = gym.make(
         ENV_ID, agent={"integrator": "rk4", "max_episode_steps": 300}, terrain={"max_height": 0.1}
     )
@@ -224,3 +236,19 @@ def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
         noise = torch.rand((20, *chosen.shape, 18), generator=rng) * 2 - 1
         random = torch.stack([critics(states, a).min(0).values for a in noise]).mean(0)
     assert (chosen > random).float().mean() >= 0.9, chosen - random
+
+
+def test_the_validation_suite_shares_no_genome_or_terrain_with_the_paper_suite():
+    """suite=admitted: 32 genomes of the authors' admitted folders only, none of them (by their
+    genes, and by their rendered heights) one of the paper suite's, levelled by rank 9 / 14 / 9."""
+    admitted, paper = load_suite("admitted"), load_suite("paper")
+    assert len(admitted.terrains) == 32
+    by_roughness = sorted(admitted.terrains, key=lambda t: t.roughness)
+    assert [t.level for t in by_roughness] == ["easy"] * 9 + ["medium"] * 14 + ["hard"] * 9
+    theirs = [read_genome(p) for p in sorted((source() / GENOMES).glob("*.pickle"))]
+    genomes = [read_genome(source() / t.info["genome"]) for t in admitted.terrains]
+    assert all("/cppngenomes_admitted" in t.info["genome"] for t in admitted.terrains)
+    assert not [g for g in genomes if g in theirs]
+    assert len({json.dumps(g) for g in genomes}) == 32
+    for terrain in admitted.terrains:
+        assert not any(np.array_equal(terrain.heightmap, p.heightmap) for p in paper.terrains)

@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 import epoet.env_factory  # noqa: F401  (registers the envs)
-from conftest import ACT_DIM, OBS_DIM, TINY_EPOET, tiny_run
+from conftest import ACT_DIM, OBS_DIM, TINY_EPOET, authors, tiny_run
 from epoet.config import load, saved_agent
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.envs.model import layout
 from epoet.envs.spaces import layout_of, observation_names, robot_sizes
 from epoet.eval.agents import AgentError, policy_in, resolve_run
-from epoet.eval.reference import FOLDER, manifest
+from epoet.eval.reference import manifest
 from epoet.eval.reference.layout import LEGS, SEGMENTS
 from epoet.registry import names
 from epoet.rollout.agent_files import LAYOUT, check_robot
@@ -134,12 +134,12 @@ def test_an_agent_file_runs_only_on_the_robot_it_records(tmp_path: Path) -> None
     moved = dict(layout_of(ant), action=ANT_JOINTS[::-1])
     with pytest.raises(AgentError, match="observation or action layout"):
         check_robot(_agent_file(tmp_path / "moved.npz", (31, 8, 8), moved), "es", ant)
-    authors = FOLDER / manifest()["agents"]["poet_hexA8/flat"]["file"]
-    check_robot(authors, "es", hexapod)
+    theirs = authors(manifest()["agents"]["poet_hexA8/flat"]["file"])
+    check_robot(theirs, "es", hexapod)
     paper = dataclasses.replace(hexapod, integrator="rk4")  # they record no integrator
-    assert resolve_run(str(authors)).agent_config(paper).integrator == "rk4"
+    assert resolve_run(str(theirs)).agent_config(paper).integrator == "rk4"
     with pytest.raises(AgentError, match="trained on the hexapod, not on the ant"):
-        check_robot(authors, "es", ant)
+        check_robot(theirs, "es", ant)
 
 
 def test_a_config_from_before_robots_is_the_hexapods() -> None:
@@ -152,8 +152,8 @@ def test_the_ant_starts_epoet_sac_cold_and_refuses_the_authors_hexapod_sac(
     compose, tmp_path: Path
 ) -> None:
     assert load(["agent=ant", "algo=epoet_sac"]).algo.sac_init is None
-    assert load(["algo=epoet_sac"]).algo.sac_init == "reference:sac/42"
-    with pytest.raises(ConfigError, match="trained on the hexapod, not on the ant.*starts cold"):
+    assert load(["algo=epoet_sac"]).algo.sac_init is None
+    with pytest.raises(ConfigError, match="not this robot's published SAC agent.*starts cold"):
         prepare(
             compose(["agent=ant", "algo=epoet_sac", "algo.sac_init=reference:sac/42"]),
             tmp_path / "run",

@@ -9,11 +9,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from conftest import serial_loop
+from conftest import authors, serial_loop
 from epoet.config import load
 from epoet.core.schema import ConfigError
 from epoet.eval.agents import policy_in
-from epoet.eval.reference import FOLDER
 from epoet.open_ended.exported_agent import candidates, export_agent, niches_of
 from epoet.open_ended.loop import Epoet
 from epoet.open_ended.pairs import Environment
@@ -21,7 +20,6 @@ from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, read_es_polic
 from epoet.rollout.selection import CHOICE_FILE, held_out_terrains, rank
 
 SIZES = (53, 40, 40, 18)  # the authors' ES agents'
-WALKER = FOLDER / "agents" / "poet_twin22" / "e6cf5d0d.npz"  # walks in our env (test_reference)
 
 
 def run_config(*overrides: str):
@@ -37,7 +35,7 @@ def pool_with_a_misleading_own_score(cfg) -> Epoet:
     root = loop.pool.active[0]
     root.es.reset(np.zeros_like(root.theta))
     loop.pool.record(root, 5000.0)
-    walker, _ = read_es_policy(WALKER)
+    walker, _ = read_es_policy(authors("agents", "poet_twin22", "e6cf5d0d.npz"))
     env = Environment(index=1, genome=root.env.genome, generation=1, parent=0, created_at=1)
     pair = loop.pool.admit(env, loop.service.optimizer_for(env, walker))
     loop.pool.record(pair, 10.0)
@@ -53,7 +51,9 @@ def test_a_pool_whose_own_best_is_not_the_held_out_best_exports_the_held_out_bes
     held_out = record["candidates"]
     assert held_out["env1/best"]["mean_return"] > held_out["env0/best"]["mean_return"]
     exported, _ = read_es_policy(tmp_path / ES_POLICIES / EXPORTED_AGENT)
-    np.testing.assert_array_equal(exported, read_es_policy(WALKER)[0])
+    np.testing.assert_array_equal(
+        exported, read_es_policy(authors("agents", "poet_twin22", "e6cf5d0d.npz"))[0]
+    )
     assert json.loads((tmp_path / ES_POLICIES / CHOICE_FILE).read_text()) == record
     # evaluation and the tables take the exported agent as the run's
     found = policy_in(tmp_path)
@@ -122,7 +122,7 @@ def test_a_baseline_whose_last_policy_is_worse_than_an_earlier_one_exports_the_e
     from epoet.rollout.agent_files import LAST_POLICY
 
     cfg = load(["algo=ppo", "budget=paper", "budget.episode_steps=60", "selection.terrains=2"])
-    walker = FOLDER / "agents" / "ppo" / "0.pt"
+    walker = authors("agents", "ppo", "0.pt")
     candidates = Candidates(cfg, tmp_path)
     candidates.keep(1000, lambda path: path.write_bytes(walker.read_bytes()))
     spec = torch.load(walker, weights_only=True)

@@ -221,7 +221,6 @@ def test_suites_are_named_shipped_paper_or_by_their_folder(tmp_path, monkeypatch
     """A suite's name keys its evaluations in a run: "shipped" and "paper" for the named suites
     (by name or by their folder), any other folder its basename in [A-Za-z0-9_.-], "dir-" before
     a basename that is a named suite's name, so no folder passes for a named suite."""
-    assert suite_module.PAPER == ROOT / "epoet" / "reference" / "suite"
     assert load_suite().name == load_suite("shipped").name == load_suite(SHIPPED).name == "shipped"
     for basename, name in (
         ("my suite", "my_suite"),
@@ -230,11 +229,13 @@ def test_suites_are_named_shipped_paper_or_by_their_folder(tmp_path, monkeypatch
     ):
         shutil.copytree(SHIPPED, tmp_path / basename)
         assert load_suite(tmp_path / basename).name == name
-    # "paper" names the paper suite's folder; while it is missing, the usual one-line error
-    monkeypatch.setitem(suite_module.SUITES, "paper", tmp_path / "nowhere")
+    # "paper" names the paper suite's folder (in the authors' files' conversion, under the
+    # cache); while it is missing, the usual one-line error
+    monkeypatch.setitem(suite_module.SUITES, "paper", lambda: tmp_path / "nowhere")
     with pytest.raises(SuiteError, match="nowhere is not a suite folder: it has no suite.json"):
         load_suite("paper")
-    monkeypatch.setitem(suite_module.SUITES, "paper", tmp_path / "my suite")
+    monkeypatch.setenv("EPOET_CACHE", str(tmp_path))
+    monkeypatch.setitem(suite_module.SUITES, "paper", lambda: tmp_path / "my suite")
     paper = load_suite("paper")
     assert paper.name == "paper" and paper.folder == tmp_path / "my suite"
     assert load_suite(tmp_path / "my suite").name == "paper"  # its folder, given by path

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from mlflow import MlflowClient
 
-from conftest import new_store
+from conftest import authors, new_store
 from epoet.tracking import (
     DEFAULT_TRACKING_URI,
     PARENT_RUN_ENV,
@@ -407,14 +407,13 @@ def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, re
 
     from conftest import ACT_DIM, OBS_DIM
     from epoet.eval.agents import file_source
-    from epoet.eval.reference import FOLDER
 
     uri, _ = store
     monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)  # where load_model("runs:/...") looks
     observations = np.random.default_rng(0).normal(size=(4, OBS_DIM))
     signatures = []
     for agent in ("poet_hexA8/flat.npz", "ppo/0.pt"):
-        path = FOLDER / "agents" / agent
+        path = authors("agents", agent)
         with MlflowTracker(uri, request.node.name) as tracker:
             run_id = tracker.start(agent)
             tracker.log_agent(path, "epoet.eval.agent_model", OBS_DIM, ACT_DIM)

@@ -1,9 +1,10 @@
 """`algo.sac_init`: where ePOET-SAC's SAC learner starts.
 
 - null: cold (random weights, the first `algo.sac.init_random_frames` frames uniform actions);
-- `reference:sac/42`: the authors' SAC actor and twin critics, shipped converted in
-  epoet/reference/ (agents/sac/42.pt, agents/sac/42.critics.pt; already in epoet's observation and
-  action order), as the reference's ePOET-SAC loaded its finished SAC baseline;
+- `reference:sac/42`: the authors' SAC actor and twin critics, converted from their files
+  (epoet.eval.reference: agents/sac/42.pt, agents/sac/42.critics.pt; already in epoet's
+  observation and action order), as the reference's ePOET-SAC loaded its finished SAC baseline:
+  a head start of their 24 hours of compute, which no budget counts;
 - a SAC run of ours: its run folder (the exported `policy.pt`, and `critics.pt` or, for a run
   from before SAC runs exported their critics, the checkpoint's) or its MLflow run id (the
   `policy.pt` and `critics.pt` artifacts).
@@ -13,7 +14,7 @@ optimiser's state stays fresh) with the temperature the source finished at (`alp
 authors' from their log, ours from the run's checkpoint or its last `train/alpha`; the loop
 takes `algo.warm.alpha` instead when set), so the layer sizes and activation must be
 `algo.sac`'s, the weights must be the run's robot's (the authors' are the hexapod's: other robots
-start cold by default, `agent.published_sac`) and act on raw observations (a SAC run with `algo.obs_norm=true`
+take only their `agent.published_sac`) and act on raw observations (a SAC run with `algo.obs_norm=true`
 reads clipped normalised observations, which do not fold into a layer). The actor keeps the
 scale mapping it was trained with: TorchRL's biased softplus for ours, the authors'
 exp(clamp(log_std, -20, 2)) for theirs (epoet/rl/nets.py says why no weights convert one into
@@ -23,7 +24,6 @@ the other). Anything else is refused in one sentence (ConfigError) before the ru
 
 from __future__ import annotations
 
-import json
 import re
 import tempfile
 from dataclasses import dataclass
@@ -44,7 +44,6 @@ from epoet.rl.policy_file import CRITICS_FILE, POLICY_FILE, read_critics
 from epoet.rollout.agent_files import LAYOUT, AgentError, read_torch_policy, robot_mismatch
 
 REFERENCE = "reference:"
-REFERENCE_FOLDER = Path(__file__).resolve().parent.parent / "reference"  # epoet/reference
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
 CRITIC_PREFIX = "critics."  # the critics' keys in a SAC checkpoint's loss state
 # The authors' SAC temperature when their shipped weights were saved: their files hold no
@@ -87,19 +86,27 @@ def _fail(spec: str, problem: str) -> ConfigError:
 
 
 def _reference(spec: str) -> _Found:
-    agents = json.loads((REFERENCE_FOLDER / "manifest.json").read_text())["agents"]
+    from epoet.eval.reference import folder, manifest
+    from epoet.eval.reference.files import ReferenceFileError
+
+    try:
+        agents = manifest()["agents"]
+    except ReferenceFileError as err:
+        raise _fail(spec, f"needs the authors' files: {str(err).rstrip('.')}") from None
     usable = [f"{REFERENCE}{n}" for n, e in agents.items() if e.get("critics")]
     entry = agents.get(spec.removeprefix(REFERENCE))
     if entry is None or not entry.get("critics"):
         what = (
-            "names no shipped agent" if entry is None else f"is the authors' {entry['algo']} agent"
+            "names no agent of the authors'"
+            if entry is None
+            else f"is the authors' {entry['algo']} agent"
         )
         raise _fail(
             spec, f"{what}; a warm start takes a SAC actor with its critics ({', '.join(usable)})"
         )
-    actor = REFERENCE_FOLDER / entry["file"]
+    actor = folder() / entry["file"]
     name = spec.removeprefix(REFERENCE)
-    critics = REFERENCE_FOLDER / entry["critics"]
+    critics = folder() / entry["critics"]
     return _from_files(spec, actor, critics, LOG_STD_SCALE, REFERENCE_ALPHA.get(name))
 
 
@@ -213,6 +220,11 @@ def load_warm_start(
     """The start `spec` names, checked against the learner's layout and the run's robot;
     ConfigError in one sentence for anything that cannot start this learner."""
     start = _resolve(spec, tracking_uri)
+    if spec.startswith(REFERENCE) and spec != agent.published_sac:
+        published = agent.published_sac or "none"
+        raise _fail(
+            spec, f"is not this robot's published SAC agent ({published}); null starts cold"
+        )
     actor, critics = start.actor, start.critics
     actor_sizes = (int(actor["obs_dim"]), int(actor["act_dim"]))
     mismatch = robot_mismatch(actor_sizes, actor.get(LAYOUT), agent)

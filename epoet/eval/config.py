@@ -52,8 +52,10 @@ class AgentCommandConfig:
     run: Optional[str]  # required: an MLflow run id, a run folder or a policy file
     agent: AgentConfig  # episode rules for a bare policy file (a run brings its own)
     tracking: TrackingConfig  # the MLflow store a run id is looked up in and logged to
-    suite: Optional[str]  # shipped, paper or a suite folder; null: shipped
+    suite: Optional[str]  # shipped, paper, admitted or a suite folder; null: shipped
     seed: int  # keys the episodes' starts
+    epoet_3d: Optional[str]  # a copy of ml-tue/ePOET_3D (reference: agents, suite=paper);
+    # null: the environment variable EPOET_3D, else ../shared/ePOET_3D beside the project
 
     def __post_init__(self) -> None:
         check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
@@ -116,14 +118,11 @@ class GalleryConfig:
 
 @dataclass
 class ReferenceConfig:
-    """`python -m epoet.eval.reference source=<checkout>`: convert the authors' published agents
-    and evaluation terrains into epoet's formats (epoet/eval/reference/convert.py)."""
+    """`python -m epoet.eval.reference`: convert the authors' published agents and evaluation
+    terrains into epoet's formats (epoet/eval/reference/convert.py)."""
 
     KEY: ClassVar[str] = ""
 
-    source: Optional[str]  # required: a checkout of github.com/ml-tue/ePOET_3D
-    out: Optional[str]  # the folder written (or checked); null: the shipped epoet/reference
+    source: Optional[str]  # a copy of github.com/ml-tue/ePOET_3D; null: the epoet_3d setting
+    out: Optional[str]  # the folder written (or checked); null: the cache commands read
     check: bool  # convert and compare with `out`, write nothing
-
-    def __post_init__(self) -> None:
-        check(bool(self.source), "source is required: source=<a checkout of ml-tue/ePOET_3D>.")

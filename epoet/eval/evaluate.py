@@ -66,6 +66,7 @@ from epoet.eval.keys import (
     suite_argument,
     tag,
 )
+from epoet.eval.reference.files import configure
 from epoet.eval.suite import (
     LEVELS,
     Suite,
@@ -185,8 +186,9 @@ def evaluate_run(
     returns the evaluation, its results folder and the agent's run. Episodes run on `pool`
     (`evaluation_pool`), or on a pool of `cfg.processes` opened for this evaluation."""
     assert cfg.run is not None  # required: AgentCommandConfig checks it
+    configure(cfg.epoet_3d)
+    suite = load_suite(cfg.suite)  # before the run: resolving an authors' agent writes the store
     run = resolve_run(cfg.run, cfg.tracking.uri)
-    suite = load_suite(cfg.suite)
     folder = results_folder(cfg, run, suite)
     workers = cfg.processes or default_workers()  # `pool`'s, when given (one config made both)
     rules = suite.course.rules(run.agent_config(cfg.agent))

@@ -24,7 +24,9 @@ from dataclasses import dataclass
 
 RESULTS = "evaluation"  # the artifact folder, and the default results folder name
 SHIPPED_NAME = "shipped"  # the shipped suite's name (epoet/suite/)
-PAPER_NAME = "paper"  # the paper's suite (epoet/reference/suite/)
+PAPER_NAME = "paper"  # the paper's suite (the authors' evaluation genomes)
+ADMITTED_NAME = "admitted"  # the validation suite (genomes the authors' runs admitted)
+NAMED_SUITES = (SHIPPED_NAME, PAPER_NAME, ADMITTED_NAME)  # what `suite=<name>` takes
 SUITE_TAG = "eval_suite"
 SCALE_TAG = "eval_course_scale"
 EPISODES_TAG = "eval_episodes"
@@ -56,7 +58,7 @@ class Logged:
 def suite_argument(suite: str, folder: object) -> str:
     """What names the suite `suite` (in `folder`) to the commands' `suite=`: a named suite by
     its name, any other by its folder."""
-    return suite if suite in (SHIPPED_NAME, PAPER_NAME) else str(folder)
+    return suite if suite in NAMED_SUITES else str(folder)
 
 
 def logged_evaluation(tags: Mapping[str, str], suite: str, fingerprint: str) -> Logged | None:

@@ -80,6 +80,7 @@ from epoet.envs.terrain_env import TerrainEnv  # noqa: E402
 from epoet.eval.agents import AgentError, TrainedRun, resolve_run  # noqa: E402
 from epoet.eval.config import RenderConfig  # noqa: E402
 from epoet.eval.film import Film, caption_text  # noqa: E402
+from epoet.eval.reference.files import configure  # noqa: E402
 from epoet.eval.suite import SuiteError, load_suite, terrain_config_for  # noqa: E402
 from epoet.terrain import Terrain, TerrainFileError  # noqa: E402
 from epoet.tracking import TrackingError  # noqa: E402
@@ -252,6 +253,7 @@ def main(argv: list[str] | None = None) -> None:
         cfg = parse_args(sys.argv[1:] if argv is None else argv)
         imageio = require_imageio()
         assert cfg.run is not None and cfg.terrain is not None  # required: RenderConfig checks
+        configure(cfg.epoet_3d)
         run = resolve_run(cfg.run, cfg.tracking.uri)  # checked before GL is proven
         run.agent_config(cfg.agent)  # the robot the policy was trained on: checked before GL
         open_gl()

@@ -28,7 +28,9 @@ Suite folder format (any folder in this format can be evaluated, `suite=<folder>
 - `genomes.npz` (optional): each terrain's pickled neat genome as uint8, for provenance.
 
 A suite's NAME keys its evaluations in a run (`epoet.eval.keys`): "shipped" (epoet/suite/),
-"paper" (epoet/reference/suite/), the two `SUITES`, or another folder's (`suite_name`).
+"paper" (the authors' evaluation terrains) and "admitted" (the validation suite: terrains their
+runs admitted; both converted on use from their files, epoet/eval/reference/suites.py), the
+`SUITES`, or another folder's (`suite_name`).
 
 This module is the format, its loader and the command `python -m epoet.eval.suite`; the
 procedure above and the writer live in epoet/eval/suite_generation.py, and what the two share
@@ -42,7 +44,7 @@ import functools
 import hashlib
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,9 +56,10 @@ from epoet.config import load
 from epoet.core.cli import fail
 from epoet.core.schema import ConfigError, closest
 from epoet.eval.config import SuiteConfig
-from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
+from epoet.eval.keys import ADMITTED_NAME, PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite_format import (
     LEVELS,
+    SHIPPED,
     SUITE_FORMAT,
     Course,
     dequantize,
@@ -65,13 +68,32 @@ from epoet.eval.suite_format import (
 from epoet.eval.suite_generation import differences, generate, write_suite
 from epoet.terrain.config import MutationError, TerrainConfig
 
-SHIPPED = Path(__file__).resolve().parent.parent / "suite"
-PAPER = Path(__file__).resolve().parent.parent / "reference" / "suite"
-SUITES = {SHIPPED_NAME: SHIPPED, PAPER_NAME: PAPER}  # the named suites
-
 
 class SuiteError(ValueError):
     """A suite folder that cannot be used; the message names the folder and the problem."""
+
+
+def _converted(subfolder: str) -> Callable[[], Path]:
+    """An authors' suite: its folder in their files' conversion, made on first use."""
+
+    def folder() -> Path:
+        from epoet.eval.reference import folder as reference_folder
+        from epoet.eval.reference.files import ReferenceFileError
+
+        try:
+            return reference_folder() / subfolder
+        except ReferenceFileError as err:
+            raise SuiteError(str(err)) from None
+
+    return folder
+
+
+# The named suites, each a function giving its folder (the authors' need their files).
+SUITES: dict[str, Callable[[], Path]] = {
+    SHIPPED_NAME: lambda: SHIPPED,
+    PAPER_NAME: _converted("suite"),
+    ADMITTED_NAME: _converted("admitted"),  # the validation suite (reference/suites.py)
+}
 
 
 def terrain_config_for(terrains: Sequence[Any]) -> TerrainConfig:
@@ -158,9 +180,17 @@ def example_terrain(level: str = "medium", suite: Suite | None = None) -> str:
 def suite_name(folder: Path) -> str:
     """A named suite's folder: its name; another: its basename in [A-Za-z0-9_.-], "dir-" before a
     named suite's name (`paper/` is no paper suite); `eval_suite/<name>` tells same names apart."""
-    named = {path.resolve(): name for name, path in SUITES.items()}
+    named = {SHIPPED.resolve(): SHIPPED_NAME}
+    if _is_converted(folder):  # no conversion is made just to name a folder
+        named |= {path().resolve(): name for name, path in SUITES.items()}
     base = re.sub(r"[^A-Za-z0-9_.-]", "_", folder.resolve().name).strip(".") or "suite"
     return named.get(folder.resolve()) or (f"dir-{base}" if base in SUITES else base)
+
+
+def _is_converted(folder: Path) -> bool:
+    from epoet.eval.reference.files import cache_root
+
+    return folder.resolve().is_relative_to(cache_root().resolve())
 
 
 def load_suite(folder: str | Path | None = None) -> Suite:
@@ -173,7 +203,7 @@ def load_suite(folder: str | Path | None = None) -> Suite:
             f"there is no suite {key}: a suite is {', '.join(SUITES)} or a suite folder"
             + (f"; did you mean {meant}?" if meant else f", and no folder {key} exists.")
         )
-    folder, key = (SUITES[key], key) if key in SUITES else (Path(key), suite_name(Path(key)))
+    folder, key = (SUITES[key](), key) if key in SUITES else (Path(key), suite_name(Path(key)))
     if not (folder / "suite.json").is_file():
         raise SuiteError(f"{folder} is not a suite folder: it has no suite.json.")
     if not (folder / "heights.npz").is_file():

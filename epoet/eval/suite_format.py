@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -14,6 +15,7 @@ from epoet.envs.model import patch_variance
 
 # 2: the reference's CPPN feature scale and 22 m course, and the course's own episode length.
 SUITE_FORMAT = "epoet-suite/2"
+SHIPPED = Path(__file__).resolve().parent.parent / "suite"  # the shipped suite's folder
 LEVELS = ("easy", "medium", "hard", "extreme")
 LEVEL_BOUNDS = (1e-3, 1e-2, 1e-1)  # m^2 of patch variance between consecutive levels
 _QUANT = 65535

@@ -1,12 +1,13 @@
 """The authors' published agents and evaluation terrains (github.com/ml-tue/ePOET_3D,
-`trained_models/`), converted into epoet's formats and shipped in `epoet/reference/`.
+`trained_models/`), read where the user keeps them and converted into epoet's formats on use
+(files.py: where, and the cache; convert.py: how).
 
-`reference:<run>/<agent>` (e.g. `reference:poet_hexA8/flat`, `reference:ppo/0`) names a shipped
-agent wherever a run is accepted. It runs with the paper budget's agent config (RK4, 2000-step
+`reference:<run>/<agent>` (e.g. `reference:poet_hexA8/flat`, `reference:ppo/0`) names one of
+their agents wherever a run is accepted. It runs with the paper budget's agent config (RK4, 2000-step
 training episodes: as the authors trained it) and the paper's score scale; its results go to an
 MLflow run of its own in the experiment `reference` (made on first use, with the agent as its
 MLflow model), so `make tables EXPERIMENT=reference` tables the authors' agents like any runs.
-`python -m epoet.eval.reference` (convert.py) regenerates the folder from a checkout.
+`python -m epoet.eval.reference` (convert.py) converts by hand and says where.
 """
 
 from __future__ import annotations
@@ -21,16 +22,23 @@ if TYPE_CHECKING:
     from epoet.eval.trained_run import TrainedRun
     from epoet.tracking import StoredRun
 
-FOLDER = Path(__file__).resolve().parent.parent.parent / "reference"
-MANIFEST = "manifest.json"
 PREFIX = "reference:"
 EXPERIMENT = "reference"
 
 
+def folder() -> Path:
+    """The converted files (made on first use); ReferenceFileError says what is missing."""
+    from epoet.eval.reference.convert import converted
+
+    return converted()
+
+
 @cache
-def manifest(folder: Path = FOLDER) -> dict[str, Any]:
-    """The shipped manifest: the source checkout and every converted agent's entry."""
-    return json.loads((folder / MANIFEST).read_text())
+def manifest() -> dict[str, Any]:
+    """The conversion's manifest: the source's commit and every converted agent's entry."""
+    from epoet.eval.reference.files import MANIFEST
+
+    return json.loads((folder() / MANIFEST).read_text())
 
 
 def names() -> list[str]:
@@ -38,22 +46,26 @@ def names() -> list[str]:
 
 
 def resolve(spec: str, tracking_uri: str | None) -> TrainedRun:
-    """`reference:<run>/<agent>` as a TrainedRun; AgentError naming the shipped agents if
-    there is no such agent."""
+    """`reference:<run>/<agent>` as a TrainedRun; AgentError naming their agents if there is no
+    such agent or their files are missing."""
     from epoet.config import load
     from epoet.envs.config import HEXAPOD
     from epoet.envs.spaces import robot_sizes
+    from epoet.eval.reference.files import ReferenceFileError
     from epoet.eval.trained_run import AgentSource, TrainedRun
     from epoet.rollout.agent_files import AgentError
 
     name = spec.removeprefix(PREFIX)
-    entry = manifest()["agents"].get(name)
+    try:
+        entry = manifest()["agents"].get(name)
+    except ReferenceFileError as err:
+        raise AgentError(f"run={spec}: {err}") from None
     if entry is None:
         raise AgentError(
-            f"run={spec} names no shipped reference agent; there are "
+            f"run={spec} names no agent of the authors'; there are "
             f"{', '.join(PREFIX + n for n in names())}."
         )
-    source = AgentSource(entry["kind"], FOLDER / entry["file"])
+    source = AgentSource(entry["kind"], folder() / entry["file"])
     source.check()
     # how the authors trained: their hexapod, RK4, 2000-step episodes
     paper = load(["budget=paper", f"agent={HEXAPOD}"])

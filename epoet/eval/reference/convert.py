@@ -1,7 +1,9 @@
-"""`python -m epoet.eval.reference source=<checkout of ml-tue/ePOET_3D> [out=] [check=true]`:
+"""`python -m epoet.eval.reference [source=<copy of ml-tue/ePOET_3D>] [out=] [check=true]`:
 the authors' published agents and evaluation terrains in epoet's formats.
 
-Writes, under `out` (default: the shipped epoet/reference/):
+Every command that needs them converts on use (files.py: into a cache folder, keyed by the
+inputs' hashes and `CONVERTER_VERSION`); this command does the same conversion by hand and
+prints the folder, or writes it to `out`, or with check=true compares `out` with it. Writes:
 - `agents/<run>/<agent>.npz`: each ES niche agent of the runs in ES_RUNS (`theta` in epoet's
   layout, `layer_sizes`, `score` as their run logged it, `reference_theta` as published, and
   `provenance`, a JSON text);
@@ -11,26 +13,27 @@ Writes, under `out` (default: the shipped epoet/reference/):
 - `genomes.json`: the 32 CPPN genomes of `cppngenomes_b` as plain data;
 - `suite/`: those genomes rendered as the reference's evaluation terrains (`suite=paper`).
 Every agent is re-ordered to epoet's observation and action (layout.py) and `manifest.json`
-lists each with its source path, the checkout's commit and the score the reference logged.
-Nothing of the authors' code is imported (pickles.py); the output is the same bytes each time,
-so check=true proves the shipped folder is the checkout's conversion.
+lists each with its source path, the source's commit and the score the reference logged.
+Nothing of the authors' code is imported (pickles.py); the output is the same bytes each time.
 
 Examples:
 
-    git clone https://github.com/ml-tue/ePOET_3D /tmp/ePOET_3D
-    python -m epoet.eval.reference source=/tmp/ePOET_3D check=true
+    python -m epoet.eval.reference                            # convert (once) and print where
     python -m epoet.eval.reference source=/tmp/ePOET_3D out=/tmp/reference
+    python -m epoet.eval.reference out=/tmp/reference check=true
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import re
-import subprocess
-import zipfile
-from collections.abc import Mapping
+import shutil
+import sys
+import tempfile
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -38,10 +41,23 @@ import numpy as np
 
 from epoet.cli import KeyValueCommand
 from epoet.core.cli import fail
-from epoet.core.files import atomic_write
+from epoet.core.files import atomic_write, npz_bytes
 from epoet.core.schema import ConfigError
 from epoet.eval.config import ReferenceConfig
-from epoet.eval.reference import FOLDER, MANIFEST
+from epoet.eval.reference.files import (
+    CRITIC_RUNS,
+    ES_RUNS,
+    MANIFEST,
+    MODELS,
+    REPOSITORY,
+    SOURCE,
+    TORCH_RUNS,
+    ReferenceFileError,
+    cache_root,
+    checked_inputs,
+    configure,
+    source,
+)
 from epoet.eval.reference.layout import (
     ACT_DIM,
     CONTACTS,
@@ -53,60 +69,21 @@ from epoet.eval.reference.layout import (
     fold_output_rows,
     observation_source,
 )
-from epoet.eval.reference.pickles import ReferenceFileError, read_genome, read_normaliser, to_neat
-from epoet.eval.suite import load_suite
-from epoet.eval.suite_format import SUITE_FORMAT, level_of, quantize
+from epoet.eval.reference.pickles import read_normaliser
+from epoet.eval.reference.suites import convert_admitted, convert_paper
 from epoet.rollout.agent_files import POLICY_FORMAT
 from epoet.rollout.policy import num_params
-from epoet.terrain.cppn import render_reference
-from epoet.terrain.reference_rendering import EVAL_HEIGHT
 
 COMMAND = KeyValueCommand("reference", __doc__, ReferenceConfig)
 
-REPOSITORY = "github.com/ml-tue/ePOET_3D"
-MODELS = "trained_models"
-# run -> (folder under trained_models, algorithm)
-ES_RUNS = {
-    "poet_hexA8": ("poet/poet_hexA8", "epoet"),
-    "poet_twin22": ("poet_sac/poet_twin22", "epoet_sac"),
-}
-# run -> (activation, has an observation normaliser); the files are model/model_pf_best.pth
-TORCH_RUNS = {"ppo/0": ("tanh", True), "sac/42": ("relu", False), "vmpo/42": ("tanh", True)}
-CRITIC_RUNS = ("sac/42",)  # their twin Q networks too (model_qf1_best.pth, model_qf2_best.pth)
+# Bump when the output changes for the same inputs: every cache folder is made anew.
+CONVERTER_VERSION = 2  # 2: the validation suite, admitted/
+
 CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.rl.sac_loss), plus provenance
 _LAYERS = ("base.seq_fcs.0", "base.seq_fcs.2", "seq_append_fcs.0")
 ES_SIZES = (OBS_DIM, 40, 40, ACT_DIM)  # their ES agents' MLP (docs/reference.md)
-GENOMES = f"{MODELS}/cppngenomes/cppngenomes_b"
 NORM_EPS = 1e-4  # their normaliser divides by sqrt(var) + 1e-4
-_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # fixed, so a conversion is the same bytes every time
-# Table 1's denominators in the reference's evaluate_rl_models.py: 9 easy, 14 medium, 9 hard
-LEVEL_COUNTS = (("easy", 9), ("medium", 14), ("hard", 9))
 _UUID = re.compile(r"^[0-9a-f]{8}-[0-9a-f]{4}-")
-
-
-def npz_bytes(arrays: Mapping[str, np.ndarray | np.generic]) -> bytes:
-    """An .npz (np.load reads it) without the write time numpy's savez puts in it."""
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w") as archive:
-        for name, value in arrays.items():
-            array = io.BytesIO()
-            np.lib.format.write_array(array, np.asanyarray(value), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{name}.npy", _ZIP_TIME)
-            info.compress_type = zipfile.ZIP_DEFLATED
-            archive.writestr(info, array.getvalue())
-    return buffer.getvalue()
-
-
-def _commit(source: Path) -> str:
-    try:
-        return subprocess.run(
-            ["git", "-C", str(source), "rev-parse", "HEAD"],
-            check=True,
-            capture_output=True,
-            text=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown (not a git checkout)"
 
 
 def _es_agent(path: Path) -> tuple[np.ndarray, float]:
@@ -276,60 +253,6 @@ def _critics(folder: Path, activation: str) -> bytes:
     return buffer.getvalue()
 
 
-def convert_suite(source: Path, files: dict[str, bytes]) -> dict[str, Any]:
-    """genomes.json and the paper suite: the k-th genome (by file name: the authors' save
-    times, so 4 rounds of 8) is terrain r<k // 8>c<k % 8>, its bowl drawn from seed k.
-
-    Levels: the reference bucketed the patch variance under each agent's own path, so its
-    levels depended on the agent; its evaluate_rl_models.py then fixed Table 1's counts at 9
-    easy, 14 medium and 9 hard. Here the terrains are ranked by their course roughness (the
-    same variance along the straight course, epoet.eval.suite) and given those counts; the
-    reference's thresholds on that roughness are kept as `threshold_level`."""
-    paths = sorted((source / GENOMES).glob("*.pickle"))
-    if len(paths) != sum(n for _, n in LEVEL_COUNTS):
-        raise ReferenceFileError(
-            f"{source / GENOMES} holds {len(paths)} genome pickles, not "
-            f"the {sum(n for _, n in LEVEL_COUNTS)} of the paper's suite."
-        )
-    course = load_suite().course  # the reference's course, as the shipped suite has it
-    genomes, heights = {}, {}
-    entries: list[dict[str, Any]] = []
-    for k, path in enumerate(paths):
-        name = f"r{k // 8}c{k % 8}"
-        genome = read_genome(path)
-        genomes[name] = {"source": str(path.relative_to(source)), **genome}
-        heights[name] = quantize(render_reference(to_neat(genome), k, EVAL_HEIGHT))
-        rough = course.roughness(heights[name] / 65535.0, EVAL_HEIGHT**2, 40.0)
-        entries.append(
-            {
-                "name": name,
-                "roughness": rough,
-                "threshold_level": level_of(rough),
-                "max_height": EVAL_HEIGHT**2,
-                "round": k // 8,
-                "child": k % 8,
-                "seed": k,
-                "genome": path.name,
-            }
-        )
-    ranked = sorted(range(len(entries)), key=lambda k: entries[k]["roughness"])
-    bounds = np.cumsum([n for _, n in LEVEL_COUNTS])
-    for rank, k in enumerate(ranked):
-        entries[k]["level"] = LEVEL_COUNTS[int(np.searchsorted(bounds, rank, side="right"))][0]
-    index = {
-        "format": SUITE_FORMAT,
-        "size": 40.0,
-        "grid": 200,
-        "course": vars(course),
-        "origin": f"{REPOSITORY} {GENOMES}, rendered by epoet.terrain.reference_rendering",
-        "terrains": entries,
-    }
-    files["genomes.json"] = (json.dumps(genomes, indent=1) + "\n").encode()
-    files["suite/heights.npz"] = npz_bytes(heights)
-    files["suite/suite.json"] = (json.dumps(index, indent=1) + "\n").encode()
-    return {e["name"]: e["level"] for e in entries}
-
-
 def convert(source: Path) -> dict[str, bytes]:
     """Every output file's bytes, by its path under the output folder."""
     if not (source / MODELS).is_dir():
@@ -340,14 +263,49 @@ def convert(source: Path) -> dict[str, bytes]:
     agents: dict[str, Any] = {}
     convert_es(source, files, agents)
     convert_torch(source, files, agents)
-    levels = convert_suite(source, files)
+    levels = convert_paper(source, files)
+    convert_admitted(source, files)
     manifest = {
-        "source": {"repository": REPOSITORY, "commit": _commit(source)},
+        "source": {"repository": REPOSITORY, "commit": json.loads(SOURCE.read_text())["commit"]},
         "agents": agents,
         "suite_levels": levels,
     }
     files[MANIFEST] = (json.dumps(manifest, indent=1) + "\n").encode()
     return files
+
+
+@cache
+def converted() -> Path:
+    """The folder of the conversion every command reads, made on first use under the cache
+    (files.py), keyed by the inputs' hashes and CONVERTER_VERSION; ReferenceFileError (one
+    line) when the inputs are missing or not the recorded ones."""
+    folder = source()
+    found = checked_inputs(folder)
+    key = hashlib.sha256(json.dumps([CONVERTER_VERSION, sorted(found.items())]).encode())
+    out = cache_root() / "reference" / key.hexdigest()[:16]
+    if not (out / MANIFEST).is_file():
+        build(folder, out)
+    return out
+
+
+def build(folder: Path, out: Path) -> None:
+    """Convert into a temporary folder beside `out`, then rename it into place, so a reader
+    (another process converting at the same time, too) sees a whole conversion or none."""
+    print(f"[epoet] converting the authors' files from {folder} into {out}", file=sys.stderr)
+    files = convert(folder)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}."))
+    try:
+        for name, data in sorted(files.items(), key=lambda item: item[0] == MANIFEST):
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / name).write_bytes(data)
+        try:
+            tmp.rename(out)
+        except OSError:  # another process finished the same conversion first
+            if not (out / MANIFEST).is_file():
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def differences(out: Path, files: dict[str, bytes]) -> list[str]:
@@ -361,18 +319,23 @@ def differences(out: Path, files: dict[str, bytes]) -> list[str]:
 def main(argv: list[str] | None = None) -> None:
     cfg: ReferenceConfig = COMMAND.parse(argv)
     try:
-        out = FOLDER if cfg.out is None else Path(cfg.out)
-        assert cfg.source is not None  # required: ReferenceConfig checks it
-        files = convert(Path(cfg.source))
+        configure(cfg.source)
+        folder = source()
+        checked_inputs(folder)
+        if cfg.out is None and not cfg.check:
+            print(f"the authors' files from {folder}, converted: {converted()}/")
+            return
+        out = converted() if cfg.out is None else Path(cfg.out)
+        files = convert(folder)
         if cfg.check:
             if found := differences(out, files):
                 fail(
                     ReferenceFileError(
-                        f"{out} differs from the conversion of {cfg.source} in "
+                        f"{out} differs from the conversion of {folder} in "
                         f"{len(found)} file(s): {', '.join(found[:5])}."
                     )
                 )
-            print(f"{out} matches the conversion of {cfg.source} bit for bit ({len(files)} files)")
+            print(f"{out} matches the conversion of {folder} bit for bit ({len(files)} files)")
             return
         for name, data in files.items():
             (out / name).parent.mkdir(parents=True, exist_ok=True)

@@ -17,6 +17,8 @@ from typing import Any
 import neat
 import numpy as np
 
+from epoet.eval.reference.files import ReferenceFileError
+
 try:  # numpy's array reconstruction; numpy 2 moved the module its pickles name
     from numpy._core import multiarray as _multiarray
 except ImportError:  # numpy 1
@@ -29,10 +31,6 @@ _NUMPY: dict[tuple[str, str], Any] = {
 for _module in ("numpy.core.multiarray", "numpy._core.multiarray"):
     _NUMPY[(_module, "_reconstruct")] = _multiarray._reconstruct
     _NUMPY[(_module, "scalar")] = _multiarray.scalar
-
-
-class ReferenceFileError(ValueError):
-    """An authors' file that cannot be read or is not what it should be; one sentence."""
 
 
 class Record:
