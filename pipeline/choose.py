@@ -1,6 +1,7 @@
 """`python -m pipeline.choose --records <records>/<algo>_s<seed>...`: the held-out choice of a
 pool's agent (`selection`, epoet/rollout/selection.py) for records whose runs trained before
-runs chose their agent on held-out terrains.
+runs chose their agent on held-out terrains, and the evaluation of records' snapshots on
+another suite (`--suites admitted`, the validation suite; `--minutes`, `--exported-only`).
 
 Each CPU-time snapshot of the record without an exported agent gets one, chosen as the run
 would have chosen it (among its niches' best and last parameters, on the held-out terrains of
@@ -13,6 +14,8 @@ no training budget.
 Examples:
 
     python -m pipeline.choose --records docs/results/compute/epoet_s1 docs/results/compute/epoet_s2
+    python -m pipeline.choose --records docs/results/levers/*/epoet_s* --suites admitted \
+        --minutes 60 --exported-only
 """
 
 from __future__ import annotations
@@ -65,8 +68,17 @@ def snapshot_niches(folder: Path) -> list:
     return niches
 
 
-def choose_record(record: Path, selection: Sequence[str], suites: list, cfg, pool) -> None:
-    """Give every snapshot of `record` its held-out choice, evaluate it, rewrite run.json."""
+def choose_record(
+    record: Path,
+    selection: Sequence[str],
+    suites: list,
+    cfg,
+    pool,
+    minutes: set[str] | None = None,
+    exported_only: bool = False,
+) -> None:
+    """Give every snapshot of `record` (`minutes`: those marks only) its held-out choice,
+    evaluate it (`exported_only`: only the exported agent), rewrite run.json."""
     from epoet.config import load
     from epoet.eval.agents import resolve_run
     from epoet.open_ended.exported_agent import choose
@@ -75,8 +87,10 @@ def choose_record(record: Path, selection: Sequence[str], suites: list, cfg, poo
     info = json.loads((record / RUN_FILE).read_text())
     run = load([*run_overrides(info["command"]), *selection])
     trained = resolve_run(str(record))
-    for minutes, entry in info["snapshots"].items():
-        folder = record / f"cpu{minutes}"
+    for mark, entry in info["snapshots"].items():
+        if minutes is not None and mark not in minutes:
+            continue
+        folder = record / f"cpu{mark}"
         if not (folder / ES_POLICIES / EXPORTED_AGENT).is_file():
             niches = snapshot_niches(folder)
             _, sizes = read_es_policy(niches_of(folder)[0])
@@ -85,13 +99,14 @@ def choose_record(record: Path, selection: Sequence[str], suites: list, cfg, poo
                 folder, niches, run, run.agent, sizes, iteration=iteration, post_hoc=True
             )
             print(
-                f"[choose] {record.name} cpu{minutes}: {chosen['exported']} (own-terrain "
+                f"[choose] {record.name} cpu{mark}: {chosen['exported']} (own-terrain "
                 f"choice {chosen['own']}; {chosen['cpu_s']:.0f} CPU s)",
                 flush=True,
             )
-        fresh = evaluate_snapshot(folder, record, trained, suites, cfg, pool)
+        fresh = evaluate_snapshot(folder, record, trained, suites, cfg, pool, exported_only)
         fresh["evaluations"] = {**entry.get("evaluations", {}), **fresh["evaluations"]}
-        info["snapshots"][minutes] = fresh
+        info["snapshots"][mark] = fresh
+        write_json(record / RUN_FILE, info)  # each snapshot's evaluation kept as it arrives
     info["evaluations"] = promote_latest(record, info["snapshots"])
     write_json(record / RUN_FILE, info)
 
@@ -105,6 +120,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--selection", nargs="*", default=[], help="selection.* overrides (default: the config's)"
     )
+    parser.add_argument(
+        "--minutes", default=None, help="only the snapshots at these CPU minutes, e.g. 60,30"
+    )
+    parser.add_argument(
+        "--exported-only",
+        action="store_true",
+        help="evaluate only the agent each snapshot exported, not every niche's",
+    )
     args = parser.parse_args(argv)
 
     def choose_all() -> None:
@@ -116,11 +139,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         from epoet.eval.suite import load_suite
 
         suites = [load_suite(name) for name in args.suites.split(",")]
+        marks = None if args.minutes is None else {f"{float(m):g}" for m in args.minutes.split(",")}
         with evaluation_pool(args.processes) as pool:
             for record in args.records:
                 overrides = [f"run={record}", f"episodes={args.episodes}"]
                 cfg = validate(compose(overrides, config_name="evaluate"))
-                choose_record(record, args.selection, suites, cfg, pool)
+                choose_record(record, args.selection, suites, cfg, pool, marks, args.exported_only)
 
     return run_command(choose_all)
 

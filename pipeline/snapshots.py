@@ -143,9 +143,11 @@ def evaluate_snapshot(
     suites: Sequence[Suite],
     cfg: EvaluateConfig,
     pool: Any,
+    exported_only: bool = False,
 ) -> dict[str, Any]:
-    """Every agent of the snapshot on every suite (those not evaluated before), its files copied
-    into the record; returns the snapshot's entry of run.json."""
+    """Every agent of the snapshot (`exported_only`: the one the run exported) on every suite
+    (those not evaluated before), its files copied into the record; returns the snapshot's
+    entry of run.json (the niches' mean only where every niche was evaluated)."""
     target = record / snapshot.name
     for path in [*files_of(snapshot), snapshot / SNAPSHOT_INFO]:
         copy = target / path.relative_to(snapshot)
@@ -166,7 +168,7 @@ def evaluate_snapshot(
     }
     for suite in suites:
         rates = {}
-        for path in agents_of(snapshot):
+        for path in [best.path] if exported_only else agents_of(snapshot):
             out = target / path.stem / suite.name
             if not (out / SUMMARY).is_file():
                 agent = evaluated_agent(path, snapshot.name, trained)
@@ -189,16 +191,18 @@ def evaluate_snapshot(
                 )
                 (out / "actions.npz").unlink()  # the t-SNE samples: not kept in records
             rates[path.stem] = json.loads((out / SUMMARY).read_text())
-        niches = [rates[p.stem] for p in niches_of(snapshot)] or list(rates.values())
+        pool_rates = [rates[p.stem] for p in niches_of(snapshot) if p.stem in rates]
+        niches = pool_rates if len(pool_rates) == len(niches_of(snapshot)) else []
+        niches = niches or ([] if exported_only else list(rates.values()))
         key = f"suite/{suite.name}/success_rate"
         entry["evaluations"][suite.name] = {
             "fingerprint": suite.fingerprint,
-            "course_scale": niches[0]["course_scale"],
+            "course_scale": rates[best.path.stem]["course_scale"],
             "episodes_per_terrain": cfg.episodes,
             "commit": rates[best.path.stem].get("commit"),
             "success_rate": rates[best.path.stem][key],  # the exported agent's
-            **({"success_rate_own": rates[own][key]} if own else {}),
-            "success_rate_mean": sum(s[key] for s in niches) / len(niches),
+            **({"success_rate_own": rates[own][key]} if own and own in rates else {}),
+            **({"success_rate_mean": sum(s[key] for s in niches) / len(niches)} if niches else {}),
             "agents": {name: s[key] for name, s in rates.items()},
         }
     return entry
