@@ -180,7 +180,12 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
         # job given a larger budget continues (its checkpoint is its final state).
         checkpointed = (run_dir / CHECKPOINT_NAME).is_file()
         limits = finished_limits(run_dir)
-        if limits is not None and not (checkpointed and extends_budget(limits, cfg.budget)):
+        if limits is not None and not checkpointed:
+            raise CheckpointError(
+                f"{run_dir} is marked finished ({DONE}) but holds no {CHECKPOINT_NAME}: there is "
+                f"nothing to continue; remove {run_dir / DONE} to train there again."
+            )
+        if limits is not None and not extends_budget(limits, cfg.budget):
             return None
         resume_from = run_dir if checkpointed else None
     if resume_from:

@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from epoet.core.checkpoint import CHECKPOINT_NAME, save_checkpoint
+from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, save_checkpoint
 from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
@@ -112,12 +112,22 @@ def mark_done(run_dir: Path, run_id: str, budget: BudgetConfig) -> None:
 
 def finished_limits(run_dir: Path) -> dict[str, Any] | None:
     """The budget limits the run in `run_dir` finished on (its DONE file); None: not finished.
-    A DONE from before it held them reads as no limits, so that run stays finished."""
+    A DONE from before it held them reads as no limits, so that run stays finished;
+    CheckpointError (one line, what to do) for a DONE that is no run's mark."""
     done = Path(run_dir) / DONE
     if not done.is_file():
         return None
-    limits = done.read_text().partition("\n")[2].strip()
-    return json.loads(limits) if limits else {}
+    try:
+        run_id, _, limits = done.read_text().partition("\n")
+        found = json.loads(limits) if limits.strip() else {}
+        if not (run_id.strip().isalnum() and isinstance(found, dict)):
+            raise ValueError("no run id and budget limits")
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise CheckpointError(
+            f"{done} is no finished run's mark ({str(err).splitlines()[0]}): remove it to "
+            f"train in {run_dir} again."
+        ) from None
+    return found
 
 
 def extends_budget(limits: dict[str, Any], budget: BudgetConfig) -> bool:

@@ -101,7 +101,6 @@ TINY_SIZES = {
         "algo.init_random_frames=60",
     ],
     "epoet_sac": [
-        "algo.sac_init=null",  # cold: the shipped warm start's networks are [256, 256]
         "algo.frames_per_iteration=40",
         "algo.sac.hidden=[32,32]",
         "algo.sac.batch_size=32",

@@ -115,6 +115,16 @@ ROWS = [
     ),
     ("resume changed config", ["resume={good}", "seed=1"], "seed (0 -> 1)"),
     ("unreachable tracking", ["tracking.uri=http://127.0.0.1:9"], "http://127.0.0.1:9"),
+    (
+        "resume=auto on an unreadable DONE",
+        ["resume=auto", "hydra.run.dir={tmp}/done_garbage"],
+        "DONE is no finished run's mark (",
+    ),
+    (
+        "resume=auto on a DONE without a checkpoint",
+        ["resume=auto", "hydra.run.dir={tmp}/done_only"],
+        "holds no checkpoint.pkl: there is nothing to continue; remove",
+    ),
     ("store in a missing folder", ["tracking.uri=sqlite:///{tmp}/nowhere/m.db"], "does not exist"),
     ("output folder not a folder", ["hydra.run.dir={tmp}/a_file/run"], "Not a directory"),
 ]
@@ -157,6 +167,10 @@ def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) ->
     saved = checkpoint.read_bytes()
     (tmp / "corrupt.pkl").write_bytes(saved[: len(saved) // 2])
     (tmp / "a_file").write_text("not a folder")
+    marks = {"done_garbage": b"\xff\xfe not a mark", "done_only": b"0123abcd\n{}\n"}
+    for folder, mark in marks.items():
+        (tmp / folder).mkdir()
+        (tmp / folder / "DONE").write_bytes(mark)
     before = _runs(uri)
     procs = {}
     for i, (name, overrides, _) in enumerate(ROWS):  # all at once: each waits on imports
@@ -177,6 +191,7 @@ def test_every_row_of_the_table_is_one_line_exit_2_and_destroys_nothing(good) ->
         assert len(lines) == 1 and lines[0].startswith("error: "), (name, err[-2000:])
         assert message.format(tmp=tmp) in lines[0], (name, lines[0])
     assert checkpoint.read_bytes() == saved
+    assert all((tmp / folder / "DONE").read_bytes() == mark for folder, mark in marks.items())
     assert _runs(uri) == before  # no run created, finished, failed or deleted
     assert not list((tmp / "bad").rglob("checkpoint.pkl"))
     # a refused run leaves no folder: Hydra's (new, holding only its .hydra/) is removed

@@ -331,7 +331,7 @@ def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monk
     from epoet.core.checkpoint import save_checkpoint
     from epoet.eval import evaluate
     from epoet.rollout.policy import init_params
-    from epoet.tracking import MlflowTracker, store
+    from epoet.tracking import MlflowTracker
 
     elsewhere = f"sqlite:///{tmp_path / 'elsewhere' / 'mlflow.db'}"
     (tmp_path / "elsewhere").mkdir()
@@ -348,13 +348,11 @@ def test_evaluating_a_run_of_another_store_leaves_no_store_behind(tmp_path, monk
         folder / "checkpoint.pkl",
         {"run_id": run_id, "algo": "epoet", "config": dataclasses.asdict(load([]))},
     )
-    default = tmp_path / "project" / "mlflow.db"
-    default.parent.mkdir()
-    monkeypatch.setattr(store, "DEFAULT_TRACKING_URI", f"sqlite:///{default}")
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     cwd = tmp_path / "cwd"
     cwd.mkdir()
     monkeypatch.chdir(cwd)
+    default = cwd / "mlflow.db"  # the default store: where the command started
     capsys.readouterr()  # MLflow's own log lines from creating the run's store
     one_line_error(
         capsys,

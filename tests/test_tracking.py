@@ -16,12 +16,11 @@ from mlflow import MlflowClient
 
 from conftest import authors, new_store
 from epoet.tracking import (
-    DEFAULT_TRACKING_URI,
     PARENT_RUN_ENV,
-    PROJECT_ROOT,
     MlflowTracker,
     Tracker,
     TrackingError,
+    default_tracking_uri,
     flatten,
     metric_key,
     parent_run_id,
@@ -280,10 +279,10 @@ def test_unusable_store_fails_fast_with_one_line(tmp_path, monkeypatch, uri, pro
     assert not (tmp_path / "no").exists()  # MLflow would have created the directories
 
 
-def test_default_store_is_absolute_sqlite_in_project_root(monkeypatch):
+def test_the_default_store_is_absolute_sqlite_where_the_command_started(monkeypatch, tmp_path):
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
-    assert resolve_tracking_uri() == DEFAULT_TRACKING_URI == f"sqlite:///{PROJECT_ROOT}/mlflow.db"
-    assert PROJECT_ROOT.is_absolute() and (PROJECT_ROOT / "epoet" / "tracking").is_dir()
+    monkeypatch.chdir(tmp_path)
+    assert resolve_tracking_uri() == default_tracking_uri() == f"sqlite:///{tmp_path}/mlflow.db"
     monkeypatch.setenv("MLFLOW_TRACKING_URI", "sqlite:////x/y.db")
     assert resolve_tracking_uri() == "sqlite:////x/y.db"
     assert resolve_tracking_uri("http://h:5000") == "http://h:5000"
@@ -429,3 +428,27 @@ def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, re
             )
         signatures.append(model.metadata.signature)
     assert signatures[0] == signatures[1]
+
+
+def test_a_run_started_outside_the_clone_keeps_its_store_beside_its_folder(tmp_path):
+    """The default store follows the user, not the installed code: a run started in another
+    folder writes its run folder and its MLflow run there, in an experiment MLflow's UI opens
+    on its training runs' table (the experiment's kind tag)."""
+    from conftest import tiny_run
+
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+    done = subprocess.run(
+        [sys.executable, "-m", "epoet", *tiny_run("ppo"), "evaluate=false"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    experiment = client.get_experiment_by_name("epoet")
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+    (run,) = client.search_runs([experiment.experiment_id])
+    assert run.info.status == "FINISHED" and any((tmp_path / "outputs").iterdir())
+    assert f"sqlite:///{tmp_path}/mlflow.db" in done.stdout  # the `mlflow ui` line names it

@@ -27,9 +27,9 @@ if TYPE_CHECKING:  # `X as X`: re-exported names (for the type checker; __getatt
     from epoet.tracking.provenance import flatten as flatten
     from epoet.tracking.provenance import git_commit as git_commit
     from epoet.tracking.provenance import parent_run_id as parent_run_id
-    from epoet.tracking.store import DEFAULT_TRACKING_URI as DEFAULT_TRACKING_URI
     from epoet.tracking.store import PROJECT_ROOT as PROJECT_ROOT
     from epoet.tracking.store import check_store as check_store
+    from epoet.tracking.store import default_tracking_uri as default_tracking_uri
     from epoet.tracking.store import open_store as open_store
     from epoet.tracking.store import resolve_tracking_uri as resolve_tracking_uri
     from epoet.tracking.store import sqlite_path as sqlite_path
@@ -45,7 +45,7 @@ _HOME = {
     "flatten": "epoet.tracking.provenance",
     "git_commit": "epoet.tracking.provenance",
     "parent_run_id": "epoet.tracking.provenance",
-    "DEFAULT_TRACKING_URI": "epoet.tracking.store",
+    "default_tracking_uri": "epoet.tracking.store",
     "PROJECT_ROOT": "epoet.tracking.store",
     "check_store": "epoet.tracking.store",
     "open_store": "epoet.tracking.store",

@@ -10,7 +10,8 @@ from epoet.core.schema import check
 
 @dataclass
 class TrackingConfig:
-    """MLflow: the store defaults to sqlite:///<project root>/mlflow.db; MLFLOW_TRACKING_URI wins."""
+    """MLflow: the store defaults to sqlite:///<the folder the command started in>/mlflow.db;
+    MLFLOW_TRACKING_URI wins."""
 
     KEY: ClassVar[str] = "tracking"
 

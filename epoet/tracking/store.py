@@ -1,8 +1,10 @@
 """Where the MLflow store is and whether it works: a bad store fails before any training.
 
 The store is the explicit `tracking_uri`, else env MLFLOW_TRACKING_URI, else
-`sqlite:///<project root>/mlflow.db` as an absolute path, so Hydra's per-job working directories
-never scatter stores.
+`sqlite:///<folder the command started in>/mlflow.db` as an absolute path: beside the run folders
+(outputs/, multirun/ are made there too), wherever the package is installed (an editable clone
+elsewhere, or site-packages), and the same for every job of a sweep (Hydra's original working
+directory), so per-job folders never scatter stores.
 """
 
 from __future__ import annotations
@@ -21,15 +23,30 @@ from mlflow import MlflowClient
 
 from epoet.tracking.errors import TrackingError, reason
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_TRACKING_URI = f"sqlite:///{PROJECT_ROOT / 'mlflow.db'}"
+PROJECT_ROOT = Path(__file__).resolve().parents[2]  # the code's checkout (its git commit)
+STORE_FILE = "mlflow.db"
 # The start-up probe must fail in seconds: MLflow's defaults retry for minutes.
 _PROBE_ENV = {"MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0", "MLFLOW_HTTP_REQUEST_TIMEOUT": "5"}
 
 
+def started_in() -> Path:
+    """The folder the command was started from: Hydra's original working directory inside a
+    Hydra job (a launcher may run a job elsewhere), else the working directory."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        return Path(HydraConfig.get().runtime.cwd)
+    return Path.cwd()
+
+
+def default_tracking_uri() -> str:
+    """sqlite:///<the folder the command started in>/mlflow.db, as an absolute path."""
+    return f"sqlite:///{started_in().absolute() / STORE_FILE}"
+
+
 def resolve_tracking_uri(tracking_uri: str | None = None) -> str:
-    """Explicit URI, else env MLFLOW_TRACKING_URI, else the project's absolute sqlite store."""
-    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or DEFAULT_TRACKING_URI
+    """Explicit URI, else env MLFLOW_TRACKING_URI, else the default store (`default_tracking_uri`)."""
+    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or default_tracking_uri()
 
 
 def sqlite_path(uri: str) -> Path | None:

@@ -30,6 +30,9 @@ from epoet.tracking.inputs import existing_path, metric_key, metric_points
 from epoet.tracking.provenance import git_commit
 from epoet.tracking.store import open_store, resolve_tracking_uri, sqlite_path
 
+# MLflow 3's UI opens an experiment by its kind: without it, a new store's experiments may land
+# on the GenAI overview (traces, tokens) instead of the training runs' table.
+EXPERIMENT_TAGS = {"mlflow.experimentKind": "custom_model_development"}
 LOAD_METRIC = "system/load1"  # os.getloadavg()[0], logged with a step at most every LOAD_EVERY s
 LOAD_EVERY = 30.0
 
@@ -115,7 +118,9 @@ class MlflowTracker:
                 slug = re.sub(r"[^A-Za-z0-9_.-]", "_", self.experiment)
                 location = (db.parent / "mlartifacts" / slug).as_uri()
             try:
-                return self.client.create_experiment(self.experiment, artifact_location=location)
+                return self.client.create_experiment(
+                    self.experiment, artifact_location=location, tags=EXPERIMENT_TAGS
+                )
             except MlflowException:
                 exp = self.client.get_experiment_by_name(self.experiment)  # a parallel job won
                 if exp is None:
@@ -125,6 +130,9 @@ class MlflowTracker:
                 f"MLflow experiment {self.experiment!r} is deleted; restore it "
                 "or choose another experiment name."
             )
+        for key, value in EXPERIMENT_TAGS.items():  # an experiment made before the tag
+            if key not in exp.tags:
+                self.client.set_experiment_tag(exp.experiment_id, key, value)
         return exp.experiment_id
 
     def start(
