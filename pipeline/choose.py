@@ -1,7 +1,8 @@
 """`python -m pipeline.choose --records <records>/<algo>_s<seed>...`: the held-out choice of a
 pool's agent (`selection`, epoet/rollout/selection.py) for records whose runs trained before
-runs chose their agent on held-out terrains, and the evaluation of records' snapshots on
-another suite (`--suites admitted`, the validation suite; `--minutes`, `--exported-only`).
+runs chose their agent on held-out terrains, and the evaluation of records' snapshots (any
+algorithm's) on another suite (`--suites admitted`, the validation suite; `--minutes`,
+`--exported-only`).
 
 Each CPU-time snapshot of the record without an exported agent gets one, chosen as the run
 would have chosen it (among its niches' best and last parameters, on the held-out terrains of
@@ -91,7 +92,8 @@ def choose_record(
         if minutes is not None and mark not in minutes:
             continue
         folder = record / f"cpu{mark}"
-        if not (folder / ES_POLICIES / EXPORTED_AGENT).is_file():
+        # an ES pool without its held-out choice gets one; a baseline's policy is its own
+        if niches_of(folder) and not (folder / ES_POLICIES / EXPORTED_AGENT).is_file():
             niches = snapshot_niches(folder)
             _, sizes = read_es_policy(niches_of(folder)[0])
             iteration = json.loads((folder / SNAPSHOT_INFO).read_text())["iteration"]
@@ -114,7 +116,7 @@ def choose_record(
 def main(argv: Sequence[str] | None = None) -> int:
     parser = HelpParser("python -m pipeline.choose", __doc__)
     parser.add_argument(
-        "--records", nargs="+", type=Path, required=True, help="ePOET records, e.g. <out>/epoet_s1"
+        "--records", nargs="+", type=Path, required=True, help="records, e.g. <out>/epoet_s1"
     )
     add_evaluation_arguments(parser)
     parser.add_argument(
