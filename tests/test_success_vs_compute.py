@@ -54,6 +54,21 @@ def test_a_runs_snapshots_become_a_record_with_curves_and_agents(
     stamps = [p.stat().st_mtime_ns for p in summaries]
     assert main(args) == 0
     assert [p.stat().st_mtime_ns for p in summaries] == stamps
+    # The record read on another suite (pipeline.choose: how records meet the validation
+    # suite), one mark and the exported agent only: the other mark and the niches untouched.
+    from pipeline.choose import main as choose
+
+    other = subset_suite(tmp_path / "other", [("medium", 0)])
+    mark = ["--minutes", "1e-5", "--exported-only", "--episodes", "1", "--suites", str(other)]
+    assert choose(["--records", str(record), *mark]) == 0
+    again = json.loads((record / "run.json").read_text())["snapshots"]
+    best = again["1e-05"]["best_agent"]
+    evaluation = again["1e-05"]["evaluations"][other.name]
+    assert list(evaluation["agents"]) == [best] and "success_rate_mean" not in evaluation
+    assert evaluation["success_rate"] == evaluation["agents"][best]
+    assert other.name not in again["1e-06"]["evaluations"]
+    assert [p.parent.name for p in record.glob(f"cpu*/*/{other.name}")] == [best]
+    assert suite.name in again["1e-05"]["evaluations"]  # the earlier reading is kept
 
 
 def test_a_folder_without_a_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
