@@ -2,9 +2,10 @@
 gymnasium's ids (`epoet/Hexapod-v0`, `epoet/Ant-v0`), notebooks, tests and benches.
 
 They compose conf/ (epoet.config), so they live above it: the env itself (epoet.envs) takes
-validated configs and knows nothing of Hydra. Importing this module registers the ids:
+validated configs and knows nothing of Hydra. `import epoet` registers the ids (epoet/__init__.py)
+with this module's `make_terrain_env` as their entry point:
 
-    import gymnasium as gym, epoet.env_factory
+    import gymnasium as gym, epoet
     env = gym.make("epoet/Hexapod-v0", terrain="cppn")
 """
 
@@ -14,18 +15,18 @@ from dataclasses import asdict
 from functools import cache
 from typing import Any, cast
 
-import gymnasium as gym
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from epoet import ENV_IDS
 from epoet.config import CONF_DIR, compose
 from epoet.envs.config import HEXAPOD, AgentConfig
 from epoet.envs.model import Layout, action_to_ctrl, build_model, layout
 from epoet.envs.terrain_env import TerrainEnv
 from epoet.terrain.config import TerrainConfig
 
-ENV_ID = "epoet/Hexapod-v0"
-ROBOT_ENV_IDS = {HEXAPOD: ENV_ID, "ant": "epoet/Ant-v0"}  # conf/agent/<robot>.yaml
+ROBOT_ENV_IDS = ENV_IDS  # registered by `import epoet`
+ENV_ID = ENV_IDS[HEXAPOD]
 
 
 def task_configs(
@@ -88,10 +89,3 @@ def action_to_targets(action: np.ndarray, out: np.ndarray | None = None) -> np.n
     """The hexapod's position targets of actions (18,) or (B, 18): `action_to_ctrl` of its
     model, for code that drives the hexapod by hand (its tests and benches)."""
     return action_to_ctrl(_hexapod_layout(), action, out)
-
-
-for _robot, _id in ROBOT_ENV_IDS.items():
-    if _id not in gym.registry:
-        # Episode length is enforced by the task itself (truncated at agent.max_episode_steps),
-        # so no TimeLimit wrapper is stacked on top.
-        gym.register(id=_id, entry_point=f"{__name__}:make_terrain_env", kwargs={"robot": _robot})

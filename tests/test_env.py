@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from dataclasses import replace
 
 import gymnasium as gym
@@ -31,6 +33,20 @@ def test_torchrl_check_env_specs() -> None:
 
     env = GymWrapper(make_terrain_env(terrain={"kind": "bowl", "grid": 40}))
     check_env_specs(env, seed=0)
+
+
+def test_import_epoet_registers_the_ids_without_the_training_stack() -> None:
+    """`import epoet` alone registers the ids (and imports no MuJoCo, torch or Hydra), and
+    gymnasium's `module:id` form works from a fresh interpreter."""
+    code = (
+        "import sys, gymnasium as gym, epoet\n"
+        "heavy = [m for m in ('torch', 'mujoco', 'hydra', 'epoet.env_factory') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+        "assert gym.make('epoet/Hexapod-v0').observation_space.shape == (53,)\n"
+    )
+    for script in (code, "import gymnasium as gym; gym.make('epoet:epoet/Ant-v0').reset(seed=0)"):
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
 
 
 def test_registered_and_shapes(flat: Terrain) -> None:
