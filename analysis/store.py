@@ -137,6 +137,7 @@ def select_runs(
             f"the MLflow store {uri} has no experiment named {experiment!r}: "
             f"train first (e.g. make paper BUDGET=smoke SEEDS=1)."
         )
+    report_orphans(client, exp.experiment_id, experiment)
     runs, token = [], None
     while True:
         page = client.search_runs(
@@ -150,6 +151,26 @@ def select_runs(
         token = page.token
         if not token:
             return runs
+
+
+def report_orphans(client: MlflowClient, experiment_id: str, experiment: str) -> None:
+    """Say which of the experiment's runs are RUNNING with no live process (killed: SIGKILL, a
+    power cut); the tables leave them out, as every unfinished run."""
+    from epoet.run_state import HOST_TAG, PID_TAG, process_alive
+
+    running = client.search_runs([experiment_id], "attributes.status = 'RUNNING'")
+    dead = [
+        r.info.run_id
+        for r in running
+        if PID_TAG in r.data.tags
+        and process_alive(r.data.tags.get(HOST_TAG, ""), int(r.data.tags[PID_TAG])) is False
+    ]
+    if dead:
+        print(
+            f"note: {len(dead)} run(s) of experiment {experiment!r} are RUNNING with no live "
+            f"process (killed): {', '.join(dead)}; the next run in their folder marks them KILLED",
+            file=sys.stderr,
+        )
 
 
 def evaluation_on(run: Run, suite: Suite) -> Logged | None:

@@ -8,6 +8,8 @@ fails here, in one sentence, before any long work starts.
 from __future__ import annotations
 
 import dataclasses
+import os
+import socket
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -23,7 +25,18 @@ from epoet.core.cores import default_workers
 from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import robot_sizes
 from epoet.eval.reference.files import configure
-from epoet.run_state import BUDGET_LIMITS, DONE, extends_budget, finished_limits, mark_done
+from epoet.run_state import (
+    BUDGET_LIMITS,
+    DONE,
+    HOST_TAG,
+    LIVE,
+    PID_TAG,
+    extends_budget,
+    finished_limits,
+    mark_done,
+    mark_live,
+    orphaned_run,
+)
 
 if TYPE_CHECKING:
     from epoet.tracking import MlflowTracker, StoredRun, Tracker
@@ -207,6 +220,7 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
         from epoet.rollout.backends.ray_cluster import check_address
 
         check_address(cfg.workers.address)
+    orphaned_run(run_dir)  # another process training in this folder stops this one here
     if resume is None:
         check_inputs(cfg)
     from epoet.tracking import check_store
@@ -251,29 +265,63 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
         return None
     cfg, resume = prepared.cfg, prepared.resume
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
-    from epoet.tracking import MlflowTracker, StoredRun, parent_run_id
+    from epoet.tracking import StoredRun, close_killed, parent_run_id
 
     run_dir.mkdir(parents=True, exist_ok=True)
     # A finished run being continued is not finished until it ends again: an interruption now
     # must leave it for `resume=auto` to continue, not to skip.
     (run_dir / DONE).unlink(missing_ok=True)
-    resolved = cast(dict[str, Any], OmegaConf.to_container(raw, resolve=True))  # a DictConfig's
     tags = {
         "algo": cfg.algo.name,
         "terrain": cfg.terrain.kind,
         "agent": cfg.agent.name,
         "seed": str(cfg.seed),
         "budget": cfg.budget.name,
+        HOST_TAG: socket.gethostname(),
+        PID_TAG: str(os.getpid()),
     }
+    killed = orphaned_run(run_dir)
+    if killed is not None and killed["run_id"] != (resume or {}).get("run_id"):
+        # a run killed in this folder before this one (a resume reopens its own run instead)
+        close_killed(killed["uri"], killed["run_id"])
+    try:
+        state, run_id = _track_and_train(cfg, raw, run_dir, resume, tags)
+    finally:
+        (run_dir / LIVE).unlink(missing_ok=True)
+    if cfg.evaluate:
+        evaluate_agent(cfg, run_dir)
+    mark_done(run_dir, run_id, cfg.budget)  # after the run and its evaluation are done
+    print(
+        "\n".join(
+            ending(
+                cfg,
+                run_dir,
+                StoredRun.open(run_id, cfg.tracking.uri),
+                in_sweep=parent_run_id() is not None,
+            )
+        ),
+        flush=True,
+    )
+    return state
+
+
+def _track_and_train(
+    cfg: Config, raw: DictConfig, run_dir: Path, resume: dict[str, Any] | None, tags: dict[str, str]
+) -> tuple[Any, str]:
+    """The MLflow run and the runner, the folder marked live meanwhile; (final state, run id)."""
+    from epoet.tracking import MlflowTracker, parent_run_id
+
+    resolved = cast(dict[str, Any], OmegaConf.to_container(raw, resolve=True))  # a DictConfig's
     with MlflowTracker(cfg.tracking.uri, cfg.tracking.experiment) as tracker:
         params = run_params(cfg, resolved, tracker.tracking_uri)
-        tracker.start(
+        run_id = tracker.start(
             run_name=f"{cfg.algo.name}-s{cfg.seed}",
             params=params,
             tags=tags,
             parent_run_id=parent_run_id(),
             resume_run_id=resume["run_id"] if resume else None,
         )
+        mark_live(run_dir, run_id, tracker.tracking_uri)
         if resume is None:
             tracker.log_dict(resolved, "config.yaml")
         print(
@@ -284,22 +332,7 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
         with StopOnSignal():
             result = runner_for(cfg)(cfg, tracker, run_dir, resume)
         log_agent_model(tracker, run_dir, cfg)
-    if cfg.evaluate:
-        evaluate_agent(cfg, run_dir)
-    assert tracker.run_id is not None  # start() set it
-    mark_done(run_dir, tracker.run_id, cfg.budget)  # after the run and its evaluation are done
-    print(
-        "\n".join(
-            ending(
-                cfg,
-                run_dir,
-                StoredRun.open(tracker.run_id, tracker.tracking_uri),
-                in_sweep=parent_run_id() is not None,
-            )
-        ),
-        flush=True,
-    )
-    return result
+    return result, run_id
 
 
 def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> list[str]:

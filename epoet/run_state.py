@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import socket
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,6 +29,52 @@ BUDGET_LIMITS = ("iterations", "hours", "cpu_hours")
 # limits it finished on, so `resume=auto` decides without loading a checkpoint (a SAC replay
 # buffer makes one hundreds of MB).
 DONE = "DONE"
+# Written into the run folder while a process trains there (its MLflow run id and store, host
+# and pid) and removed when the run ends, however it ends but SIGKILL or a power cut: one left
+# behind names an MLflow run that stays RUNNING for good, which the next run in the folder
+# closes as KILLED (epoet/run.py).
+LIVE = "RUNNING"
+HOST_TAG, PID_TAG = "epoet.host", "epoet.pid"  # the same, on the MLflow run (analysis reads it)
+
+
+def process_alive(host: str, pid: int) -> bool | None:
+    """Whether epoet's process `pid` on `host` still runs; None: on another host, unknown. A pid
+    taken since by another program does not count (its command line names no epoet)."""
+    if host != socket.gethostname():
+        return None
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, someone else's
+        pass
+    cmdline = Path(f"/proc/{pid}/cmdline")
+    return not cmdline.is_file() or b"epoet" in cmdline.read_bytes()
+
+
+def mark_live(run_dir: Path, run_id: str, tracking_uri: str) -> None:
+    mark = {"run_id": run_id, "uri": tracking_uri, "host": socket.gethostname(), "pid": os.getpid()}
+    with atomic_write(Path(run_dir) / LIVE) as f:
+        f.write((json.dumps(mark) + "\n").encode())
+
+
+def orphaned_run(run_dir: Path) -> dict[str, Any] | None:
+    """The mark a killed process left in `run_dir` (None: none); CheckpointError (one line) when
+    the process that wrote it still trains there."""
+    path = Path(run_dir) / LIVE
+    if not path.is_file():
+        return None
+    try:
+        mark = json.loads(path.read_text())
+        alive = process_alive(str(mark["host"]), int(mark["pid"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # not a mark this code wrote: nothing to close
+    if alive:
+        raise CheckpointError(
+            f"{run_dir} is in use: process {mark['pid']} is training there (its {LIVE}); "
+            "wait for it or stop it first."
+        )
+    return mark
 
 
 def save_run_state(run_dir: Path, tracker: Tracker, cfg: Config, state: dict[str, Any]) -> Path:

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import ES_SIZES, without_evaluation
+from conftest import ES_SIZES, tiny_run, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from epoet.core.lifecycle import StopOnSignal, Stopped, raise_if_stopped, stop_requested
@@ -91,6 +91,42 @@ def test_a_killed_run_leaves_no_worker_process_behind(tmp_path: Path) -> None:
     finally:
         for pid in _tagged_processes(tag):
             os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "epoet"])
+def test_a_run_killed_before_its_first_checkpoint_is_closed_as_killed(
+    tmp_path: Path, algo: str
+) -> None:
+    """SIGKILL before the first checkpoint leaves the MLflow run RUNNING; the tables say so, and
+    the next run in the folder (a fresh start: there is nothing to resume) closes it as KILLED."""
+    run_dir, uri = tmp_path / "run", f"sqlite:///{tmp_path}/mlflow.db"
+    args = [*tiny_run(algo), f"hydra.run.dir={run_dir}", "checkpoint_every=100000"]
+    longer = "budget.frames=10000000" if algo == "ppo" else "budget.iterations=1000"
+    proc = _launch([*args, longer], tmp_path, "k")
+    try:  # its MLflow run is open once the folder is marked
+        _wait_for(lambda: (run_dir / "RUNNING").exists() or proc.poll() is not None)
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert not (run_dir / "checkpoint.pkl").exists()
+    client = mlflow.MlflowClient(uri)
+    experiment = [client.get_experiment_by_name("epoet").experiment_id]
+    (first,) = client.search_runs(experiment)
+    assert first.info.status == "RUNNING"
+    script = "from analysis.store import connect, select_runs; select_runs(*connect(), 'epoet')"
+    seen = subprocess.run(
+        [sys.executable, "-c", script],
+        env={**os.environ, "MLFLOW_TRACKING_URI": uri},
+        capture_output=True,
+        text=True,
+    )
+    assert f"RUNNING with no live process (killed): {first.info.run_id}" in seen.stderr
+    again = _launch(args, tmp_path, "k")
+    assert again.wait(timeout=300) == 0, again.stderr.read()
+    assert client.get_run(first.info.run_id).info.status == "KILLED"
+    statuses = sorted(r.info.status for r in client.search_runs(experiment))
+    assert statuses == ["FINISHED", "KILLED"] and not (run_dir / "RUNNING").exists()
 
 
 def test_sigint_and_sigterm_request_a_stop_and_a_second_signal_stops_at_once() -> None:

@@ -37,6 +37,7 @@ if TYPE_CHECKING:  # `X as X`: re-exported names (for the type checker; __getatt
     from epoet.tracking.stored_run import StoredRun as StoredRun
     from epoet.tracking.writer import MlflowTracker as MlflowTracker
     from epoet.tracking.writer import Tracker as Tracker
+    from epoet.tracking.writer import close_killed as close_killed
 
 _HOME = {
     "TrackingError": "epoet.tracking.errors",
@@ -54,6 +55,7 @@ _HOME = {
     "ui_hint": "epoet.tracking.store",
     "StoredRun": "epoet.tracking.stored_run",
     "MlflowTracker": "epoet.tracking.writer",
+    "close_killed": "epoet.tracking.writer",
     "Tracker": "epoet.tracking.writer",
     "Run": "mlflow.entities",
 }  # for type hints in modules that do not import mlflow

@@ -381,3 +381,17 @@ class MlflowTracker:
                 raise TrackingError(
                     f"cannot close MLflow run {self.run_id}: {reason(exc)}"
                 ) from exc
+
+
+def close_killed(tracking_uri: str, run_id: str) -> bool:
+    """Mark the MLflow run of a process that was killed (it stayed RUNNING) as KILLED; False if
+    it is no longer RUNNING or not in that store (nothing to close)."""
+    try:
+        client = open_store(tracking_uri)
+        if client.get_run(run_id).info.status != "RUNNING":
+            return False
+        client.set_terminated(run_id, "KILLED")
+    except (MlflowException, TrackingError):
+        return False
+    log.warning("closed MLflow run %s as KILLED: its process was killed", run_id)
+    return True
