@@ -68,7 +68,7 @@ def local_run(tmp_path_factory) -> Path:
     return tmp / "run"
 
 
-def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> None:
+def test_a_local_ray_gives_the_local_results_and_replaces_each_kind_of_killed_actor() -> None:
     from epoet.rollout.backends.ray_cluster import RayEvaluator
 
     cfg = load(SMOKE)
@@ -86,12 +86,14 @@ def test_a_local_ray_gives_the_local_results_and_replaces_a_killed_actor() -> No
         np.testing.assert_array_equal(episodes.returns, expected.returns)
         for key, value in expected.transitions.items():
             np.testing.assert_array_equal(episodes.transitions[key], value)
-        killer = threading.Timer(0.5, os.kill, (on_ray.pids[0], signal.SIGKILL))
-        killer.start()
-        (episodes,) = on_ray.run([es])
-        killer.join()
-        assert on_ray.restarts == 1
-        np.testing.assert_array_equal(episodes.returns, expected.returns)
+        # each kind of actor the backend makes, killed mid-call: a rollout actor, the feed
+        for restarts, victim in enumerate((lambda: on_ray.pids[0], lambda: on_ray.feed_pid), 1):
+            killer = threading.Timer(0.5, os.kill, (victim(), signal.SIGKILL))
+            killer.start()
+            (episodes,) = on_ray.run([es])
+            killer.join()
+            assert on_ray.restarts == restarts
+            np.testing.assert_array_equal(episodes.returns, expected.returns)
 
 
 def test_ray_actors_step_as_many_robots_as_local_workers() -> None:

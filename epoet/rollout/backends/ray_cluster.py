@@ -19,6 +19,7 @@ starts with this process and stops with it.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import os
@@ -49,11 +50,13 @@ from epoet.terrain.config import TerrainConfig
 
 try:
     import ray
-    from ray.exceptions import RayActorError, WorkerCrashedError
+    from ray.exceptions import RayActorError, RayTaskError, WorkerCrashedError
 except ImportError:  # the optional extra; RayEvaluator says how to install it
     ray = None  # type: ignore[assignment]  # RayEvaluator checks for None before any use
 
 INSTALL_HINT = "pip install -c constraints.txt -e '.[distributed]'"
+# An actor's process gone (killed, crashed): its work is redone by actors started anew.
+_ACTOR_LOST = () if ray is None else (RayActorError, WorkerCrashedError)
 
 
 # HTTP/2's client preface and an empty SETTINGS frame; Ray's GCS (a gRPC server) answers with
@@ -159,6 +162,10 @@ class _Feed:
         self._next = 0
         self._takers = 1
 
+    def ready(self) -> int:
+        """This actor's process id."""
+        return os.getpid()
+
     def load(self, call: int, items: list[tuple[int, int]], takers: int) -> None:
         self._call, self._items, self._next, self._takers = call, items, 0, takers
 
@@ -249,21 +256,27 @@ class RayEvaluator(Backend):
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
         self._remote_actor = ray.remote(num_cpus=1)(_RolloutActor)
-        # Any: ray's types do not give an actor handle's methods their `.remote`.
-        self._feed: Any = ray.remote(num_cpus=0)(_Feed).remote()
+        self._remote_feed = ray.remote(num_cpus=0)(_Feed)
         self._calls = itertools.count()
-        self._actors: list = []
+        # Any: ray's types do not give an actor handle's methods their `.remote`.
+        self._feed: Any = None
+        self._actors: list[Any] = []
         self._start()
 
     def _start(self) -> None:
+        """The feed and the rollout actors, each process's id in `feed_pid` and `pids`."""
+        self._feed = self._remote_feed.remote()
         self._actors = [self._remote_actor.remote(*self._args) for _ in range(self.workers)]
         try:
-            self.pids = ray.get([a.ready.remote() for a in self._actors])
-        except (RayActorError, WorkerCrashedError) as exc:
-            raise WorkerLost(f"a Ray rollout actor died while starting: {exc}") from exc
+            self.feed_pid, *self.pids = ray.get(
+                [self._feed.ready.remote(), *(a.ready.remote() for a in self._actors)]
+            )
+        except _ACTOR_LOST as exc:
+            raise WorkerLost(f"a Ray actor died while starting: {exc}") from exc
 
     def _restart(self) -> None:
-        for actor in self._actors:
+        """Every actor anew, the feed too: any of them may be the one that died."""
+        for actor in [*self._actors, self._feed]:
             ray.kill(actor)
         self._start()
 
@@ -273,19 +286,24 @@ class RayEvaluator(Backend):
         call = next(self._calls)
         sizes = [len(r.population) for r in requests]
         items = [(k, e) for k, n in enumerate(sizes) for e in range(n)]
-        ray.get(self._feed.load.remote(call, items, self.workers))
-        shared = [ray.put(reliefs_of(requests)), ray.put([r.population for r in requests])]
-        slots = fair_slots(self.batch, len(items), self.workers)
-        futures = [
-            a.work.remote(self._feed, call, *shared, [r.record for r in requests], slots)
-            for a in self._actors
-        ]
+        futures: list = []
         try:
+            ray.get(self._feed.load.remote(call, items, self.workers))
+            shared = [ray.put(reliefs_of(requests)), ray.put([r.population for r in requests])]
+            slots = fair_slots(self.batch, len(items), self.workers)
+            futures = [
+                a.work.remote(self._feed, call, *shared, [r.record for r in requests], slots)
+                for a in self._actors
+            ]
             parts = ray.get(futures)
-        except (RayActorError, WorkerCrashedError) as exc:
-            ray.get(self._feed.load.remote(-1, [], 1))  # stop the survivors' pulls
+        except (*_ACTOR_LOST, RayTaskError) as exc:
+            lost = exc.cause if isinstance(exc, RayTaskError) else exc  # a pull from a dead feed
+            if not isinstance(lost, _ACTOR_LOST):
+                raise
+            with contextlib.suppress(*_ACTOR_LOST):  # the feed, if alive, stops the survivors
+                ray.get(self._feed.load.remote(-1, [], 1))
             ray.wait(futures, num_returns=len(futures))
-            raise WorkerLost(f"a Ray rollout actor died ({type(exc).__name__})") from exc
+            raise WorkerLost(f"a Ray actor died ({type(lost).__name__})") from exc
         return split_results(parts, sizes)
 
     def close(self) -> None:
