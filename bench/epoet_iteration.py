@@ -9,7 +9,8 @@ ES episodes of the same agents (mirrored samples around each, with its sigma) on
 with bare `mj_step` in one process (spawn included, as bench/rollout_throughput.py does), best of
 two passes, and is multiplied by the number of cores; both are measured in this one run (the
 machine is noisy: only the ratio means something).
-The last line is `iteration/raw = X` (target >= 0.85).
+The last line is `iteration/raw = X (IQR Y, N interleaved repeats)` (target >= 0.85): the median
+of the per-iteration ratios and their interquartile range.
 """
 from __future__ import annotations
 
@@ -65,11 +66,14 @@ def bare_rate(loop: Epoet, cfg: Config, samples: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--pairs", type=int, default=4, help="active pairs while timed")
-    parser.add_argument("--iterations", type=int, default=10, help="timed iterations")
+    parser.add_argument("--iterations", type=int, default=10,
+                        help="timed iterations, each beside a bare pass (at least 5)")
     parser.add_argument("--samples", type=int, default=4,
                         help="mirrored pairs per agent replayed for the bare baseline")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. budget=laptop")
     args = parser.parse_args()
+    if args.iterations < 5:
+        parser.error("--iterations must be at least 5: a median and a spread need them")
 
     cfg: Config = validate(compose(["budget=laptop", "algo.repro_threshold=-1e9",
                                     "algo.mc_lower=-1e9", "algo.mc_upper=1e9",
@@ -99,7 +103,9 @@ def main() -> None:
     print(f"iterations: {np.median(rates):,.0f} physics steps/s (median; "
           f"{min(rates):,.0f}..{max(rates):,.0f})")
     print(f"bare mj_step: {np.median(raws):,.0f} steps/s on one core (median), x {cores} cores")
-    print(f"iteration/raw = {np.median(ratios):.2f}")
+    low, high = np.percentile(ratios, [25, 75])
+    print(f"iteration/raw = {np.median(ratios):.2f} (IQR {high - low:.3f}, {args.iterations} "
+          "interleaved repeats)")
 
 
 if __name__ == "__main__":

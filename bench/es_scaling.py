@@ -3,10 +3,12 @@ with 2 Ray actors (workers=ray, a local Ray) over the 2-worker pool.
 
 One ES step = the episodes of a mirrored population (theta +- sigma * eps) on one terrain, as the
 ePOET loop runs it. Both backends evaluate the same population with the same seeds (the returns
-must match exactly); each is timed best-of-`repeats`, interleaved, so a burst of load from other
-processes hurts neither side more. Start-up is reported separately (paid once per run). Prints
-`scaling_2w = X` (2 cores: 2.0 is the ceiling), then `ray/local = X` (target >= 0.9; Ray's own
-processes share the two cores with its actors).
+must match exactly); the three are timed in turn `repeats` times (at least 5), so a burst of
+load from other processes weighs on all alike, and each ratio is taken within a repeat. Start-up
+is reported separately (paid once per run). Prints `scaling_2w = X` (2 cores: 2.0 is the
+ceiling), then `ray/local = X` (target >= 0.9; Ray's own processes share the two cores with its
+actors): each the median over the repeats, with the interquartile range beside it (a reading
+decides a target when its IQR is smaller than its margin).
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int, default=200)
     parser.add_argument("--batch", type=int, default=None,
                         help="robots per process (default: workers.batch)")
-    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
 
     paper = load(["budget=paper"])  # RK4, the CPPN terrain
@@ -58,17 +60,20 @@ def main() -> None:
     ray = RayEvaluator(agent, terrain_cfg, 2, batch, sizes)
     ray_startup = time.perf_counter() - start
     serial = make_evaluator(agent, terrain_cfg, 1, batch, sizes)
+    if args.repeats < 5:
+        parser.error("--repeats must be at least 5: a median and a spread need them")
+    times = []  # per repeat: (1 worker, 2 workers, 2 Ray actors) seconds
     with pool, serial, ray:
-        one = two = on_ray = np.inf
         for _ in range(args.repeats):
-            seconds, returns_1 = es_step(serial)
-            one = min(one, seconds)
-            seconds, returns_2 = es_step(pool)
-            two = min(two, seconds)
-            seconds, returns_ray = es_step(ray)
-            on_ray = min(on_ray, seconds)
+            one, returns_1 = es_step(serial)
+            two, returns_2 = es_step(pool)
+            on_ray, returns_ray = es_step(ray)
+            times.append((one, two, on_ray))
             assert np.array_equal(returns_1, returns_2), "1 and 2 workers disagree"
             assert np.array_equal(returns_2, returns_ray), "Ray and the local pool disagree"
+    one, two, on_ray = np.median(np.array(times), axis=0)
+    scaling = [t[0] / t[1] for t in times]
+    ray_local = [t[1] / t[2] for t in times]
 
     episodes = 2 * args.pairs
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())} "
@@ -77,8 +82,13 @@ def main() -> None:
     print(f"1 worker:  {episodes / one:.1f} episodes/s ({one:.2f} s per ES step)")
     print(f"2 workers: {episodes / two:.1f} episodes/s ({two:.2f} s per ES step)")
     print(f"2 Ray actors: {episodes / on_ray:.1f} episodes/s ({on_ray:.2f} s per ES step)")
-    print(f"scaling_2w = {one / two:.2f}")
-    print(f"ray/local = {two / on_ray:.2f}")
+    print(f"scaling_2w = {np.median(scaling):.2f} (IQR {iqr(scaling):.3f}, {args.repeats} repeats)")
+    print(f"ray/local = {np.median(ray_local):.2f} (IQR {iqr(ray_local):.3f}, {args.repeats} repeats)")
+
+
+def iqr(values: list[float]) -> float:
+    low, high = np.percentile(values, [25, 75])
+    return float(high - low)
 
 
 if __name__ == "__main__":
