@@ -432,8 +432,8 @@ def test_an_agents_mlflow_model_takes_float32_and_float64_observations(store, re
 
 def test_a_run_started_outside_the_clone_keeps_its_store_beside_its_folder(tmp_path):
     """The default store follows the user, not the installed code: a run started in another
-    folder writes its run folder and its MLflow run there, in an experiment MLflow's UI opens
-    on its training runs' table (the experiment's kind tag)."""
+    folder writes its run folder and its MLflow run there, in an experiment tagged as model
+    training (docs/runs.md: what MLflow's UI does with the tag)."""
     from conftest import tiny_run
 
     env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
