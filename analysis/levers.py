@@ -9,7 +9,7 @@ exported, with a 95 % t interval over seeds; beside it the medium terrains' mean
 difference against `--base` over the seeds both have (the same seed and terrains), with its 95 %
 t interval over those seeds. Only reads: prints one Markdown table, writes nothing.
 
-Example:
+Examples:
 
     python -m analysis.levers --base docs/results/levers/reference \\
         --records docs/results/levers/reference_variants4 docs/results/levers/variants4

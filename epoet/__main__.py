@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import sys
 from pathlib import Path
 
@@ -40,12 +41,23 @@ def _app(cfg: DictConfig) -> None:
     except OSError as err:  # a full disk or a read-only folder: the last checkpoint is intact
         fail(err)
     except Stopped as stop:  # SIGINT / SIGTERM: the checkpoint is written
-        print(f"epoet: {stop}; checkpoint saved, continue with resume={run_dir}", file=sys.stderr)
+        print(
+            f"epoet: {stop}; checkpoint saved, continue with {resume_command(run_dir)}",
+            file=sys.stderr,
+        )
         sys.exit(stop.exit_code)
     except KeyboardInterrupt:  # a second Ctrl-C: stopped at once
-        hint = f"; continue with resume={run_dir}" if (run_dir / CHECKPOINT_NAME).exists() else ""
+        saved = (run_dir / CHECKPOINT_NAME).exists()
+        hint = f"; continue with {resume_command(run_dir)}" if saved else ""
         print(f"epoet: interrupted{hint}", file=sys.stderr)
         sys.exit(130)
+
+
+def resume_command(run_dir: Path) -> str:
+    """The command that continues this run: `resume=` and the overrides it was started with
+    (a resume must repeat them, epoet/run.py RESUMABLE), quoted for a shell."""
+    overrides = [o for o in HydraConfig.get().overrides.task if not o.startswith("resume=")]
+    return shlex.join(["python", "-m", "epoet", f"resume={run_dir}", *overrides])
 
 
 if __name__ == "__main__":

@@ -165,7 +165,11 @@ def test_sigterm_checkpoints_then_the_resumed_run_equals_an_uninterrupted_one(
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 128 + sig, err
-    assert f"stopped by {sig.name}" in err and f"resume={run_dir}" in err, err
+    assert f"stopped by {sig.name}" in err, err
+    # one line to continue it: resume= and every override it was started with
+    (said,) = [line for line in err.splitlines() if "continue with" in line]
+    assert f"python -m epoet resume={run_dir} " in said and "budget.iterations=1000" in said
+    assert all(o in said for o in overrides), said
     state = load_checkpoint(run_dir / "checkpoint.pkl")
     stopped_at = state["open_ended"]["iteration"]
     assert 2 <= stopped_at < 1000

@@ -39,8 +39,10 @@ def test_citation_carries_the_release_and_prefers_the_paper():
     paper = cff["preferred-citation"]
     assert paper["type"] == "article" and paper["title"] == PAPER
     assert [a["family-names"] for a in paper["authors"]] == ["Zhou", "Vanschoren"]
-    assert paper["year"] == 2021 and paper["url"] == "https://arxiv.org/abs/2206.06796"
+    assert paper["year"] == 2022 and paper["url"] == "https://arxiv.org/abs/2206.06796"
     assert "arXiv:2206.06796" in [i["value"] for i in paper["identifiers"]]
+    # the year is the one its identifier carries (arXiv YYMM.NNNNN)
+    assert paper["year"] == 2000 + int(paper["url"].rsplit("/", 1)[1][:2])
 
 
 def test_the_readme_and_the_sites_home_cite_the_paper():

@@ -49,7 +49,8 @@ class AgentCommandConfig:
 
     KEY: ClassVar[str] = ""
 
-    run: Optional[str]  # required: an MLflow run id, a run folder or a policy file
+    run: Optional[str]  # required: a run folder, a policy file, an MLflow run id or its model
+    # URI runs:/<run id>/agent, or an authors' agent reference:<run>/<agent>
     agent: AgentConfig  # episode rules for a bare policy file (a run brings its own)
     tracking: TrackingConfig  # the MLflow store a run id is looked up in and logged to
     suite: Optional[str]  # shipped, paper, admitted or a suite folder; null: shipped
@@ -58,7 +59,10 @@ class AgentCommandConfig:
     # null: the environment variable EPOET_3D, else ../shared/ePOET_3D beside the project
 
     def __post_init__(self) -> None:
-        check(bool(self.run), "run is required: run=<MLflow run id | run folder | policy file>.")
+        check(
+            bool(self.run),
+            "run is required: run=<run folder | policy file | MLflow run id | runs:/<id>/agent | reference:<run>/<agent>>.",
+        )
         non_negative(self, "seed")
 
 

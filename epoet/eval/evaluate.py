@@ -1,4 +1,4 @@
-"""`python -m epoet.eval.evaluate run=<MLflow run id | run folder | policy file> [episodes=5]
+"""`python -m epoet.eval.evaluate run=<run folder | policy file | MLflow run id | runs:/<id>/agent | reference:<run>/<agent>> [episodes=5]
 [suite=<shipped | paper | folder>]`: a trained agent on an evaluation suite (paper Section 4).
 
 Every terrain of the suite is run `episodes` times (the paper: 32 x 5 = 160 episodes), each from
