@@ -15,6 +15,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from epoet.config import compose
+from epoet.registry import names
 from test_help import run
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -217,3 +218,78 @@ def test_the_test_files_the_docs_name_exist() -> None:
     }
     assert named
     assert not [(p, n) for p, n in named if not (ROOT / "tests" / n).exists()]
+
+
+CHOICES = ("algo", "budget", "agent", "terrain", "workers", "tracking")  # config groups
+
+
+def _doc_pages() -> list[Path]:
+    """The README and the documentation's pages (not the committed records)."""
+    return [ROOT / "README.md", *sorted(DOCS.glob("*.md")), *sorted(DOCS.glob("algorithms/*.md"))]
+
+
+def test_every_module_the_docs_run_exists() -> None:
+    """Each `python -m <module>` of this repository's packages that a page shows imports."""
+    import importlib.util
+
+    named = {
+        (path.name, module)
+        for path in _doc_pages()
+        for module in re.findall(
+            r"python -m ((?:epoet|analysis|pipeline)(?:\.\w+)*)", path.read_text()
+        )
+    }
+    assert len(named) > 20  # the pages do name their commands
+    missing = [(page_, m) for page_, m in sorted(named) if importlib.util.find_spec(m) is None]
+    assert not missing, missing
+
+
+def test_every_training_option_the_docs_show_exists() -> None:
+    """Each `key=value` a page gives `python -m epoet` (one line of a command) is a key of the
+    composed config of the algorithm and budget on that line."""
+    unknown, checked = [], 0
+    for path in _doc_pages():
+        for line in re.findall(r"python -m epoet (?!\.)([^`\n|]*)", path.read_text()):
+            words = [w for w in line.split() if "=" in w and not w.startswith(("hydra", "+"))]
+            if any(re.search(r"<|\.\.\.|\{|=[A-Z]\b", w) for w in words):
+                continue  # a placeholder (<kind>, seed=S), not an option
+            chosen = [w.split(",")[0] for w in words if w.split("=")[0] in CHOICES]
+            if any(w.startswith("algo=") and w[5:] not in names() for w in chosen):
+                continue  # docs/algorithms/adding.md's worked example, a sixth algorithm
+            cfg = composed(*chosen)
+            for word in words:
+                checked += 1
+                key = word.split("=")[0]
+                node: Any = cfg
+                for part in key.split("."):
+                    node = node.get(part) if isinstance(node, dict) else None
+                if key not in CHOICES:
+                    if node is None and key not in _NULLABLE(cfg):
+                        unknown.append((path.name, word))
+    assert checked > 30 and not unknown, (checked, unknown)
+
+
+def _NULLABLE(cfg: dict[str, Any]) -> set[str]:
+    """The dotted keys whose value is null in `cfg` (present, so an option, though None)."""
+    found: set[str] = set()
+
+    def walk(node: Any, prefix: str) -> None:
+        if isinstance(node, dict):
+            for k, v in node.items():
+                walk(v, f"{prefix}{k}.")
+        elif node is None:
+            found.add(prefix[:-1])
+
+    walk(cfg, "")
+    return found
+
+
+def test_the_shipped_suites_size_and_levels_are_the_docs() -> None:
+    from epoet.eval.suite import load_suite
+
+    counts = load_suite().level_counts()
+    assert sum(counts.values()) == 32
+    assert (
+        f"{counts['easy']} easy, {counts['medium']} medium, {counts['hard']} hard and "
+        f"{counts['extreme']} extreme terrains" in page("evaluation.md")
+    )
