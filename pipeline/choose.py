@@ -69,6 +69,11 @@ def snapshot_niches(folder: Path) -> list:
     return niches
 
 
+def needs_choice(snapshot: Path) -> bool:
+    """An ES pool's snapshot without its held-out choice (a baseline's policy is its own)."""
+    return bool(niches_of(snapshot)) and not (snapshot / ES_POLICIES / EXPORTED_AGENT).is_file()
+
+
 def choose_record(
     record: Path,
     selection: Sequence[str],
@@ -92,8 +97,7 @@ def choose_record(
         if minutes is not None and mark not in minutes:
             continue
         folder = record / f"cpu{mark}"
-        # an ES pool without its held-out choice gets one; a baseline's policy is its own
-        if niches_of(folder) and not (folder / ES_POLICIES / EXPORTED_AGENT).is_file():
+        if needs_choice(folder):
             niches = snapshot_niches(folder)
             _, sizes = read_es_policy(niches_of(folder)[0])
             iteration = json.loads((folder / SNAPSHOT_INFO).read_text())["iteration"]
@@ -133,15 +137,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def choose_all() -> None:
+        marks = None if args.minutes is None else {f"{float(m):g}" for m in args.minutes.split(",")}
         for record in args.records:  # every record checked before any work
             if not (record / RUN_FILE).is_file():
                 raise AnalysisError(f"{record} is not a record: it has no {RUN_FILE}.")
+            snapshots = json.loads((record / RUN_FILE).read_text())["snapshots"]
+            unchosen = [
+                m
+                for m in snapshots
+                if (marks is None or m in marks) and needs_choice(record / f"cpu{m}")
+            ]
+            if args.exported_only and unchosen:  # its new agent would lack the other suites
+                raise AnalysisError(
+                    f"{record} cpu{unchosen[0]} has no exported agent to read alone: run "
+                    "without --exported-only to choose one and evaluate it on every suite."
+                )
         from epoet.config import compose, validate
         from epoet.eval.episodes import evaluation_pool
         from epoet.eval.suite import load_suite
 
         suites = [load_suite(name) for name in args.suites.split(",")]
-        marks = None if args.minutes is None else {f"{float(m):g}" for m in args.minutes.split(",")}
         with evaluation_pool(args.processes) as pool:
             for record in args.records:
                 overrides = [f"run={record}", f"episodes={args.episodes}"]
