@@ -50,6 +50,11 @@ def readings(folder: Path, suite: str, algo: str) -> Readings:
                 float(evaluation["success_rate"]),
                 float(medium),
             )
+    if not found:
+        raise AnalysisError(
+            f"no snapshot of {folder.name} is evaluated on suite {suite} (python -m "
+            f"pipeline.choose --records {folder}/{algo}_s* --suites {suite})."
+        )
     return found
 
 

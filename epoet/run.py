@@ -8,8 +8,6 @@ fails here, in one sentence, before any long work starts.
 from __future__ import annotations
 
 import dataclasses
-import os
-import socket
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,14 +26,14 @@ from epoet.eval.reference.files import configure
 from epoet.run_state import (
     BUDGET_LIMITS,
     DONE,
-    HOST_TAG,
     LIVE,
-    PID_TAG,
+    close_killed_run,
     extends_budget,
     finished_limits,
     mark_done,
     mark_live,
     orphaned_run,
+    process_tags,
 )
 
 if TYPE_CHECKING:
@@ -49,14 +47,9 @@ AUTO = "auto"
 # (`algo._target_` says where the algorithm's code lives, not how it runs: checkpoints from
 # before the key existed resume.)
 RESUMABLE = (
-    "resume",
-    "check",
-    "workers",
-    "tracking",
-    "checkpoint_every",
+    *("resume", "check", "workers", "tracking", "checkpoint_every"),
     *(f"budget.{key}" for key in BUDGET_LIMITS),
-    "snapshot_cpu_minutes",
-    "algo._target_",
+    *("snapshot_cpu_minutes", "algo._target_"),
     "selection",  # which agent the run exports, not how it trains
     "epoet_3d",  # where the authors' files are read from (checked against their hashes)
 )
@@ -265,7 +258,7 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
         return None
     cfg, resume = prepared.cfg, prepared.resume
     # Only now mlflow (a slow import): bad input above fails without waiting for it.
-    from epoet.tracking import StoredRun, close_killed, parent_run_id
+    from epoet.tracking import StoredRun, parent_run_id
 
     run_dir.mkdir(parents=True, exist_ok=True)
     # A finished run being continued is not finished until it ends again: an interruption now
@@ -277,13 +270,9 @@ def run(raw: DictConfig, run_dir: Path, prepared: Prepared | None = None) -> Any
         "agent": cfg.agent.name,
         "seed": str(cfg.seed),
         "budget": cfg.budget.name,
-        HOST_TAG: socket.gethostname(),
-        PID_TAG: str(os.getpid()),
+        **process_tags(),
     }
-    killed = orphaned_run(run_dir)
-    if killed is not None and killed["run_id"] != (resume or {}).get("run_id"):
-        # a run killed in this folder before this one (a resume reopens its own run instead)
-        close_killed(killed["uri"], killed["run_id"])
+    close_killed_run(run_dir, (resume or {}).get("run_id"))  # a run killed here before
     try:
         state, run_id = _track_and_train(cfg, raw, run_dir, resume, tags)
     finally:

@@ -58,6 +58,21 @@ def mark_live(run_dir: Path, run_id: str, tracking_uri: str) -> None:
         f.write((json.dumps(mark) + "\n").encode())
 
 
+def process_tags() -> dict[str, str]:
+    """The MLflow tags that tell a killed run from a live one (`process_alive`)."""
+    return {HOST_TAG: socket.gethostname(), PID_TAG: str(os.getpid())}
+
+
+def close_killed_run(run_dir: Path, resuming: str | None) -> None:
+    """Close as KILLED the MLflow run a killed process left open in `run_dir` (a resume of that
+    very run, `resuming`, reopens it instead)."""
+    killed = orphaned_run(run_dir)
+    if killed is not None and killed["run_id"] != resuming:
+        from epoet.tracking import close_killed  # mlflow: only when there is one to close
+
+        close_killed(killed["uri"], killed["run_id"])
+
+
 def orphaned_run(run_dir: Path) -> dict[str, Any] | None:
     """The mark a killed process left in `run_dir` (None: none); CheckpointError (one line) when
     the process that wrote it still trains there."""

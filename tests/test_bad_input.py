@@ -291,6 +291,7 @@ def test_a_read_only_output_folder_and_a_full_disk_are_one_line_errors(good) -> 
 # Every other command's bad input, as users type it: per command a missing file, a wrong type
 # (or a malformed value) and an unknown key, set and `+`added; a misspelt suite where one is
 # read (SUITE_TYPO: the suites there are, and the one meant). {tmp}: a scratch folder.
+RECORDS = Path(__file__).resolve().parent.parent / "docs" / "results"
 SUITE_TYPO = "there is no suite papre: a suite is shipped, paper, admitted or a suite folder; did you mean paper?"
 COMMAND_ROWS = [
     ("epoet.eval.evaluate", "missing", ["run={tmp}/missing"], "missing: there is no such file"),
@@ -374,6 +375,15 @@ COMMAND_ROWS = [
     ("pipeline.snapshots", "type", ["--runs", "r", "--out", "o", "--episodes", "x"], "invalid int"),
     ("pipeline.snapshots", "key", ["--runs", "r", "--out", "o", "--bogus"], "unrecognized"),
     ("pipeline.choose", "missing", ["--records", "{tmp}/missing"], "is not a record"),
+    ("analysis.levers", "missing", ["--base", "{tmp}/missing"], "holds no records of epoet"),
+    ("analysis.levers", "type", ["--base"], "expected one argument"),
+    ("analysis.levers", "key", ["--base", "b", "--bogus"], "unrecognized arguments: --bogus"),
+    (
+        "analysis.levers",
+        "suite",
+        ["--base", str(RECORDS / "levers" / "reference"), "--suite", "papre"],
+        "no snapshot of reference is evaluated on suite papre",
+    ),
     ("pipeline.choose", "type", ["--records", "r", "--episodes", "x"], "invalid int"),
     ("pipeline.choose", "key", ["--records", "r", "--bogus"], "unrecognized"),
     ("pipeline.stamp", "missing", ["--records", "{tmp}/missing"], "there is no records folder"),
