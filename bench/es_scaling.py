@@ -31,10 +31,10 @@ from epoet.terrain import make_terrain
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--pairs", type=int, default=32)
-    parser.add_argument("--max-steps", type=int, default=200)
+    parser.add_argument("--max-steps", type=int, default=600)  # ES steps of seconds: a steady ratio
     parser.add_argument("--batch", type=int, default=None,
                         help="robots per process (default: workers.batch)")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args()
 
     paper = load(["budget=paper"])  # RK4, the CPPN terrain
