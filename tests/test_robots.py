@@ -23,7 +23,6 @@ from epoet.core.schema import ConfigError
 from epoet.envs.model import layout
 from epoet.envs.spaces import layout_of, observation_names, robot_sizes
 from epoet.eval.agents import AgentError, policy_in, resolve_run
-from epoet.eval.reference import manifest
 from epoet.eval.reference.layout import LEGS, SEGMENTS
 from epoet.registry import names
 from epoet.rollout.agent_files import LAYOUT, check_robot
@@ -134,7 +133,7 @@ def test_an_agent_file_runs_only_on_the_robot_it_records(tmp_path: Path) -> None
     moved = dict(layout_of(ant), action=ANT_JOINTS[::-1])
     with pytest.raises(AgentError, match="observation or action layout"):
         check_robot(_agent_file(tmp_path / "moved.npz", (31, 8, 8), moved), "es", ant)
-    theirs = authors(manifest()["agents"]["poet_hexA8/flat"]["file"])
+    theirs = authors("agents", "poet_hexA8", "flat.npz")
     check_robot(theirs, "es", hexapod)
     paper = dataclasses.replace(hexapod, integrator="rk4")  # they record no integrator
     assert resolve_run(str(theirs)).agent_config(paper).integrator == "rk4"
