@@ -152,6 +152,7 @@ def test_the_ant_starts_epoet_sac_cold_and_refuses_the_authors_hexapod_sac(
 ) -> None:
     assert load(["agent=ant", "algo=epoet_sac"]).algo.sac_init is None
     assert load(["algo=epoet_sac"]).algo.sac_init is None
+    authors()  # the refusal below reads the authors' SAC agent first
     with pytest.raises(ConfigError, match="not this robot's published SAC agent.*starts cold"):
         prepare(
             compose(["agent=ant", "algo=epoet_sac", "algo.sac_init=reference:sac/42"]),

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import authors
 from epoet.config import compose, load, validate
 from epoet.envs.model import layout
 from epoet.envs.task import EpisodeState, HexapodTask
@@ -221,6 +222,7 @@ def test_suites_are_named_shipped_paper_or_by_their_folder(tmp_path, monkeypatch
     """A suite's name keys its evaluations in a run: "shipped" and "paper" for the named suites
     (by name or by their folder), any other folder its basename in [A-Za-z0-9_.-], "dir-" before
     a basename that is a named suite's name, so no folder passes for a named suite."""
+    authors()  # the paper suite's folder is their files' conversion
     assert load_suite().name == load_suite("shipped").name == load_suite(SHIPPED).name == "shipped"
     for basename, name in (
         ("my suite", "my_suite"),
