@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, save_checkpoint
+from epoet.core.clock import CpuMeter
 from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
@@ -148,22 +149,28 @@ def take_snapshots(
     cpu_seconds: float,
     save: Callable[[Path], object],
     info: dict[str, float],
-) -> list[float]:
-    """Save the run's agents (`save(folder)`) once for every mark of `marks` (CPU minutes) that
-    the run's CPU time has passed and that has no snapshot yet, so success can be measured
-    against compute from one run; returns the marks saved. A snapshot is complete when its
-    `snapshot.json` exists (written last, atomically): a run killed while saving writes it
-    again on resume."""
-    saved = []
+    meter: CpuMeter,
+) -> tuple[list[float], float]:
+    """Save the run's agents (`save(folder)`: the agents and the run's choice among them) once
+    for every mark of `marks` (CPU minutes) that the run's CPU time has passed and that has no
+    snapshot yet, so success can be measured against compute from one run. Returns the marks
+    saved and the CPU seconds the saving took (`meter`, lapped: the caller adds them to the
+    run's CPU time), so a snapshot's choice is counted even at the run's last mark, after
+    which no iteration laps the meter again; snapshot.json's `cpu_time` includes them. A
+    snapshot is complete when its `snapshot.json` exists (written last, atomically): a run
+    killed while saving writes it again on resume."""
+    saved, spent = [], 0.0
     for minutes in marks:
         folder = snapshot_folder(run_dir, minutes)
         if cpu_seconds < minutes * 60 or (folder / SNAPSHOT_INFO).is_file():
             continue
         save(folder)
+        spent += meter.lap()  # since the caller's last lap: the saving and what just preceded it
+        counted = {**info, "cpu_time": info["cpu_time"] + spent, "choice_cpu_s": spent}
         with atomic_write(folder / SNAPSHOT_INFO) as file:
-            file.write(json.dumps({"cpu_minutes": minutes, **info}, indent=1).encode())
+            file.write(json.dumps({"cpu_minutes": minutes, **counted}, indent=1).encode())
         saved.append(minutes)
-    return saved
+    return saved, spent
 
 
 def mark_done(run_dir: Path, run_id: str, budget: BudgetConfig) -> None:

@@ -10,7 +10,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from conftest import BUSY_LOOP, TINY_EPOET, subset_suite
+from conftest import BUSY_LOOP, TINY_EPOET, TINY_FAMILY, subset_suite
+from epoet.core.algorithm import Family
 from epoet.eval.agents import resolve_run
 from epoet.run import run
 from pipeline.snapshots import main
@@ -143,3 +144,27 @@ def test_comparisons_pair_the_algorithms_at_the_marks_both_reached() -> None:
             "P ceiling (ties)": "1.00",
         }
     ]
+
+
+@pytest.mark.parametrize("family", [Family.OPEN_ENDED, Family.BASELINE])
+def test_the_last_snapshots_choice_counts_in_the_runs_cpu_time(
+    family: Family, compose, mlflow_uri: str, tmp_path: Path
+) -> None:
+    """A run ended by its CPU hours at its last snapshot mark: the held-out choice made there
+    (after the last iteration's CPU reading) is in the run's CPU time and in snapshot.json."""
+    from epoet.core.checkpoint import load_checkpoint
+
+    mark = 1e-3  # CPU minutes: the budget below ends the run at its first step past it
+    overrides = [
+        *TINY_FAMILY[family],
+        f"budget.cpu_hours={mark / 60}",
+        f"snapshot_cpu_minutes=[{mark}]",
+    ]
+    algo = "epoet" if family is Family.OPEN_ENDED else "ppo"
+    run(compose([f"algo={algo}", *overrides, "evaluate=false"]), tmp_path)
+    snapshot = json.loads((tmp_path / "snapshots" / f"cpu{mark:g}" / "snapshot.json").read_text())
+    state = load_checkpoint(tmp_path)
+    cpu_time = state["open_ended" if family is Family.OPEN_ENDED else "loop"]["cpu_time"]
+    assert snapshot["choice_cpu_s"] > 0  # eight held-out terrains walked
+    assert snapshot["cpu_time"] - snapshot["choice_cpu_s"] >= mark * 60
+    assert cpu_time >= snapshot["cpu_time"]

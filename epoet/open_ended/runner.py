@@ -76,13 +76,16 @@ def train_loop(
         tracker.log_metrics(loop.iteration - 1, metrics)
         _progress(cfg, loop, metrics, time.perf_counter() - started)
         info = {k: metrics[k] for k in ("cpu_time", "elapsed", "env_steps", "max_height")}
-        for minutes in take_snapshots(
+        saved, spent = take_snapshots(
             run_dir,
             cfg.snapshot_cpu_minutes,
             loop.cpu_time,
             export,
             {**info, "iteration": loop.iteration},
-        ):
+            loop.cpu_meter,
+        )
+        loop.cpu_time += spent  # the choice's CPU, before the checkpoint that may end the run
+        for minutes in saved:
             print(f"[{cfg.algo.name}] snapshot of the pool at {minutes} CPU minutes", flush=True)
         if loop.iteration % cfg.checkpoint_every == 0 or done() or stop_requested():
             save_run_state(run_dir, tracker, cfg, {"open_ended": loop.state_dict()})

@@ -255,13 +255,16 @@ class BaselineRun:
     def snapshot(self) -> None:
         """Export the policy once for each `snapshot_cpu_minutes` mark the run has passed."""
         info = {**self.axes(), "max_height": self.max_height(), "frames": self.state.frames}
-        for minutes in take_snapshots(
+        saved, spent = take_snapshots(
             self.run_dir,
             self.cfg.snapshot_cpu_minutes,
             self.state.cpu_time,
             self.export_agent,
             {k: float(v) for k, v in info.items()},
-        ):
+            self.cpu_meter,
+        )
+        self.state.cpu_time += spent  # the choice's CPU, before the checkpoint that may end the run
+        for minutes in saved:
             self.write(f"snapshot at {minutes} CPU minutes")
 
     def evaluate(self) -> None:
