@@ -73,16 +73,19 @@ RUNS ?=
 compute: install
 	$(PY) -m pipeline.snapshots --runs $(RUNS) --out $(RECORDS) $(OVERRIDES)
 
-# Every algorithm x seed at one budget, evaluated on each of SUITES (default: shipped,paper),
-# tabled and plotted; resumable (docs/analysis.md). RECORDS=docs/results/<name> also exports the runs'
-# evaluation records there.
+# Every algorithm x seed at one budget, evaluated, tabled and plotted; resumable
+# (docs/analysis.md). At a CPU-hour budget (workstation) each run's CPU-time snapshots are
+# evaluated as its job ends, into RECORDS (default results/paper-<budget>/records), and the report
+# comes from those records; otherwise RECORDS=docs/results/<name> also exports the evaluated runs
+# there. JOBS: jobs at a time (default: one per core); RUNS_DIR: where the job folders go.
 BUDGET ?= laptop
 SEEDS  ?= 1,2,3
-JOBS   ?= 1
+JOBS   ?=
 SUITES ?=
+RUNS_DIR ?=
 OVERRIDES ?=
 paper: install
-	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) --jobs $(JOBS) $(if $(SUITES),--suites $(SUITES)) $(if $(RECORDS),--records $(RECORDS)) $(OVERRIDES)
+	$(PY) -m pipeline.paper --budget $(BUDGET) --seeds $(SEEDS) $(if $(JOBS),--jobs $(JOBS)) $(if $(SUITES),--suites $(SUITES)) $(if $(RECORDS),--records $(RECORDS)) $(if $(RUNS_DIR),--runs $(RUNS_DIR)) $(OVERRIDES)
 
 # ePOET-SAC's three starts (cold, a SAC run of ours, the authors' SAC) x SEEDS at the workstation
 # budget, evaluated on both suites, tabled, records in docs/results/epoet-sac-starts
@@ -90,7 +93,7 @@ paper: install
 # trained first).
 SAC_RUN ?=
 epoet-sac-starts: install
-	$(PY) -m pipeline.epoet_sac_starts --seeds $(SEEDS) --jobs $(JOBS) $(if $(SAC_RUN),--sac-run $(SAC_RUN)) $(OVERRIDES)
+	$(PY) -m pipeline.epoet_sac_starts --seeds $(SEEDS) $(if $(JOBS),--jobs $(JOBS)) $(if $(SAC_RUN),--sac-run $(SAC_RUN)) $(OVERRIDES)
 
 # The evaluated runs of EXPERIMENT as evaluation records in RECORDS (docs/results/README.md).
 records: install

@@ -16,8 +16,9 @@ Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/
 success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment steps and
 against CPU hours), levels.md (per level, and where the failed medium episodes stop:
 analysis.levels), comparisons.md where they hold two algorithms or more (the paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
-ties ceiling, at every mark both reached) and, where they hold ePOET-SAC runs, joins.md (what
-their joins did to the pool: analysis.joins).
+ties ceiling, at every mark both reached), claims.md (the paper's claims, `CLAIMS`, whose two
+algorithms they hold) and, where they hold ePOET-SAC runs, joins.md (what their joins did to
+the pool: analysis.joins).
 
 Examples:
 
@@ -28,7 +29,6 @@ Examples:
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -40,13 +40,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from analysis.comparisons import CLAIMS, comparisons  # noqa: E402
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.joins import joins_table  # noqa: E402
 from analysis.levels import AT_STEP, level_summary, level_table  # noqa: E402
 from analysis.mean_success import (  # noqa: E402
-    difference_interval,
     mean_interval,
-    ties_ceiling,
 )
 from analysis.records import (  # noqa: E402
     EPISODES,
@@ -63,7 +62,6 @@ from analysis.stats import (  # noqa: E402
     SEED,
     canonical,
     iqm,
-    poi_interval,
     rliable,
     seeded,
     stable_seed,
@@ -119,11 +117,15 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
                 evaluation = snap["evaluations"].get(suite)
                 if evaluation is None:
                     continue
-                niches = sorted(a for a in evaluation["agents"] if a.startswith("env"))
+                evaluated = evaluation["agents"]
+                niches = sorted(a for a in evaluated if a.startswith("env"))
+                pool = algorithm(info["algo"]).family is Family.OPEN_ENDED
+                # a reading only where its agents were evaluated (`--exported-only`: the best)
                 readings = {
                     "best": [snap["best_agent"]],
-                    **({"own": [snap["own_agent"]]} if "own_agent" in snap else {}),
-                    "niches": niches or [snap["best_agent"]],  # a baseline's one policy
+                    **({"own": [snap["own_agent"]]} if snap.get("own_agent") in evaluated else {}),
+                    **({"niches": niches} if niches else {}),
+                    **({} if pool else {"niches": [snap["best_agent"]]}),  # a baseline's one policy
                 }
                 for reading, agents in readings.items():
                     terrains, per_terrain = success_matrix(folder, f"cpu{minutes}", agents, suite)
@@ -166,6 +168,7 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     for (algo, minutes, reading), rows in table.groupby(["algo", "minutes", "reading"]):
         if reading == "niches" and algorithm(algo).family is not Family.OPEN_ENDED:
             continue
+        rows = rows.sort_values("seed")
         matrix = np.stack([t.to_numpy() for t in rows.terrains])
         mean, low, high = mean_interval(rows.success)
         point, iqm_low, iqm_high = iqm_interval(matrix)
@@ -190,35 +193,6 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     return frame.sort_values(
         ["algo", "reading", "minutes"], key=lambda c: c.map(order) if c.name == "algo" else c
     )
-
-
-def comparisons(table: pd.DataFrame) -> pd.DataFrame:
-    """For every pair of algorithms at every mark both reached, each run read by its exported
-    agent (X after Y in table order, so the paper's claims read as positive): the difference of
-    mean success X - Y on the same terrains with its 95 % interval over seeds, and P(X > Y),
-    rliable's probability of improvement, with its interval and its ties ceiling."""
-    rows = []
-    for minutes, at in table[table.reading == "best"].groupby("minutes"):
-        matrices = {
-            algo: np.stack([t.to_numpy() for t in runs.terrains])
-            for algo, runs in at.groupby("algo")
-        }
-        for y, x in itertools.combinations(in_order(matrices), 2):
-            diff, diff_low, diff_high = difference_interval(matrices[x], matrices[y])
-            point, low, high = poi_interval(matrices[x], matrices[y])
-            rows.append(
-                {
-                    "minutes": minutes,
-                    "x": x,
-                    "y": y,
-                    "runs": f"{len(matrices[x])} / {len(matrices[y])}",
-                    "X - Y (mean success, pts)": f"{100 * diff:+.1f} "
-                    f"[{100 * diff_low:+.1f}, {100 * diff_high:+.1f}]",
-                    "P(X > Y)": f"{point:.2f} [{low:.2f}, {high:.2f}]",
-                    "P ceiling (ties)": f"{ties_ceiling(matrices[x], matrices[y]):.2f}",
-                }
-            )
-    return pd.DataFrame(rows)
 
 
 def reference_lines(suite: str, episodes: int, folder: Path = REFERENCE) -> dict[str, float]:
@@ -343,6 +317,15 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
             f"{to_markdown(compared)}\n"
         )
         paths.append(out / "comparisons.md")
+    claims = comparisons(table, CLAIMS)
+    if not claims.empty:
+        (out / "claims.md").write_text(
+            f"The paper's claims on suite {suite} (X better than Y: ePOET-SAC than ePOET, ePOET "
+            f"than SAC, SAC than PPO) at each CPU-time mark, read as comparisons.md reads "
+            f"them: a claim holds where the interval of X - Y lies above 0\n\n"
+            f"{to_markdown(claims)}\n"
+        )
+        paths.append(out / "claims.md")
     levels = level_summary(level_table(records, suite))
     (out / "levels.md").write_text(
         f"Per level on suite {suite}, the runs' exported agents, mean over seeds: success per "

@@ -45,6 +45,7 @@ import pandas as pd
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
+from analysis.mean_success import mean_interval
 from analysis.records import (
     episodes_per_terrain,
     one_course_scale,
@@ -125,6 +126,40 @@ def table1(episodes: pd.DataFrame) -> pd.DataFrame:
             row[f"{column}_mean"], row[f"{column}_std"] = _mean_std(rates)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def table1_seeds(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Table 1 run by run: each seed's success rate per level and in total, then per algorithm
+    the mean over seeds with its 95 % t interval (analysis.mean_success), the paper's
+    statistic with the spread a reader needs to trust it."""
+    rows = []
+    for algo in in_order(episodes.algo):
+        mine = episodes[episodes.algo == algo]
+        per_run = mine.groupby(["seed", "level"]).solved.mean().unstack()
+        per_run = per_run[[level for level in LEVELS if level in per_run]]
+        per_run["total"] = mine.groupby("seed").solved.mean()
+        for seed, rates in per_run.iterrows():
+            rows.append({"algorithm": algo, "seed": str(seed), **rates.to_dict()})
+        rows.append(
+            {
+                "algorithm": algo,
+                "seed": "mean [95 % CI]",
+                **{column: mean_interval(per_run[column]) for column in per_run},
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _percent(cell: float | tuple[float, float, float]) -> str:
+    """A rate, or a (mean, low, high) interval, in percent (no interval for one run)."""
+    if not isinstance(cell, tuple):
+        return "" if cell != cell else f"{100 * cell:.1f}"
+    mean, low, high = cell
+    return (
+        f"{100 * mean:.1f}"
+        if low != low
+        else f"{100 * mean:.1f} [{100 * low:.1f}, {100 * high:.1f}]"
+    )
 
 
 def table2(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -222,6 +257,17 @@ def write_tables(
         )
         print(f"\n{titles[name]}\n{markdown}")
         written += [out / f"{stem}.{ext}" for ext in ("csv", "md", "tex")]
+    seeds = table1_seeds(episodes)
+    stem = f"table1_seeds_{suite}"
+    seeds.map(lambda c: c[0] if isinstance(c, tuple) else c).to_csv(
+        out / f"{stem}.csv", index=False
+    )
+    (out / f"{stem}.md").write_text(
+        f"Table 1 by seed: success rate (%) by difficulty, each run and the mean over seeds with "
+        f"its 95 % t interval{at}\n\n"
+        f"{to_markdown(seeds.map(lambda c: c if isinstance(c, str) else _percent(c)))}\n"
+    )
+    written += [out / f"{stem}.{ext}" for ext in ("csv", "md")]
     written += write_stats(episodes, out, suite, scale, to_markdown)
     print(f"\nwrote {', '.join(str(p) for p in written)}")
     return written

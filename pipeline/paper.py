@@ -2,23 +2,32 @@
 
 1. trains every algorithm (`--algos`; default: every registered one, epoet/registry.py) for
    every seed as one Hydra multirun into the MLflow experiment `paper-<budget>`, with fixed job
-   folders (`multirun/paper-<budget>/<algo>_s<seed>`) and `resume=auto`, so calling it again
-   after an interruption skips the finished jobs and continues the interrupted ones from their
-   checkpoints;
-2. evaluates every finished run that has no evaluation yet on each suite of `--suites` (names
-   or folders, default `shipped,paper`; a run's `eval_suite/<name>` tag) (`evaluate_missing`,
-   one process pool for all of them; the training jobs skip their own evaluation), tagging
-   each evaluation with the commit that made it (`eval_commit/<name>`);
-3. writes, per suite, Tables 1-2 and the IQM and probability-of-improvement tables and figures
-   (`analysis.tables`, `analysis.stats`) to `results/paper-<budget>/`, and the figures to
-   `results/paper-<budget>/figures/` (the t-SNE and the suite gallery of the first suite);
-4. with `--records <folder>`, exports every evaluated run as evaluation records there
-   (`pipeline.records`), so the tables can be rebuilt without the store.
+   folders (`<--runs>/<algo>_s<seed>`, default `multirun/paper-<budget>/`) and `resume=auto`,
+   so calling it again after an interruption skips the finished jobs and continues the
+   interrupted ones from their checkpoints; `--jobs` at a time (default: one per core), each
+   with its share of the cores as workers;
+2. evaluates and tables, in one of two ways:
+   - at a budget that ends runs by CPU hours (`budget.cpu_hours`: workstation), each run's
+     CPU-time snapshots (`snapshot_cpu_minutes`) are evaluated as soon as its job ends, by the
+     job's own slot (pipeline/snapshot_records.py), the agent each snapshot exported on each
+     suite of `--suites` (default `paper,admitted,shipped`), into the records folder
+     `--records` (default `<out>/records`); then analysis.paper_report writes from the records
+     alone, per suite, Tables 1 and 2, each seed with the interval over seeds, success against
+     CPU hours for every algorithm, and the paper's claims as paired differences, into `<out>/`;
+   - otherwise every finished run that has no evaluation yet on each suite (default
+     `shipped,paper`; a run's `eval_suite/<name>` tag) is evaluated and logged to the store
+     (`evaluate_missing`, tagged with the evaluating commit, `eval_commit/<name>`), and the
+     tables (`analysis.tables`, `analysis.stats`) and figures (t-SNE, the suite gallery of the
+     first suite) are written from the store to `<out>/`; `--records <folder>` also exports
+     every evaluated run as evaluation records there (`pipeline.records`).
+
+`<out>` defaults to results/paper-<budget>.
 
 Examples:
 
     python -m pipeline.paper --budget smoke --seeds 1          # a few minutes, end to end
-    python -m pipeline.paper --budget workstation --seeds 1,2,3 --jobs 2 budget.hours=0.25
+    python -m pipeline.paper --budget workstation --records docs/results/paper-workstation \\
+        --runs /data/paper-workstation                          # 15 CPU hours on one core each
     python -m pipeline.paper --budget laptop --algos epoet,ppo --records docs/results/mine
 """
 
@@ -35,21 +44,24 @@ from hydra.errors import HydraException
 from omegaconf.errors import OmegaConfBaseException
 
 from analysis.figures import write_figures
+from analysis.paper_report import write_report
 from analysis.store import connect, require_runs, run_command, select_runs, unevaluated
 from analysis.tables import make_tables
-from epoet.config import CONF_DIR, compose, validate
+from epoet.config import CONF_DIR, Config, compose, validate
 from epoet.core.cli import fail
 from epoet.core.cores import default_workers
 from epoet.core.help import HelpParser
 from epoet.core.schema import ConfigError
 from epoet.eval.episodes import evaluation_pool
 from epoet.eval.evaluate import evaluate_run
-from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
+from epoet.eval.keys import ADMITTED_NAME, PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import SuiteError, load_suite
 from epoet.registry import names
 from pipeline.records import COMMIT_TAG, export
 
 SUITES = f"{SHIPPED_NAME},{PAPER_NAME}"
+# At a CPU-hour budget: the test suite, the validation suite, the suite of the product's gallery
+SNAPSHOT_SUITES = f"{PAPER_NAME},{ADMITTED_NAME},{SHIPPED_NAME}"
 
 
 def parallel_overrides(jobs: int, cores: int) -> list[str]:
@@ -64,6 +76,17 @@ def parallel_overrides(jobs: int, cores: int) -> list[str]:
     ]
 
 
+def record_overrides(records: Path, suites: Sequence[str], episodes: int | None) -> list[str]:
+    """The Hydra callback that records each job's snapshots when it ends (snapshot_records)."""
+    key = "+hydra.callbacks.records"
+    return [
+        f"{key}._target_=pipeline.snapshot_records.RecordSnapshots",
+        f"{key}.out='{records.absolute()}'",
+        f"{key}.suites='{','.join(suites)}'",
+        f"{key}.episodes={episodes or 5}",
+    ]
+
+
 def train_command(
     budget: str,
     seeds: str,
@@ -73,14 +96,15 @@ def train_command(
     jobs: int = 1,
     overrides: Sequence[str] = (),
 ) -> list[str]:
-    """The training multirun; `overrides` come last, so they win over the budget's values."""
+    """The training multirun, seed by seed (every algorithm's first seed before any second);
+    `overrides` come last, so they win over the budget's values."""
     return [
         sys.executable,
         "-m",
         "epoet",
         "-m",
-        f"algo={','.join(algos)}",
         f"seed={seeds}",
+        f"algo={','.join(algos)}",
         *parallel_overrides(jobs, default_workers()),
         f"budget={budget}",
         f"tracking.experiment={experiment}",
@@ -102,7 +126,7 @@ def check_suites(suites: Sequence[str]) -> None:
         fail(err)
 
 
-def check_jobs(jobs: Sequence[Sequence[str]]) -> None:
+def check_jobs(jobs: Sequence[Sequence[str]]) -> list[Config]:
     """Each training job's overrides checked as its run will check them (composition, ranges,
     combinations, what it starts from: `epoet.run.check_inputs`), before any training, so bad
     input is one line and exit 2 at once instead of a failed job minutes later. Sweep values
@@ -110,13 +134,16 @@ def check_jobs(jobs: Sequence[Sequence[str]]) -> None:
     from epoet.run import check_inputs
 
     parser = OverridesParser.create()
+    configs = []
     for overrides in jobs:
         try:
             parsed = parser.parse_overrides(list(overrides))
             single = [str(o.input_line) for o in parsed if not o.is_sweep_override()]
-            check_inputs(validate(compose(single)))
+            configs.append(validate(compose(single)))
+            check_inputs(configs[-1])
         except (ConfigError, HydraException, OmegaConfBaseException) as err:
             fail(err)
+    return configs
 
 
 def evaluate_missing(
@@ -183,9 +210,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--suites",
         "--suite",
-        default=SUITES,
-        help="comma-separated suite names (shipped, paper) or folders that every "
-        "run is evaluated and tabled on",
+        default=None,
+        help="comma-separated suite names or folders that every run is evaluated and tabled "
+        f"on (default: {SNAPSHOT_SUITES} at a CPU-hour budget, else {SUITES})",
     )
     parser.add_argument(
         "--episodes", type=int, default=None, help="evaluation episodes per terrain (None: 5)"
@@ -193,8 +220,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--jobs",
         type=int,
-        default=1,
-        help="training jobs at a time; each gets cores / jobs workers",
+        default=default_workers(),
+        help="training jobs at a time (default: one per core); each gets cores / jobs workers",
+    )
+    parser.add_argument(
+        "--runs",
+        type=Path,
+        default=None,
+        metavar="FOLDER",
+        help="where the job folders go (None: multirun/paper-<budget>)",
     )
     parser.add_argument(
         "--out", type=Path, default=None, help="results folder (None: results/paper-<budget>)"
@@ -227,8 +261,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for a in algos
         if a not in names()
     ]
-    suites = [s for s in args.suites.split(",") if s]
-    if not suites:
+    if args.suites is not None and not [s for s in args.suites.split(",") if s]:
         problems.append(f"--suites names no suite, got {args.suites!r}")
     if not all(s.strip().isdigit() for s in args.seeds.split(",")):
         problems.append(f"seeds must be comma-separated integers, got {args.seeds!r}")
@@ -239,25 +272,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problems:
         print(f"error: {problems[0]}.", file=sys.stderr)
         return 2
-    check_suites(suites)
     seed = args.seeds.split(",")[0]
-    check_jobs(
+    configs = check_jobs(
         [[f"algo={a}", f"budget={args.budget}", f"seed={seed}", *args.overrides] for a in algos]
     )
+    # Runs ended by CPU hours have their CPU-time snapshots: those are what is evaluated.
+    by_cpu = all(cfg.budget.cpu_hours is not None for cfg in configs)
+    suites = [s for s in (args.suites or (SNAPSHOT_SUITES if by_cpu else SUITES)).split(",") if s]
+    check_suites(suites)
     experiment = f"paper-{args.budget}"
     out = args.out or Path("results") / experiment
+    records = args.records or (out / "records" if by_cpu else None)
     command = train_command(
         args.budget,
         args.seeds,
         algos,
         experiment,
-        Path("multirun") / experiment,
+        args.runs or Path("multirun") / experiment,
         args.jobs,
-        args.overrides,
+        [
+            *(record_overrides(records, suites, args.episodes) if by_cpu and records else []),
+            *args.overrides,
+        ],
     )
     print(
         f"[paper] training {len(algos)} algorithms x seeds {args.seeds} at budget "
-        f"{args.budget} (finished jobs are skipped):\n  {' '.join(command[1:])}",
+        f"{args.budget}, {args.jobs} at a time (finished jobs are skipped)"
+        + (f", each recorded into {records}/ as it ends" if by_cpu else "")
+        + f":\n  {' '.join(command[1:])}",
         flush=True,
     )
     if (code := subprocess.run(command).returncode) != 0:
@@ -269,6 +311,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
 
     def analyse() -> None:
+        if by_cpu:
+            assert records is not None  # by_cpu: the default records folder
+            write_report(records, suites, out)
+            return
         evaluate_missing(experiment, out, suites, args.episodes)
         for suite in suites:
             make_tables(experiment, out, suite)
@@ -278,10 +324,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     if code := run_command(analyse):
         return code
-    print(
-        f"[paper] tables in {out}/, figures in {out / 'figures'}/"
-        + (f", records in {args.records}/" if args.records is not None else "")
-    )
+    where = f"tables and figures in {out}/"
+    if not by_cpu:
+        where = f"tables in {out}/, figures in {out / 'figures'}/"
+    print(f"[paper] {where}" + (f", records in {records}/" if records is not None else ""))
     return 0
 
 

@@ -2,7 +2,8 @@
 compute. Every CPU-time snapshot of each run (`<run folder>/snapshots/cpu<minutes>/`, written
 at the marks of `snapshot_cpu_minutes` while it trains) is evaluated on the suites with the
 paper's protocol (5 episodes per terrain; solved = finish line and return >= 2000), every agent
-of it: an ePOET pool's every niche agent, a baseline's one policy. The results go to records
+of it: an ePOET pool's every niche agent, a baseline's one policy (`--exported-only`: the agent
+the snapshot exported, what the tables read). The results go to records
 that outlive the machine (docs/results/README.md, "Success against compute"):
 
     <out>/<algo>_s<seed>/run.json        the run (command, commits, CPU and wall time, load) and,
@@ -267,8 +268,10 @@ def record_snapshots(
     cfg: EvaluateConfig,
     pool: Any,
     tracking_uri: str | None = None,
+    exported_only: bool = False,
 ) -> Path:
-    """The run's record, its new snapshots evaluated; run.json written last. The run's MLflow
+    """The run's record, its new snapshots evaluated (`exported_only`: only the agent each
+    snapshot exported, not a pool's every niche); run.json written last. The run's MLflow
     store: `tracking_uri`, else the one its config names, else epoet's default."""
     state = checkpoint_of(run_dir)
     config = state["config"]
@@ -276,7 +279,7 @@ def record_snapshots(
     trained = resolve_run(str(run_dir), uri)
     record = out / f"{state['algo']}_s{config['seed']}"
     snapshots = {
-        f"{minutes:g}": evaluate_snapshot(folder, record, trained, suites, cfg, pool)
+        f"{minutes:g}": evaluate_snapshot(folder, record, trained, suites, cfg, pool, exported_only)
         for minutes, folder in snapshots_of(run_dir)
     }
     if (record / RUN_FILE).is_file():  # suites evaluated by an earlier call stay listed
@@ -346,6 +349,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     add_evaluation_arguments(parser)
     parser.add_argument(
+        "--exported-only",
+        action="store_true",
+        help="evaluate only the agent each snapshot exported (the tables' reading), not every "
+        "niche agent of a pool",
+    )
+    parser.add_argument(
         "--tracking-uri",
         default=None,
         help="the runs' MLflow store (None: their config's, else MLFLOW_TRACKING_URI, else "
@@ -363,7 +372,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             for run_dir in args.runs:
                 overrides = [f"run={run_dir}", f"episodes={args.episodes}"]
                 cfg = validate(compose(overrides, config_name="evaluate"))
-                record = record_snapshots(run_dir, args.out, suites, cfg, pool, args.tracking_uri)
+                record = record_snapshots(
+                    run_dir, args.out, suites, cfg, pool, args.tracking_uri, args.exported_only
+                )
                 print(f"[snapshots] {run_dir} -> {record}", flush=True)
 
     return run_command(export)
