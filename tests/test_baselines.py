@@ -20,8 +20,10 @@ from torchrl.envs.utils import set_exploration_type
 from conftest import TINY_BASELINE, tiny_baseline
 from epoet.config import compose as compose_config
 from epoet.config import validate
+from epoet.core.algorithm import Family
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.schema import ConfigError
+from epoet.registry import names
 from epoet.rl import sac
 from epoet.rl.candidates import CANDIDATES
 from epoet.rl.env import RunningObsNorm, make_env, obs_norm_of, terrain_env
@@ -59,7 +61,7 @@ def deterministic_rollout(raw: DictConfig, actor, checkpoint: dict, steps: int =
     return td
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
+@pytest.mark.parametrize("algo", names(Family.BASELINE))
 def test_smoke_run_logs_to_mlflow_and_exports_a_rebuildable_policy(algo, store, tmp_path):
     raw = compose_config([*tiny_baseline(algo), "evaluate=false"])
     result = run(raw, tmp_path / "run")
@@ -108,7 +110,7 @@ class Killed(Exception):
     """Stands for the process being killed mid-run."""
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
+@pytest.mark.parametrize("algo", names(Family.BASELINE))
 def test_resume_continues_exactly_like_an_uninterrupted_run(algo, store, tmp_path, monkeypatch):
     overrides = [*tiny_baseline(algo), "evaluate=false"]
     straight = run(compose_config(overrides), tmp_path / "straight")

@@ -15,11 +15,13 @@ import pytest
 
 from conftest import tiny_baseline
 from epoet.config import load
+from epoet.core.algorithm import Family
 from epoet.core.checkpoint import load_checkpoint
 from epoet.core.clock import CpuMeter, process_tree_cpu
 from epoet.core.schema import ConfigError
 from epoet.eval.keys import PAPER_NAME
 from epoet.eval.suite import load_suite
+from epoet.registry import names
 from epoet.run import run
 from epoet.terrain import max_height_at
 
@@ -47,7 +49,7 @@ def test_epoet_trains_at_the_paper_suites_relief_within_every_budget(budget: str
     assert max_height_at(cfg.terrain, iterations - 1) >= _paper_relief()
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac", "vmpo"])
+@pytest.mark.parametrize("algo", names(Family.BASELINE))
 @pytest.mark.parametrize("budget", BUDGETS)
 def test_the_baselines_bowl_reaches_the_paper_suites_relief(budget: str, algo: str) -> None:
     """The baselines' S follows the schedule per episode; a budget's frames hold at least

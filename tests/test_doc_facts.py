@@ -20,8 +20,10 @@ from omegaconf import OmegaConf
 
 from epoet.cli import RUN_GROUPS
 from epoet.config import compose, load
+from epoet.core.algorithm import Family
 from epoet.eval.suite import load_suite
 from epoet.eval.suite_format import LEVEL_BOUNDS, LEVELS, level_of
+from epoet.registry import names
 from test_help import PACKAGES, entry_points, run
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -229,8 +231,8 @@ def test_the_test_files_the_docs_name_exist() -> None:
 # --- configs.md's budget table, the rendering and selection defaults, the shipped suite ------
 
 BUDGETS = (*SMALLER_BUDGETS, "paper")
-BASELINES = ("ppo", "sac", "vmpo")
-OPEN_ENDED = ("epoet", "epoet_sac")
+BASELINES = tuple(names(Family.BASELINE))
+OPEN_ENDED = tuple(names(Family.OPEN_ENDED))
 
 
 def quantity(text: str) -> float:

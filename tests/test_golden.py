@@ -20,7 +20,9 @@ import torch
 
 from conftest import BUSY_LOOP, tiny_baseline
 from epoet.config import compose
+from epoet.core.algorithm import Family
 from epoet.core.checkpoint import load_checkpoint
+from epoet.registry import names
 from epoet.run import run
 
 GOLDEN = Path(__file__).with_name("golden.json")
@@ -38,7 +40,7 @@ OVERRIDES = {
         *BUSY_LOOP,
         "budget.iterations=5",
     ],
-    **{algo: [*tiny_baseline(algo), FIXTURE_RELIEF] for algo in ("ppo", "vmpo", "sac")},
+    **{algo: [*tiny_baseline(algo), FIXTURE_RELIEF] for algo in names(Family.BASELINE)},
 }
 
 

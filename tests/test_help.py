@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from epoet.cli import KeyValueCommand
+from epoet.registry import names
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("epoet", "analysis", "pipeline")
@@ -165,7 +166,7 @@ def test_the_run_help_lists_only_what_a_user_chooses(helps):
     text = helps[("epoet", "--help")].stdout
     for internal in ("_schema", "algo_budget", "learner", "hydra/job_logging"):
         assert internal not in text, internal
-    assert "algo=epoet|epoet_sac|ppo|sac|vmpo" in text
+    assert f"algo={'|'.join(sorted(names()))}" in text  # every registered algorithm
     assert "budget=laptop|paper|smoke|workstation" in text
     assert "check=" in text and "python -m epoet check=true" in text
 
