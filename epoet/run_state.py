@@ -74,6 +74,16 @@ def close_killed_run(run_dir: Path, resuming: str | None) -> None:
         close_killed(killed["uri"], killed["run_id"])
 
 
+def close_if_killed(run_dir: Path) -> None:
+    """What a command that reads a run folder without training in it does (evaluate): close as
+    KILLED the MLflow run a killed process left open there; a run still training is left
+    alone."""
+    try:
+        close_killed_run(run_dir, None)
+    except CheckpointError:  # its process is alive: a run still training, evaluated mid-way
+        pass
+
+
 def orphaned_run(run_dir: Path) -> dict[str, Any] | None:
     """The mark a killed process left in `run_dir` (None: none); CheckpointError (one line) when
     the process that wrote it still trains there."""

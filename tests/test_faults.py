@@ -129,6 +129,36 @@ def test_a_run_killed_before_its_first_checkpoint_is_closed_as_killed(
     assert statuses == ["FINISHED", "KILLED"] and not (run_dir / "RUNNING").exists()
 
 
+def test_evaluating_a_killed_runs_folder_closes_its_run_as_killed(tmp_path: Path) -> None:
+    """`evaluate run=<folder>` of a run whose process was killed after a checkpoint evaluates its
+    agent and closes its MLflow run, left RUNNING, as KILLED."""
+    from conftest import subset_suite
+
+    run_dir, uri = tmp_path / "run", f"sqlite:///{tmp_path}/mlflow.db"
+    args = [*SMOKE, f"hydra.run.dir={run_dir}", "checkpoint_every=1", "budget.iterations=1000"]
+    proc = _launch(args, tmp_path, "k")
+    try:
+        _wait_for(lambda: (run_dir / "checkpoint.pkl").exists() or proc.poll() is not None)
+        assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+    client = mlflow.MlflowClient(uri)
+    (killed,) = client.search_runs([client.get_experiment_by_name("epoet").experiment_id])
+    assert killed.info.status == "RUNNING"
+    suite = subset_suite(tmp_path / "suite", [("easy", 0)])
+    evaluate = [f"run={run_dir}", f"suite={suite}", "episodes=1", f"out={tmp_path / 'eval'}"]
+    done = subprocess.run(
+        [sys.executable, "-m", "epoet.eval.evaluate", *evaluate],
+        env={**os.environ, "MLFLOW_TRACKING_URI": uri},
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    after = client.get_run(killed.info.run_id)
+    assert after.info.status == "KILLED" and "suite/suite/success_rate" in after.data.metrics
+
+
 def test_sigint_and_sigterm_request_a_stop_and_a_second_signal_stops_at_once() -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         with StopOnSignal():

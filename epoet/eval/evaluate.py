@@ -75,6 +75,7 @@ from epoet.eval.suite import (
     load_suite,
     terrain_config_for,
 )
+from epoet.run_state import close_if_killed
 from epoet.tracking import TrackingError
 
 COMMAND = KeyValueCommand("evaluate", __doc__, EvaluateConfig)
@@ -216,6 +217,8 @@ def evaluate_run(
         "eval_seed": cfg.seed,
     }
     paths = write_results(result, folder, info)
+    if Path(cfg.run).is_dir():  # a run folder: its run, if its process was killed, is closed
+        close_if_killed(Path(cfg.run))
     if run.stored is not None:
         run.stored.log_results(
             result.metrics,
