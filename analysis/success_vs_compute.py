@@ -73,7 +73,7 @@ from analysis.store import (  # noqa: E402
     run_command,
 )
 from analysis.tables import to_markdown  # noqa: E402
-from epoet.core.algorithm import Family  # noqa: E402
+from epoet.core.algorithm import SCORE, Family  # noqa: E402
 from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import PAPER_NAME  # noqa: E402
 from epoet.registry import algorithm  # noqa: E402
@@ -258,7 +258,7 @@ def curves_from_records(records: Path) -> pd.DataFrame:
         path = Path(records) / info["record"] / "curves.csv"
         if not path.is_file():
             continue
-        columns = ["step", "score", "env_steps", "cpu_time"]
+        columns = ["step", SCORE, "env_steps", "cpu_time"]
         curves = read_csv(path, columns).dropna(subset=columns[1:])
         frames.append(
             pd.DataFrame(

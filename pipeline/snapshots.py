@@ -43,6 +43,7 @@ from mlflow import MlflowClient
 from analysis.joins import JOIN_KEYS
 from analysis.records import EPISODES, RUN_FILE, SUMMARY
 from analysis.store import AnalysisError, connect, run_command
+from epoet.core.algorithm import SCORE_METRICS
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.files import atomic_write
 from epoet.core.help import HelpParser
@@ -60,20 +61,10 @@ from pipeline.records import write_json
 from pipeline.run_header import command_of, load_of, overrides_command, run_header
 
 CURVES = "curves.csv"
-# What a learning curve holds: the score (ePOET: its best active pair's evaluation; baselines:
-# the deterministic evaluation return), the best so far, the pool, S and the three axes, and
+# What a learning curve holds: what every algorithm logs (the metrics contract,
+# epoet/core/algorithm.py: the score, the best so far, the three axes), then the pool and S, and
 # what ePOET-SAC's joins did (analysis.joins).
-CURVE_KEYS = (
-    "score",
-    "best_score",
-    "annecs",
-    "active_envs",
-    "max_height",
-    "env_steps",
-    "cpu_time",
-    "elapsed",
-    *JOIN_KEYS,
-)
+CURVE_KEYS = (*SCORE_METRICS, "annecs", "active_envs", "max_height", *JOIN_KEYS)
 
 
 def niches_of(snapshot: Path) -> list[Path]:
