@@ -162,6 +162,35 @@ def test_no_folder_imports_one_above_it_or_beside_it() -> None:
     assert not against, "\n".join(against)
 
 
+def _floors() -> dict[str, int]:
+    """Each node's floor of the folder graph: one above the highest node it imports, 0 for a
+    node that imports none (its longest import path down)."""
+    graph, floors = _folder_graph(), {}
+
+    def floor(node: str) -> int:
+        if node not in floors:
+            floors[node] = 1 + max((floor(o) for o in graph[node]), default=-1)
+        return floors[node]
+
+    for node in graph:
+        floor(node)
+    return floors
+
+
+def test_each_line_of_the_picture_is_a_floor_of_the_import_graph() -> None:
+    """Every node the picture names is drawn on its floor, and there are as many lines as
+    floors; an algorithm it does not name (`<algorithm>/`) only obeys the import rule above."""
+    floors = _floors()
+    drawn = {name: level for level, names in enumerate(LAYERS) for name in names}
+    misplaced = [
+        f"{node} is drawn on line {drawn[node]} but its floor is {floor}"
+        for node, floor in sorted(floors.items())
+        if node in drawn and drawn[node] != floor
+    ]
+    assert not misplaced, "\n".join(misplaced)
+    assert len(LAYERS) == max(floors.values()) + 1
+
+
 def _with_parents(module: str) -> set[str]:
     """`module` and the packages Python runs before it (epoet.open_ended for
     epoet.open_ended.config)."""
