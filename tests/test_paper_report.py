@@ -67,6 +67,14 @@ def test_cpu_hour_paper_records_each_run_and_reports_from_records(tmp_path: Path
     assert "| epoet | sac |" in claims.replace("  ", " ")  # ePOET against SAC, the paper's claim
     for name in ("table1_suite.md", "table2_suite.md", "success_vs_compute.png"):
         assert (report / name).stat().st_size > 0
+    # Called again, it resumes: the finished jobs are skipped and their records, complete,
+    # are not evaluated again.
+    summaries = sorted(records.glob("*/cpu*/*/*/summary.json"))
+    stamps = [p.stat().st_mtime_ns for p in summaries]
+    again = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "already finished" in again.stdout + again.stderr
+    assert [p.stat().st_mtime_ns for p in summaries] == stamps
     # From the records alone (runs and store gone), the same bytes.
     for path in [*(tmp_path / "runs").rglob("*"), tmp_path / "m.db"]:
         if path.is_file():
