@@ -55,7 +55,7 @@ def _app(cfg: DictConfig) -> None:
 
 def resume_command(run_dir: Path) -> str:
     """The command that continues this run: `resume=` and the overrides it was started with
-    (a resume must repeat them, epoet/run.py RESUMABLE), quoted for a shell."""
+    (a resume must repeat them, epoet/migration.py RESUMABLE), quoted for a shell."""
     overrides = [o for o in HydraConfig.get().overrides.task if not o.startswith("resume=")]
     return shlex.join(["python", "-m", "epoet", f"resume={run_dir}", *overrides])
 

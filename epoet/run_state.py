@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull i
     from epoet.tracking import Tracker
 
 
-# The budget's limits a resume may raise (epoet/run.py RESUMABLE), where the family has them.
+# The budget's limits a resume may raise (epoet/migration.py RESUMABLE), where the family has them.
 BUDGET_LIMITS = ("iterations", "hours", "cpu_hours")
 # Written into the run folder when a run finished: its MLflow run id, then (JSON) the budget
 # limits it finished on, so `resume=auto` decides without loading a checkpoint (a SAC replay

@@ -21,7 +21,7 @@ from epoet.core.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from epoet.run import config_changes
+from epoet.migration import config_changes
 
 
 class _Unpicklable:
