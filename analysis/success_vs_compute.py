@@ -308,24 +308,26 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
         f"interval\n\n{to_markdown(shown)}\n\n" + "\n".join(notes) + "\n"
     )
     paths = [out / "success_vs_compute.csv", out / "success_vs_compute.md"]
-    compared = comparisons(table)
-    if not compared.empty:
-        (out / "comparisons.md").write_text(
+    readings = (
+        (
+            "comparisons.md",
+            comparisons(table),
             f"Algorithms compared on suite {suite} at each CPU-time mark (the runs' exported "
             f"agents): X - Y in mean success with its 95 % interval over seeds; P(X > Y) with "
-            f"its interval and the largest value its ties allow\n\n"
-            f"{to_markdown(compared)}\n"
-        )
-        paths.append(out / "comparisons.md")
-    claims = comparisons(table, CLAIMS)
-    if not claims.empty:
-        (out / "claims.md").write_text(
+            f"its interval and the largest value its ties allow",
+        ),
+        (
+            "claims.md",
+            comparisons(table, CLAIMS),
             f"The paper's claims on suite {suite} (X better than Y: ePOET-SAC than ePOET, ePOET "
             f"than SAC, SAC than PPO) at each CPU-time mark, read as comparisons.md reads "
-            f"them: a claim holds where the interval of X - Y lies above 0\n\n"
-            f"{to_markdown(claims)}\n"
-        )
-        paths.append(out / "claims.md")
+            f"them: a claim holds where the interval of X - Y lies above 0",
+        ),
+    )
+    for name, compared, title in readings:
+        if not compared.empty:
+            (out / name).write_text(f"{title}\n\n{to_markdown(compared)}\n")
+            paths.append(out / name)
     levels = level_summary(level_table(records, suite))
     (out / "levels.md").write_text(
         f"Per level on suite {suite}, the runs' exported agents, mean over seeds: success per "
