@@ -13,17 +13,14 @@ import pandas as pd
 from analysis.mean_success import difference_interval, ties_ceiling
 from analysis.stats import poi_interval
 from analysis.store import in_order
-
-# The paper's claims, each as (X, Y) with X claimed the better: ePOET-SAC over ePOET, ePOET over
-# SAC, SAC over PPO.
-CLAIMS = (("epoet_sac", "epoet"), ("epoet", "sac"), ("sac", "ppo"))
+from epoet.registry import algorithms
 
 
 def comparisons(
     table: pd.DataFrame, pairs: Sequence[tuple[str, str]] | None = None
 ) -> pd.DataFrame:
     """For each pair (X, Y) of `pairs` (None: every pair of algorithms, X after Y in table
-    order) at every mark both reached, each run read by its exported agent: the difference of
+    order; `claims()`: the paper's) at every mark both reached, each run read by its exported agent: the difference of
     mean success X - Y on the same terrains with its 95 % interval over seeds, and P(X > Y),
     rliable's probability of improvement, with its interval and its ties ceiling."""
     rows = []
@@ -51,3 +48,9 @@ def comparisons(
                 }
             )
     return pd.DataFrame(rows)
+
+
+def claims() -> list[tuple[str, str]]:
+    """The paper's claims as (X, Y), X claimed to beat Y (each record's `beats`), in the
+    paper's order: the open-ended algorithms' first (reverse table order)."""
+    return [(r.name, r.beats) for r in reversed(algorithms()) if r.beats is not None]

@@ -16,7 +16,7 @@ Writes to `<out>/<records folder name>/<suite name>/` (`--out` default: results/
 success_vs_compute.{md,csv,png}, learning_curves.{png,csv} (score against environment steps and
 against CPU hours), levels.md (per level, and where the failed medium episodes stop:
 analysis.levels), comparisons.md where they hold two algorithms or more (the paired difference of mean success X - Y with its interval over seeds, and P(X > Y) with its
-ties ceiling, at every mark both reached), claims.md (the paper's claims, `CLAIMS`, whose two
+ties ceiling, at every mark both reached), claims.md (the paper's claims, each record's `beats`, whose two
 algorithms they hold) and, where they hold ePOET-SAC runs, joins.md (what their joins did to
 the pool: analysis.joins).
 
@@ -40,7 +40,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from analysis.comparisons import CLAIMS, comparisons  # noqa: E402
+from analysis.comparisons import claims, comparisons  # noqa: E402
 from analysis.figures import plot_learning_curves  # noqa: E402
 from analysis.joins import joins_table  # noqa: E402
 from analysis.levels import AT_STEP, level_summary, level_table  # noqa: E402
@@ -318,7 +318,7 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
         ),
         (
             "claims.md",
-            comparisons(table, CLAIMS),
+            comparisons(table, claims()),
             f"The paper's claims on suite {suite} (X better than Y: ePOET-SAC than ePOET, ePOET "
             f"than SAC, SAC than PPO) at each CPU-time mark, read as comparisons.md reads "
             f"them: a claim holds where the interval of X - Y lies above 0",

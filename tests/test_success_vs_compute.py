@@ -121,7 +121,7 @@ def test_success_against_compute_is_drawn_from_records_alone(
 def test_comparisons_pair_the_algorithms_at_the_marks_both_reached() -> None:
     """P(X > Y) per mark with X after Y in table order, from the best agents only; a mark one
     algorithm never reached has no row."""
-    from analysis.comparisons import CLAIMS, comparisons
+    from analysis.comparisons import claims, comparisons
 
     rows = [
         {"algo": algo, "seed": seed, "minutes": minutes, "reading": reading, "terrains": terrains}
@@ -145,11 +145,11 @@ def test_comparisons_pair_the_algorithms_at_the_marks_both_reached() -> None:
         }
     ]
     # The paper's claims keep their own order: no claim pairs PPO with ePOET.
-    assert comparisons(pd.DataFrame(rows), CLAIMS).empty
+    assert comparisons(pd.DataFrame(rows), claims()).empty
     sac = [{**row, "algo": "sac"} for row in rows if row["algo"] == "ppo"]
-    claims = comparisons(pd.DataFrame(rows + sac), CLAIMS)
-    assert list(zip(claims.x, claims.y)) == [("epoet", "sac"), ("sac", "ppo")]
-    assert list(claims["X - Y (mean success, pts)"]) == [
+    claimed = comparisons(pd.DataFrame(rows + sac), claims())
+    assert list(zip(claimed.x, claimed.y)) == [("epoet", "sac"), ("sac", "ppo")]
+    assert list(claimed["X - Y (mean success, pts)"]) == [
         "+100.0 [+100.0, +100.0]",
         "+0.0 [+0.0, +0.0]",
     ]

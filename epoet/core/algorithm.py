@@ -92,3 +92,6 @@ class Algorithm:
     runner: str  # dotted path of train(cfg, tracker, run_dir, resume), imported when it runs
     label: str  # its name in figures
     colour: str  # its colour in figures (a matplotlib colour)
+    # The algorithm the paper claims this one beats (ePOET-SAC ePOET, ePOET SAC, SAC PPO):
+    # the claims analysis.comparisons reads as paired differences; None for no claim.
+    beats: str | None = None

@@ -124,4 +124,5 @@ EPOET_SAC = Algorithm(
     runner="epoet.epoet_sac.runner.train",
     label="ePOET-SAC",
     colour="tab:purple",
+    beats="epoet",
 )

@@ -69,4 +69,5 @@ EPOET = Algorithm(
     runner="epoet.open_ended.runner.train",
     label="ePOET",
     colour="tab:red",
+    beats="sac",
 )

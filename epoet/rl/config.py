@@ -192,6 +192,7 @@ SAC = Algorithm(
     runner="epoet.rl.sac.train",
     label="SAC",
     colour="tab:orange",
+    beats="ppo",
 )
 VMPO = Algorithm(
     name="vmpo",
