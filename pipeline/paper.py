@@ -60,7 +60,7 @@ from epoet.registry import names
 from pipeline.records import COMMIT_TAG, export
 
 SUITES = f"{SHIPPED_NAME},{PAPER_NAME}"
-# At a CPU-hour budget: the test suite, the validation suite, the suite of the product's gallery
+# At a CPU-hour budget: the test suite, the validation suite and the shipped suite (the second check)
 SNAPSHOT_SUITES = f"{PAPER_NAME},{ADMITTED_NAME},{SHIPPED_NAME}"
 
 
