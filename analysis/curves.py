@@ -7,7 +7,7 @@ Writes to `--out`:
   The paper labels pairs "ePOET_gen<generation>"; the generation is not logged per pair, so
   curves are labelled `pair<N>`.
 - `baseline_curves.png` / `.csv`: each baseline run's (PPO, SAC, VMPO) evaluation return
-  (`eval/return_mean`, step = frames), one panel per algorithm.
+  (`score`, which equals `eval/return_mean`; step = frames), one panel per algorithm.
 
 By default the runs are the FINISHED runs of the experiment that carry an `algo` tag (a sweep's
 parent run has none and is skipped); `--run` picks runs by id instead, whatever their status.
@@ -54,7 +54,7 @@ from epoet.core.help import HelpParser  # noqa: E402
 from epoet.registry import algorithm, algorithms, names  # noqa: E402
 
 PAIR_KEY = re.compile(r"^pair(\d+)/return_mean$")
-EVAL_KEY = Family.BASELINE.curve  # "eval/return_mean"
+EVAL_KEY = Family.BASELINE.curve  # "score": a baseline's evaluation return
 EPOET_COLUMNS = ["run_id", "algo", "seed", "pair", "iteration", "return_mean"]
 BASELINE_COLUMNS = ["run_id", "algo", "seed", "frames", "return_mean"]
 

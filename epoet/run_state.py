@@ -1,27 +1,23 @@
-"""What every runner does at a run's boundaries: checkpoint the run's state together with its
-config and the MLflow run it continues, say why the run stopped, and mark it finished.
+"""A run folder's marks: DONE when a run finished there (with the budget it finished on), RUNNING
+while a process trains there, and what the next command does with a mark a killed process left.
 
-Run-level code, so it sits above `core` (which imports nothing else of the package) and below the
-algorithms that call it; `epoet/run.py` makes the run these belong to.
+Run-level code, so it sits above `core` (which imports nothing else of the package); the driver
+(epoet/driver.py) writes the run's checkpoints and snapshots, `epoet/run.py` the marks.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import socket
-from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, save_checkpoint
-from epoet.core.clock import CpuMeter
+from epoet.core.checkpoint import CheckpointError
 from epoet.core.files import atomic_write
 
 if TYPE_CHECKING:  # the tracker protocol; importing it at run time would pull in mlflow
-    from epoet.config import BudgetConfig, Config
-    from epoet.tracking import Tracker
+    from epoet.config import BudgetConfig
 
 
 # The budget's limits a resume may raise (epoet/migration.py RESUMABLE), where the family has them.
@@ -101,86 +97,6 @@ def orphaned_run(run_dir: Path) -> dict[str, Any] | None:
             "wait for it or stop it first."
         )
     return mark
-
-
-def save_run_state(run_dir: Path, tracker: Tracker, cfg: Config, state: dict[str, Any]) -> Path:
-    """Checkpoint a runner's state with its config and the MLflow run id it continues."""
-    path = Path(run_dir) / CHECKPOINT_NAME
-    tracker.flush()  # metrics up to the checkpoint are in the store before it exists
-    save_checkpoint(
-        path,
-        {
-            "run_id": tracker.run_id,
-            "algo": cfg.algo.name,
-            "config": dataclasses.asdict(cfg),
-            **state,
-        },
-    )
-    return path
-
-
-def report_stop(
-    tracker: Tracker,
-    name: str,
-    budget: BudgetConfig,
-    clock: str | None,
-    count: int,
-    unit: str,
-    seconds: float,
-    cpu_seconds: float,
-) -> None:
-    """Tag why the run ended (`stop_reason`: the budget's `unit`, iterations or frames, or the
-    clock that ended it first, `hours` or `cpu_hours`) and say so when a clock ended it: a resume
-    with a larger budget on that clock continues."""
-    tracker.set_tags({"stop_reason": clock or unit})
-    if clock is not None:
-        kind, limit = (
-            ("wall-clock", budget.hours) if clock == "hours" else ("CPU-time", budget.cpu_hours)
-        )
-        print(
-            f"[{name}] stopped at the {kind} budget (budget.{clock}={limit:g}) after {count} {unit}, "
-            f"{seconds / 3600:.3g} h of training and {cpu_seconds / 3600:.3g} CPU hours; resume "
-            f"with a larger budget.{clock} to continue",
-            flush=True,
-        )
-
-
-SNAPSHOTS = "snapshots"  # <run folder>/snapshots/cpu<minutes>/: the agents at a CPU-time mark
-SNAPSHOT_INFO = "snapshot.json"
-
-
-def snapshot_folder(run_dir: Path, minutes: float) -> Path:
-    return Path(run_dir) / SNAPSHOTS / f"cpu{minutes:g}"
-
-
-def take_snapshots(
-    run_dir: Path,
-    marks: Sequence[float],
-    cpu_seconds: float,
-    save: Callable[[Path], object],
-    info: dict[str, float],
-    meter: CpuMeter,
-) -> tuple[list[float], float]:
-    """Save the run's agents (`save(folder)`: the agents and the run's choice among them) once
-    for every mark of `marks` (CPU minutes) that the run's CPU time has passed and that has no
-    snapshot yet, so success can be measured against compute from one run. Returns the marks
-    saved and the CPU seconds the saving took (`meter`, lapped: the caller adds them to the
-    run's CPU time), so a snapshot's choice is counted even at the run's last mark, after
-    which no iteration laps the meter again; snapshot.json's `cpu_time` includes them. A
-    snapshot is complete when its `snapshot.json` exists (written last, atomically): a run
-    killed while saving writes it again on resume."""
-    saved, spent = [], 0.0
-    for minutes in marks:
-        folder = snapshot_folder(run_dir, minutes)
-        if cpu_seconds < minutes * 60 or (folder / SNAPSHOT_INFO).is_file():
-            continue
-        save(folder)
-        spent += meter.lap()  # since the caller's last lap: the saving and what just preceded it
-        counted = {**info, "cpu_time": info["cpu_time"] + spent, "choice_cpu_s": spent}
-        with atomic_write(folder / SNAPSHOT_INFO) as file:
-            file.write(json.dumps({"cpu_minutes": minutes, **counted}, indent=1).encode())
-        saved.append(minutes)
-    return saved, spent
 
 
 def mark_done(run_dir: Path, run_id: str, budget: BudgetConfig) -> None:

@@ -31,8 +31,8 @@ import numpy as np
 from analysis.records import RUN_FILE
 from analysis.store import AnalysisError, run_command
 from epoet.core.help import HelpParser
+from epoet.driver import SNAPSHOT_INFO
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT
-from epoet.run_state import SNAPSHOT_INFO
 from pipeline.records import write_json
 from pipeline.snapshots import (
     add_evaluation_arguments,

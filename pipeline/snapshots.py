@@ -47,6 +47,7 @@ from epoet.core.algorithm import SCORE_METRICS
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.files import atomic_write
 from epoet.core.help import HelpParser
+from epoet.driver import SNAPSHOT_INFO, SNAPSHOTS
 from epoet.eval.agents import RECORD_CONFIG, TrainedRun, policy_in, resolve_run
 from epoet.eval.config import EvaluateConfig
 from epoet.eval.episodes import evaluation_pool
@@ -55,7 +56,6 @@ from epoet.eval.keys import PAPER_NAME, SHIPPED_NAME
 from epoet.eval.suite import Suite, load_suite
 from epoet.rollout.agent_files import ES_POLICIES, EXPORTED_AGENT, LAST_POLICY, TORCH_POLICY
 from epoet.rollout.selection import CHOICE_FILE, LAST
-from epoet.run_state import SNAPSHOT_INFO, SNAPSHOTS
 from epoet.tracking.provenance import git_commit
 from pipeline.records import write_json
 from pipeline.run_header import command_of, load_of, overrides_command, run_header

@@ -12,9 +12,11 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import mlflow
+import numpy as np
 import pandas as pd
 import pytest
 from omegaconf import OmegaConf
@@ -23,7 +25,7 @@ from analysis.figures import curve_table
 from conftest import new_store, subset_suite, tiny_run
 from epoet.config import CONF_DIR, compose
 from epoet.core.algorithm import AXES, SCORE, Algorithm, Family
-from epoet.core.checkpoint import load_checkpoint
+from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.registry import algorithm, algorithms, names, register
 from epoet.rl.config import PpoConfig
 from epoet.run import run
@@ -142,6 +144,81 @@ def test_the_adding_page_shows_the_toys_runner() -> None:
     assert shown in ADDING.read_text()
 
 
+# What a run does at its boundaries: the driver's (epoet/driver.py) and no algorithm's.
+DRIVER = ROOT / "epoet" / "driver.py"
+BOUNDARIES = {
+    "take_snapshots",
+    "save_run_state",
+    "report_stop",
+    "raise_if_stopped",
+    "stop_requested",
+}
+
+
+def test_only_the_driver_snapshots_checkpoints_and_stops_a_run() -> None:
+    """No module of the product (nor the toy) names the snapshot, checkpoint or stop functions
+    but the driver: every algorithm gets them by giving the driver its steps."""
+    modules = [p for d in ("epoet", "pipeline", "analysis") for p in (ROOT / d).rglob("*.py")]
+    found = {}
+    for path in [*modules, TOY]:
+        if path in (DRIVER, ROOT / "epoet" / "core" / "lifecycle.py"):
+            continue
+        tree = ast.parse(path.read_text())
+        names_used = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+        names_used |= {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+        names_used |= {
+            a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names
+        }
+        if names_used & BOUNDARIES:
+            found[str(path.relative_to(ROOT))] = sorted(names_used & BOUNDARIES)
+    assert found == {}
+
+
+def test_the_toy_resumes_exactly_after_sigkill_through_the_driver(
+    tmp_path: Path, empty_store
+) -> None:
+    """The toy writes no checkpoint, handles no signal and reads no resume flag itself: killed
+    with SIGKILL after a checkpoint, `resume=auto` continues it to the same final state and
+    metric points as a run never interrupted."""
+    uri = new_store(empty_store, tmp_path)
+    args = [str(TOY), "epoet", "algo=toy", "budget=smoke", "budget.frames=4000", "seed=3",
+            "workers.num=1", "evaluate=false", "checkpoint_every=1", "tracking.experiment=toy"]  # fmt: skip
+    killed, straight = tmp_path / "killed", tmp_path / "straight"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MLFLOW_TRACKING_URI": uri}
+    proc = subprocess.Popen(
+        [sys.executable, *args, f"hydra.run.dir={killed}"], cwd=tmp_path, env=env,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    checkpoint = killed / "checkpoint.pkl"
+    while proc.poll() is None and not (checkpoint.is_file() and _toy_steps(checkpoint) >= 2):
+        time.sleep(0.05)
+    proc.kill()
+    proc.wait()
+    assert not (killed / "DONE").exists(), "the run ended before it was killed: a larger budget"
+    stopped = _toy_steps(checkpoint)
+    _run([*args, "resume=auto", f"hydra.run.dir={killed}"], tmp_path, uri)
+    _run([*args, f"hydra.run.dir={straight}"], tmp_path, uri)
+    resumed, whole = (load_checkpoint(d / "checkpoint.pkl") for d in (killed, straight))
+    assert resumed["run_id"] == load_checkpoint(checkpoint)["run_id"]  # the same MLflow run
+    assert whole["toy"]["steps"] > stopped >= 2
+    for key in ("steps", "frames", "best"):
+        assert resumed["toy"][key] == whole["toy"][key], key
+    np.testing.assert_array_equal(resumed["toy"]["theta"], whole["toy"]["theta"])
+    client = mlflow.MlflowClient(uri)
+    points = [
+        sorted(m.step for m in client.get_metric_history(d["run_id"], SCORE))
+        for d in (resumed, whole)
+    ]
+    assert points[0] == points[1]  # every step once: none lost, none twice
+
+
+def _toy_steps(checkpoint: Path) -> int:
+    try:
+        return int(load_checkpoint(checkpoint)["toy"]["steps"])
+    except CheckpointError:  # written atomically, but not there yet
+        return 0
+
+
 def _run(args: list[str], cwd: Path, uri: str) -> subprocess.CompletedProcess:
     """A command as a user runs it, on this worktree's code and the test's store."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MLFLOW_TRACKING_URI": uri}
@@ -172,7 +249,7 @@ def test_a_toy_algorithm_trains_is_evaluated_and_tabled(tmp_path: Path, empty_st
     )
     assert run.data.tags["algo"] == "toy" and run.info.status == "FINISHED"
     assert run.data.params["algo._target_"] == "toy_algorithm.train"
-    assert run.data.params["budget.frames"] == "400" and run.data.metrics["frames"] >= 400
+    assert run.data.params["budget.frames"] == "400" and run.data.metrics["env_steps"] >= 400
     assert (run_dir / "policies" / "env0.npz").is_file()
     client = mlflow.MlflowClient(uri)
     assert unmet_metrics(client, run.info.run_id, Family.BASELINE) == []  # it gets its curve

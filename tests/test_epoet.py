@@ -115,9 +115,11 @@ def test_best_score_is_the_best_score_so_far(
     monkeypatch.setattr(
         loop.service, "scores", lambda requests: [np.array([next(scripted)]) for _ in requests]
     )
-    logged = [loop.run_iteration() for _ in range(4)]
-    assert [m["score"] for m in logged] == [5.0, 3.0, 4.0, 6.0]
-    assert [m["best_score"] for m in logged] == [5.0, 5.0, 5.0, 6.0]
+    logged = []
+    for _ in range(4):
+        loop.run_iteration()
+        logged.append((loop.score, loop.best_score))
+    assert logged == [(5.0, 5.0), (3.0, 5.0), (4.0, 5.0), (6.0, 6.0)]
     restored = make_epoet(terrain_cfg)
     restored.load_state_dict(loop.state_dict())
     assert restored.best_score == 6.0

@@ -22,12 +22,13 @@ from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.algorithm import Algorithm, AlgoSettings, Family
 from epoet.core.clock import CpuMeter
 from epoet.core.schema import positive
+from epoet.driver import Counters, Logged, drive
 from epoet.registry import register as register_record
 from epoet.rollout.agent_files import ES_POLICIES, write_es_policy
+from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import evaluator_for
 from epoet.rollout.policy import num_params, policy_sizes
 from epoet.rollout.populations import Mirrored, Request
-from epoet.run_state import save_run_state
 from epoet.terrain import make_terrain
 from epoet.tracking import Tracker
 
@@ -57,53 +58,93 @@ YAML = {"defaults": ["toy_schema", "_self_"], "hidden": [8], "sigma": 0.1}
 
 
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> float:
-    """Random search for the budget's frames, each step on a fresh terrain; exports the best
-    parameters as the ES policy file evaluation reads, then checkpoints (its last state). Logs
-    its family's metrics (`Family.BASELINE.metrics`) at step = frames, so it gets its curves."""
-    algo = ToyConfig.of(cfg)
-    frames_budget = cast(BaselineBudgetConfig, cfg.budget).frames  # its family's unit
-    sizes = policy_sizes(cfg.agent, algo.hidden)
-    state = (resume or {}).get("toy") or {
-        "theta": np.zeros(num_params(sizes)),
-        "best": -np.inf,
-        "frames": 0,
-        "elapsed": 0.0,
-        "cpu_time": 0.0,
-        "rng": np.random.default_rng(cfg.seed).bit_generator.state,
-    }
-    rng = np.random.default_rng()
-    rng.bit_generator.state = state["rng"]
-    cpu, started = CpuMeter(), time.perf_counter()
+    """Random search for the budget's frames; the driver checkpoints, resumes, stops on a
+    signal, snapshots, exports and logs the metrics every algorithm logs. Returns the best return."""
+    sizes = policy_sizes(cfg.agent, ToyConfig.of(cfg).hidden)
     with evaluator_for(cfg.workers, cfg.agent, cfg.terrain, sizes) as evaluator:
-        while state["frames"] < frames_budget:
-            noise_seed, spawn_seed = rng.integers(2**31, size=(2, 1))
-            population = Mirrored.of(state["theta"], noise_seed, algo.sigma, spawn_seed)
-            terrain = make_terrain(cfg.terrain, int(spawn_seed[0]))
-            (episodes,) = evaluator.run([Request(terrain, population)])
-            e = int(np.argmax(episodes.returns))
-            if episodes.returns[e] > state["best"]:
-                state["best"], state["theta"] = float(episodes.returns[e]), population.job(e)[0]
-            state["frames"] += int(episodes.lengths.sum())
-            state["cpu_time"] += cpu.lap()
-            state["elapsed"] += time.perf_counter() - started
-            started = time.perf_counter()
-            tracker.log_metrics(
-                state["frames"],
-                {
-                    "score": float(episodes.returns[e]),  # the step's better perturbation
-                    "best_score": state["best"],
-                    "eval/return_mean": float(episodes.returns.mean()),  # the step's episodes
-                    "env_steps": state["frames"],
-                    "elapsed": state["elapsed"],
-                    "cpu_time": state["cpu_time"],
-                    "frames": state["frames"],
-                },
-            )
-    policy = run_dir / ES_POLICIES / "env0.npz"
-    write_es_policy(policy, state["theta"], state["best"], sizes, cfg.agent)
-    state["rng"] = rng.bit_generator.state
-    save_run_state(run_dir, tracker, cfg, {"toy": state})
-    return state["best"]
+        search = RandomSearch(cfg, evaluator, sizes, resume)
+        drive(search, cfg, tracker, run_dir, resumed=resume is not None)
+    return search.state["best"]
+
+
+class RandomSearch:
+    """The driver's `Trainable` (epoet/driver.py): a step tries a mirrored pair of perturbations
+    of the best parameters on a fresh terrain; its state is a dict of numbers and arrays."""
+
+    unit = "frames"  # its family's: the budget counts frames
+
+    def __init__(
+        self, cfg: Config, evaluator: Evaluator, sizes: tuple[int, ...], resume: dict | None
+    ) -> None:
+        self.cfg, self.evaluator, self.sizes = cfg, evaluator, sizes
+        self.name, self.sigma = cfg.algo.name, ToyConfig.of(cfg).sigma
+        self.total = cast(BaselineBudgetConfig, cfg.budget).frames
+        self.cpu_meter = CpuMeter()
+        self.state = (resume or {}).get("toy") or {
+            "theta": np.zeros(num_params(sizes)),
+            "best": -np.inf,
+            "steps": 0,
+            "frames": 0,
+            "elapsed": 0.0,
+            "cpu_time": 0.0,
+            "rng": np.random.default_rng(cfg.seed).bit_generator.state,
+        }
+        self.rng = np.random.default_rng()
+        self.rng.bit_generator.state = self.state["rng"]
+
+    def step(self) -> Logged:
+        state, started = self.state, time.perf_counter()
+        noise_seed, spawn_seed = self.rng.integers(2**31, size=(2, 1))
+        population = Mirrored.of(state["theta"], noise_seed, self.sigma, spawn_seed)
+        terrain = make_terrain(self.cfg.terrain, int(spawn_seed[0]))
+        (episodes,) = self.evaluator.run([Request(terrain, population)])
+        e = int(np.argmax(episodes.returns))
+        if episodes.returns[e] > state["best"]:
+            state["best"], state["theta"] = float(episodes.returns[e]), population.job(e)[0]
+        state["steps"] += 1
+        state["frames"] += int(episodes.lengths.sum())
+        state["elapsed"] += time.perf_counter() - started
+        state["cpu_time"] += self.cpu_meter.lap()
+        return Logged(state["frames"], {}, score=float(episodes.returns[e]))
+
+    def counters(self) -> Counters:
+        s = self.state
+        return Counters(
+            s["steps"], s["frames"], s["frames"], s["elapsed"], s["cpu_time"], s["best"]
+        )
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"toy": {**self.state, "rng": self.rng.bit_generator.state}}
+
+    def save_agents(self, folder: Path) -> None:
+        """The best parameters as the ES policy file evaluation reads."""
+        policy = folder / ES_POLICIES / "env0.npz"
+        write_es_policy(policy, self.state["theta"], self.state["best"], self.sizes, self.cfg.agent)
+
+    def export(self, folder: Path) -> dict[str, Any]:
+        self.save_agents(folder)
+        return {"exported": "env0", "cpu_s": 0.0}
+
+    def artifacts(self, run_dir: Path) -> list[tuple[Path, str | None]]:
+        return [(run_dir / ES_POLICIES, ES_POLICIES)]
+
+    def add_cpu_time(self, seconds: float) -> None:
+        self.state["cpu_time"] += seconds
+
+    def snapshot_info(self) -> dict[str, float]:
+        return {"frames": float(self.state["frames"])}
+
+    def say(self, line: str) -> None:
+        print(f"[{self.name}] {line}", flush=True)
+
+    def begin(self) -> Logged | None:
+        return None
+
+    def end(self) -> Logged | None:
+        return None
+
+    def after_checkpoint(self) -> None:
+        pass
 
 
 def register() -> None:

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Any, ClassVar, Self
 
-# What every algorithm logs, each at every step that has a `score`: the score (ePOET: its best
-# active pair's evaluation; a baseline: its deterministic evaluation return), the best so far and
-# the x-axes. The learning-curve figure (analysis/figures.py) draws `score` against `env_steps`
+# What every algorithm logs, each at every step that has a `score` (the driver logs them from
+# its counters, epoet/driver.py): the score (ePOET: its best active pair's evaluation; a
+# baseline: its deterministic evaluation return), the best so far and the x-axes. The learning-curve figure (analysis/figures.py) draws `score` against `env_steps`
 # and `elapsed`; a run's record keeps them all (pipeline/snapshots.py `CURVE_KEYS`).
 SCORE = "score"
 AXES = ("env_steps", "elapsed", "cpu_time")
@@ -39,16 +39,16 @@ class Family(Enum):
 
     @property
     def curve(self) -> str:
-        """The metric of the family's own curves (analysis/curves.py): a baseline's evaluation
-        return against frames; a pool's mean ES return per pair, `pair<N>/return_mean`, of
-        which every run logs pair 0's."""
-        return "eval/return_mean" if self is Family.BASELINE else "pair0/return_mean"
+        """The metric of the family's own curves (analysis/curves.py): a baseline's score (its
+        evaluation return, which the driver logs for every algorithm) against frames; a pool's
+        mean ES return per pair, `pair<N>/return_mean`, of which every run logs pair 0's."""
+        return SCORE if self is Family.BASELINE else "pair0/return_mean"
 
     @property
     def metrics(self) -> tuple[str, ...]:
-        """What every runner of the family logs (the metrics contract; tests/test_algorithms.py
+        """What every run of the family logs (the metrics contract; tests/test_algorithms.py
         runs every registered algorithm and checks it)."""
-        return (*SCORE_METRICS, self.curve)
+        return tuple(dict.fromkeys((*SCORE_METRICS, self.curve)))
 
 
 @dataclass

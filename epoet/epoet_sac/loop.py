@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -40,9 +40,6 @@ from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
 from epoet.terrain import Terrain, make_terrain
 from epoet.terrain.config import TerrainConfig
-
-if TYPE_CHECKING:  # the tracking module imports mlflow
-    from epoet.tracking import Tracker
 
 
 class EpoetSac(Epoet):
@@ -341,19 +338,14 @@ class EpoetSac(Epoet):
         return metrics
 
     # --- artifacts, checkpoints -----------------------------------------------------------------
-    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
+    def artifacts(self, run_dir: Path, choice: str = "best") -> list[tuple[Path, str | None]]:
         """The pool's, plus the SAC actor as a policy file and the agents crossover replaced."""
-        super().log_artifacts(run_dir, tracker, choice)
+        files = super().artifacts(run_dir, choice)
         sac = self.cfg.sac
-        tracker.log_artifact(
-            export_policy(
-                run_dir / "sac_policy.pt",
-                self.learner.actor,
-                self.sac_env,
-                sac.hidden,
-                sac.activation,
-            )
+        policy = export_policy(
+            run_dir / "sac_policy.pt", self.learner.actor, self.sac_env, sac.hidden, sac.activation
         )
+        files.append((policy, None))
         if self.exchange.replaced:
             folder = run_dir / "replaced"
             folder.mkdir(exist_ok=True)
@@ -365,7 +357,8 @@ class EpoetSac(Epoet):
                     self.service.layer_sizes,
                     self.service.evaluator.agent,
                 )
-            tracker.log_artifact(folder, "replaced")
+            files.append((folder, "replaced"))
+        return files
 
     def close(self) -> None:
         self.sac_env.close()

@@ -1,5 +1,5 @@
-"""`algo=epoet_sac`: ePOET's run of iterations (epoet.open_ended.runner.train_loop) over the
-ePOET-SAC loop.
+"""`algo=epoet_sac`: the ePOET-SAC loop, run by the driver as ePOET's is
+(epoet.open_ended.runner.EpoetRun).
 
 Imported only when a config names it: torch and TorchRL are heavy imports that ePOET runs never
 need.
@@ -12,10 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from epoet.config import Config
+from epoet.driver import drive
 from epoet.epoet_sac.config import EpoetSacConfig
 from epoet.epoet_sac.loop import EpoetSac
 from epoet.epoet_sac.warm_start import WarmStart, load_warm_start
-from epoet.open_ended.runner import layer_sizes, train_loop
+from epoet.open_ended.runner import EpoetRun, layer_sizes
 from epoet.rollout.evaluators import evaluator_for
 from epoet.tracking import Tracker
 
@@ -44,5 +45,5 @@ def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] |
         evaluator_for(cfg.workers, cfg.agent, cfg.terrain, layer_sizes(cfg)) as evaluator,
         closing(EpoetSac.from_config(cfg, evaluator, warm_start)) as loop,
     ):
-        train_loop(loop, cfg, tracker, run_dir, resume)
+        drive(EpoetRun(loop, cfg, resume), cfg, tracker, run_dir, resumed=resume is not None)
     return loop

@@ -14,7 +14,7 @@ lineage its pairs are counted in, or what its iterations report.
 
 The pool (pairs.py) holds the pairs; the service (service.py) gives every step its keyed seeds,
 terrains and episodes, one call to the workers per step. A run of iterations, with checkpoints
-and the budget's end, is the runner's (runner.py `train_loop`).
+and the budget's end, is the driver's (epoet/driver.py; runner.py `EpoetRun` adapts the loop).
 """
 
 from __future__ import annotations
@@ -40,9 +40,8 @@ from epoet.rollout.policy import init_params
 from epoet.terrain import max_height_at
 from epoet.terrain.config import TerrainConfig
 
-if TYPE_CHECKING:  # the tracking module imports mlflow; the loop only reports through it
+if TYPE_CHECKING:
     from epoet.config import Config, OpenEndedBudgetConfig
-    from epoet.tracking import Tracker
 
 
 class Step(NamedTuple):
@@ -104,7 +103,8 @@ class Epoet:
         self.elapsed = 0.0  # seconds of iterations, summed over resumes
         self.cpu_time = 0.0  # CPU seconds of the run's processes, summed over resumes
         self.cpu_meter = CpuMeter()
-        self.best_score = -np.inf  # the best `score` (best active pair's) of any iteration so far
+        self.score = -np.inf  # the last iteration's best active pair's evaluation: its `score`
+        self.best_score = -np.inf  # the best `score` of any iteration so far
         service = self.service
         root = Environment(
             index=0,
@@ -128,7 +128,7 @@ class Epoet:
     # --- one iteration ----------------------------------------------------------------------
     def run_iteration(self) -> dict[str, float]:
         """Run iteration `self.iteration` and return its metrics (`time/<step>`: where its wall
-        time went)."""
+        time went); its `score` and the counters are the loop's attributes."""
         t, timer, start = self.iteration, PhaseTimer(), self.start_iteration()
         metrics: dict[str, float] = {}
         for step in self.steps():
@@ -252,20 +252,14 @@ class Epoet:
         self.best_score = max(self.best_score, score)
         metrics.update(timer.metrics())
         metrics.update(best_by_lineage(self.pool.active, self.lineage))
+        self.score = score
         metrics.update(
             {
-                "best_score": self.best_score,
                 "active_envs": float(len(self.pool.active)),
                 "archived_envs": float(len(self.pool.archived)),
                 "annecs": float(annecs(self.novel_pairs())),
-                "env_steps": float(self.service.env_steps),
                 "steps_per_second": (self.service.env_steps - start[1]) / elapsed,
                 "time/iteration": elapsed,
-                # The axes and the score every algorithm logs (the baselines: their evaluation
-                # return), so MLflow charts can put ePOET and the baselines side by side.
-                "elapsed": self.elapsed,
-                "cpu_time": self.cpu_time,
-                "score": score,
                 "max_height": max_height_at(self.service.terrain_cfg, self.iteration),
             }
         )
@@ -310,9 +304,9 @@ class Epoet:
                 )
         return folder
 
-    def log_artifacts(self, run_dir: Path, tracker: Tracker, choice: str = "best") -> None:
+    def artifacts(self, run_dir: Path, choice: str = "best") -> list[tuple[Path, str | None]]:
         """The run's final agents (`save_agents`) and each environment's last terrain (npz and
-        PNG), logged."""
+        PNG), written into `run_dir`: (folder, its artifact folder) for the store."""
         terrains = run_dir / "terrains"
         terrains.mkdir(exist_ok=True)
         for pair in self.pool.pairs:
@@ -320,8 +314,7 @@ class Epoet:
             terrain.save(terrains / f"env{pair.env.index}.npz")
             terrain.to_png(terrains / f"env{pair.env.index}.png")
         self.save_agents(run_dir, choice)
-        tracker.log_artifact(terrains, "terrains")
-        tracker.log_artifact(run_dir / ES_POLICIES, ES_POLICIES)
+        return [(terrains, "terrains"), (run_dir / ES_POLICIES, ES_POLICIES)]
 
     def state_dict(self) -> dict[str, Any]:
         def pair_state(p: Pair) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""The pieces of the baselines' loop (epoet/rl/loop.py) that are not its steps: how the budget
+"""The pieces of a baseline run (epoet/rl/baseline_run.py) that are not its steps: how the budget
 maps onto collector batches, the collector, torch's threads, the loop's counters and what a run
 returns. ePOET-SAC and the benchmarks take `set_threads` from here too.
 """

@@ -1,5 +1,5 @@
 """The on-policy learner PPO (ppo.py) and V-MPO (vmpo.py) share: their networks and their update;
-only their TorchRL loss module differs. The baselines' loop (loop.py) calls `learn` on each
+only their TorchRL loss module differs. A baseline run (baseline_run.py) calls `learn` on each
 collector batch."""
 
 from __future__ import annotations

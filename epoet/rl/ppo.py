@@ -1,4 +1,4 @@
-"""PPO on the hexapod (paper Table 2): its learner, which the baselines' loop (loop.py) trains.
+"""PPO on the hexapod (paper Table 2): its learner, which the baseline run (baseline_run.py) trains.
 
 Per collector batch: GAE advantages, then epochs of shuffled minibatches on TorchRL's
 ClipPPOLoss (clipped objective + entropy bonus + value loss), the on-policy update of
@@ -17,7 +17,7 @@ from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 
 from epoet.config import Config
-from epoet.rl import loop
+from epoet.rl import baseline_run
 from epoet.rl.config import PpoConfig
 from epoet.rl.harness import TrainResult
 from epoet.rl.on_policy import OnPolicyLearner
@@ -45,6 +45,6 @@ def train(
     """The `algo=ppo` runner (its record: epoet/rl/config.py `PPO`)."""
     algo = PpoConfig.of(cfg)
     loss = partial(clipped_loss, algo)
-    return loop.train(
+    return baseline_run.train(
         cfg, tracker, run_dir, resume, lambda env, plan: OnPolicyLearner(algo, env, plan, loss)
     )

@@ -1,5 +1,5 @@
 """SAC on the hexapod (paper Table 3): its learner (also ePOET-SAC's), and that learner as the
-baselines' loop (loop.py) trains it for `algo=sac`.
+baseline run (baseline_run.py) trains it for `algo=sac`.
 
 A ReLU tanh-Gaussian actor (TorchRL's ProbabilisticActor, which the collector runs) and twin
 ReLU Q networks, the SAC losses of sac_loss.py, a uniform TorchRL replay buffer, soft target
@@ -32,7 +32,7 @@ from torchrl.envs import EnvBase
 from torchrl.modules import MLP
 
 from epoet.config import Config
-from epoet.rl import loop
+from epoet.rl import baseline_run
 from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.rl.env import OBS, policy_key
 from epoet.rl.harness import BatchPlan, TrainResult
@@ -245,7 +245,7 @@ class SacLearner:
 
 
 class SacBaseline:
-    """SAC's learner as the baselines' loop (loop.py) runs it for `algo=sac`: each collector
+    """SAC's learner as the baseline run (baseline_run.py) runs it for `algo=sac`: each collector
     batch is stored and followed by `updates` updates (the config's per-batch count, scaled to
     the batch: harness.BatchPlan); the first `random_frames` frames are uniform random actions
     (Table 3's pre-training epoch); the critics go beside the policy at the end, where
@@ -278,4 +278,6 @@ def train(
 ) -> TrainResult:
     """The `algo=sac` runner (its record: epoet/rl/config.py `SAC`)."""
     algo = SacConfig.of(cfg)
-    return loop.train(cfg, tracker, run_dir, resume, lambda env, plan: SacBaseline(algo, env, plan))
+    return baseline_run.train(
+        cfg, tracker, run_dir, resume, lambda env, plan: SacBaseline(algo, env, plan)
+    )

@@ -1,5 +1,5 @@
 """V-MPO on the hexapod (Song et al. 2019; docs/reference.md "ePOET-SAC and the baselines"): its
-learner, which the baselines' loop (loop.py) trains.
+learner, which the baseline run (baseline_run.py) trains.
 
 Per collector batch PPO's on-policy update (on_policy.py: GAE, then epochs of shuffled
 minibatches) on the V-MPO loss of vmpo_loss.py. The E-step keeps the top fraction of each
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 from torchrl.modules import ProbabilisticActor, ValueOperator
 
 from epoet.config import Config
-from epoet.rl import loop
+from epoet.rl import baseline_run
 from epoet.rl.config import VmpoConfig
 from epoet.rl.harness import TrainResult
 from epoet.rl.on_policy import OnPolicyLearner
@@ -49,6 +49,6 @@ def train(
     """The `algo=vmpo` runner (its record: epoet/rl/config.py `VMPO`)."""
     algo = VmpoConfig.of(cfg)
     loss = partial(vmpo_loss, algo)
-    return loop.train(
+    return baseline_run.train(
         cfg, tracker, run_dir, resume, lambda env, plan: OnPolicyLearner(algo, env, plan, loss)
     )

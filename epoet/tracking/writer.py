@@ -268,7 +268,7 @@ class MlflowTracker:
         # MLFLOW_ASYNC_LOGGING_BUFFERING_SECONDS is set; its worker threads bypass
         # `RetryingClient`; and a failure only logs an error and drops the points, raising
         # nothing until someone waits on the call's future. A checkpoint needs its metrics in the
-        # store before it exists (`epoet.run_state.save_run_state`), and a failure must be one
+        # store before it exists (`epoet.driver.save_run_state`), and a failure must be one
         # TrackingError here.
         run_id = self._require_open()
         self._last_flush = time.monotonic()

@@ -1,20 +1,18 @@
-"""The baselines' training loop: PPO, SAC and VMPO each give it a learner (ppo.py, sac.py,
-vmpo.py) and it does the rest, read top to bottom in `train`:
+"""A baseline's run: PPO, SAC and VMPO each give it a learner (ppo.py, sac.py, vmpo.py), and
+the driver (epoet/driver.py) runs it as it runs every algorithm. One driver step here:
 
-    set up      threads, seeds, the training and evaluation envs, the counters (a resume's)
     collect     a batch of `frames_per_batch` frames from the stochastic actor
     learn       the algorithm's update on the batch
     normalise   the observation statistics, after learning: one update per batch
-    log         counters and metrics; the policy at each `snapshot_cpu_minutes` mark
+    count       frames, batches, episodes, wall and CPU time; the batch's metrics
     evaluate    every `budget.eval_every` frames (and at frame 0 and the end)
-    checkpoint  every `checkpoint_every` batches; a stop signal ends the run there
-    stop        when the budget's frames are collected or its hours or CPU hours are used
-    finish      the last evaluation, checkpoint and exported policy; why the run stopped
 
-Checkpoints: every `cfg.checkpoint_every` collector batches and at the end. To make a resumed run
-continue exactly like an uninterrupted one, a checkpoint ends the running episode: the collector
-resets its env right after saving (and a resumed run resets right after loading), so no
-mid-episode simulator state needs saving. The cut episode is not counted in the training episode
+The driver snapshots, checkpoints, stops and exports around these steps.
+
+Checkpoints (the driver's: every `cfg.checkpoint_every` collector batches and at the end): to
+make a resumed run continue exactly like an uninterrupted one, a checkpoint ends the running
+episode: the collector resets its env right after saving (and a resumed run resets right after
+loading), so no mid-episode simulator state needs saving. The cut episode is not counted in the training episode
 statistics; its transitions are still learned from.
 
 Evaluation (the paper's tables do not fix it): `budget.eval_episodes` episodes of the
@@ -25,9 +23,9 @@ exported policy is chosen among them at snapshots and at the end (`selection`).
 
 Metrics go to the tracker at step = frames: `train/*` (episode return and length, the learner's
 losses and diagnostics), `eval/*` (return_mean, return_std, length_mean, finish_rate), `score`
-(eval/return_mean) and `best_score` (its best so far), the axes `env_steps`, `elapsed` and
-`cpu_time` (the baselines family's metrics: epoet/core/algorithm.py), `frames`, `fps`,
-`time/batch`, and `final/*` (the last evaluation) at the end.
+(eval/return_mean) and `best_score` (its best so far) and the axes (the driver adds them from
+the counters: epoet/core/algorithm.py), `frames`, `fps`, `time/batch`, and `final/*` (the last
+evaluation) at the end.
 """
 
 from __future__ import annotations
@@ -35,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from contextlib import closing
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, cast
@@ -48,7 +46,7 @@ from tqdm import tqdm
 
 from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.clock import CpuMeter
-from epoet.core.lifecycle import raise_if_stopped, stop_requested
+from epoet.driver import Counters, Logged, drive
 from epoet.rl.candidates import Candidates
 from epoet.rl.env import (
     OBS,
@@ -72,7 +70,6 @@ from epoet.rl.harness import (
     set_threads,
 )
 from epoet.rl.policy_file import POLICY_FILE, export_policy
-from epoet.run_state import report_stop, save_run_state, take_snapshots
 from epoet.terrain import max_height_at
 
 if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
@@ -80,7 +77,7 @@ if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report 
 
 
 class Learner(Protocol):
-    """What an algorithm gives the loop: its policy, its update on a collector batch, and its
+    """What an algorithm gives a baseline's run: its policy, its update on a collector batch, and its
     state (networks, optimisers, learned multipliers, the replay buffer), all a resume needs."""
 
     actor: ProbabilisticActor  # stochastic: collects; deterministic: is evaluated and exported
@@ -106,48 +103,33 @@ def train(
     resume: dict[str, Any] | None,
     make_learner: Callable[[EnvBase, BatchPlan], Learner],
 ) -> TrainResult:
-    """A baseline's run: `make_learner(env, plan)` builds the algorithm on the training env."""
+    """A baseline's run: `make_learner(env, plan)` builds the algorithm on the training env,
+    and the driver (epoet/driver.py) runs it to the end of the budget."""
     with closing(BaselineRun(cfg, tracker, run_dir, resume)) as run:  # seeds, envs, counters
         learner = make_learner(run.env, run.plan)  # after the envs: both draw seeded numbers
+        random_frames = max(0, learner.random_frames - run.state.frames)  # none left past them
+        run.start(make_collector(run.env, learner.actor, run.plan, random_frames), learner)
+        drive(run, cfg, tracker, run_dir, resumed=resume is not None)
         state = run.state
-        random_frames = max(0, learner.random_frames - state.frames)  # none left past them
-        collector = make_collector(run.env, learner.actor, run.plan, random_frames)
-        run.start(collector, learner)  # a resumed run continues from its checkpoint
-
-        if state.frames >= state.next_eval:  # frame 0
-            run.evaluate()
-        batches = iter(collector)
-        while not run.budget_spent():  # budget.frames, budget.hours or budget.cpu_hours
-            started = time.perf_counter()
-            batch = next(batches)  # collect
-            learned = learner.learn(batch)  # learn
-            if run.obs_stats is not None:  # normalise: after learning, one update per batch
-                run.obs_stats.update(batch[OBS])
-            run.log(batch, learned, started)  # log
-            run.snapshot()  # the exported policy at each CPU-time mark
-            if state.frames >= state.next_eval:  # evaluate
-                run.evaluate()
-            if run.checkpoint_due():  # checkpoint
-                run.checkpoint()
-                raise_if_stopped(f"at frame {state.frames}")  # a stop signal ends the run here
-                collector.reset()  # checkpoints end the running episode (module docstring)
-        if state.last_eval_frames != state.frames:  # the final policy, unless just evaluated
-            run.evaluate()
-        for path in learner.artifacts(run_dir):
-            tracker.log_artifact(path)
-        return run.finish()
+        return TrainResult(
+            state.frames, state.batches, dict(state.last_eval), run_dir / POLICY_FILE, learner
+        )
 
 
 class BaselineRun:
-    """One baseline run's seeds, envs, counters, tracking, checkpoints and progress: the steps
-    `train` calls, in the order it calls them."""
+    """One baseline run as the driver's `Trainable`: its seeds, envs, counters, learner and
+    progress bar; each driver step collects a batch, learns from it and evaluates when due."""
+
+    unit = "frames"
 
     def __init__(
         self, cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
     ) -> None:
         set_threads(cfg)
         self.cfg, self.tracker, self.run_dir, self.resume = cfg, tracker, run_dir, resume
+        self.name = cfg.algo.name
         self.plan = batch_plan(cfg)
+        self.total = self.plan.total_frames  # whole batches: the first multiple at or above
         self.seeds = Seeds.from_seed(cfg.seed)
         self.seeds.apply()
         # the envs before the networks: their construction draws from the seeded streams
@@ -157,6 +139,7 @@ class BaselineRun:
         self.state = LoopState(**resume["loop"]) if resume is not None else LoopState()
         self.obs_stats = RunningObsNorm(obs_norm_of(self.env)) if self.algo.obs_norm else None
         self.collector: Collector | None = None
+        self.batches: Iterator[TensorDictBase] | None = None
         self.learner: Learner | None = None
         self.progress: tqdm | None = None
         self.cpu_meter = CpuMeter()
@@ -191,6 +174,7 @@ class BaselineRun:
                 self.obs_stats.load_state_dict(self.resume["obs_norm"])
             set_rng_state(self.env, self.resume["rng"])
             collector.reset()
+        self.batches = iter(collector)
         self.progress = tqdm(
             total=self.plan.total_frames,
             initial=self.state.frames,
@@ -200,16 +184,50 @@ class BaselineRun:
             dynamic_ncols=True,
         )
 
-    def budget_spent(self) -> bool:
-        """The budget's batches are collected or its hours (or CPU hours) are used."""
-        return self.state.batches >= self.plan.batches or self.out_of_time() is not None
+    # --- the driver's steps -----------------------------------------------------------------
 
-    def out_of_time(self) -> str | None:
-        return self.cfg.budget.time_is_up(self.state.wall_time, self.state.cpu_time)
+    def counters(self) -> Counters:
+        state = self.state
+        return Counters(
+            state.batches,
+            state.frames,
+            state.frames,
+            state.wall_time,
+            state.cpu_time,
+            state.best_score,
+        )
 
-    def log(self, batch: TensorDictBase, learned: dict[str, float], started: float) -> None:
-        """Count the batch (collected from time.perf_counter() = `started` on) and send its
-        metrics.
+    def begin(self) -> Logged | None:
+        """The evaluation at frame 0 (a resumed run has its evaluations already)."""
+        return self.evaluate() if self.state.frames >= self.state.next_eval else None
+
+    def step(self) -> Logged:
+        """Collect a batch, learn from it, normalise, count it; evaluate when due."""
+        assert self.batches is not None and self.learner is not None  # given to `start`
+        started = time.perf_counter()
+        batch = next(self.batches)  # collect
+        learned = self.learner.learn(batch)  # learn
+        if self.obs_stats is not None:  # normalise: after learning, one update per batch
+            self.obs_stats.update(batch[OBS])
+        metrics = self.count(batch, learned, started)
+        if self.state.frames < self.state.next_eval:
+            return Logged(self.state.frames, metrics)
+        evaluated = self.evaluate()  # evaluate
+        return Logged(self.state.frames, {**metrics, **evaluated.metrics}, evaluated.score)
+
+    def end(self) -> Logged | None:
+        """The final policy's evaluation (unless just evaluated), also logged as `final/*`."""
+        state = self.state
+        logged = self.evaluate() if state.last_eval_frames != state.frames else None
+        final = {f"final/{k}": v for k, v in state.last_eval.items()}
+        if logged is None:
+            return Logged(state.frames, final)
+        return Logged(state.frames, {**logged.metrics, **final}, logged.score)
+
+    def count(
+        self, batch: TensorDictBase, learned: dict[str, float], started: float
+    ) -> dict[str, float]:
+        """Count the batch (collected from time.perf_counter() = `started` on); its metrics.
 
         Stops the run on a non-finite learner metric rather than train on (and checkpoint)
         NaN weights.
@@ -228,48 +246,24 @@ class BaselineRun:
         state.batches += 1
         state.wall_time += elapsed
         state.cpu_time += self.cpu_meter.lap()  # since the last batch: its evaluation too
-        metrics.update(
-            {
-                "frames": state.frames,
-                "fps": batch.numel() / elapsed,
-                "time/batch": elapsed,
-                "train/episodes": state.episodes,
-                **self.axes(),
-                "max_height": self.max_height(),
-            }
-        )
-        self.tracker.log_metrics(state.frames, metrics)
         assert self.progress is not None  # opened before the first batch
         self.progress.update(batch.numel())
-
-    def axes(self) -> dict[str, float]:
-        """The x-axes every algorithm logs (ePOET too), so figures and MLflow can chart all
-        algorithms against environment steps, training time or CPU time."""
-        state = self.state
-        return {"env_steps": state.frames, "elapsed": state.wall_time, "cpu_time": state.cpu_time}
+        return {
+            **metrics,
+            "frames": state.frames,
+            "fps": batch.numel() / elapsed,
+            "time/batch": elapsed,
+            "train/episodes": state.episodes,
+            "max_height": self.max_height(),
+        }
 
     def max_height(self) -> float:
         """The training terrains' maximum height S now (the height schedule's point)."""
         return max_height_at(self.cfg.terrain, terrain_env(self.env).episodes)
 
-    def snapshot(self) -> None:
-        """Export the policy once for each `snapshot_cpu_minutes` mark the run has passed."""
-        info = {**self.axes(), "max_height": self.max_height(), "frames": self.state.frames}
-        saved, spent = take_snapshots(
-            self.run_dir,
-            self.cfg.snapshot_cpu_minutes,
-            self.state.cpu_time,
-            self.export_agent,
-            {k: float(v) for k, v in info.items()},
-            self.cpu_meter,
-        )
-        self.state.cpu_time += spent  # the choice's CPU, before the checkpoint that may end the run
-        for minutes in saved:
-            self.write(f"snapshot at {minutes} CPU minutes")
-
-    def evaluate(self) -> None:
-        """Evaluate the actor (see the module docstring), keep it as a candidate and log it;
-        the next evaluation is due `budget.eval_every` frames on."""
+    def evaluate(self) -> Logged:
+        """Evaluate the actor (see the module docstring) and keep it as a candidate; the next
+        evaluation is due `budget.eval_every` frames on."""
         if self.obs_stats is not None:  # the evaluation env normalises as the training env
             eval_norm, train_norm = obs_norm_of(self.eval_env), obs_norm_of(self.env)
             assert eval_norm is not None and train_norm is not None  # both envs normalise
@@ -288,69 +282,46 @@ class BaselineRun:
         state.best_score = max(state.best_score, state.last_eval["return_mean"])
         while state.next_eval <= state.frames:
             state.next_eval += cast(BaselineBudgetConfig, self.cfg.budget).eval_every
-        metrics = {
-            **{f"eval/{k}": v for k, v in state.last_eval.items()},
-            "score": state.last_eval["return_mean"],
-            "best_score": state.best_score,
-        }
-        if state.batches == 0:  # later evaluations follow a batch that logged the axes already
-            metrics.update(self.axes())
-        self.tracker.log_metrics(state.frames, metrics)
-        self.write(
+        self.say(
             f"frames={state.frames} eval return={state.last_eval['return_mean']:.1f} "
             f"finish={state.last_eval['finish_rate']:.2f}"
         )
+        metrics = {f"eval/{k}": v for k, v in state.last_eval.items()}
+        return Logged(state.frames, metrics, state.last_eval["return_mean"])
 
-    def checkpoint_due(self) -> bool:
-        """Every `checkpoint_every` batches but the last (`finish` writes that one), and when a
-        signal asked the run to stop."""
-        return (
-            self.state.batches % self.cfg.checkpoint_every == 0 or stop_requested()
-        ) and not self.budget_spent()
+    def add_cpu_time(self, seconds: float) -> None:
+        self.state.cpu_time += seconds
 
-    def checkpoint(self) -> None:
-        """Save the counters, the learner, the normaliser and every random stream, and the
-        policy beside them, so the run's agent evaluates mid-training."""
+    def snapshot_info(self) -> dict[str, float]:
+        return {"max_height": self.max_height(), "frames": float(self.state.frames)}
+
+    # --- checkpoints ------------------------------------------------------------------------
+
+    def state_dict(self) -> dict[str, Any]:
+        """The counters, the learner, the normaliser and every random stream."""
         assert self.learner is not None  # given to `start`
-        save_run_state(
-            self.run_dir,
-            self.tracker,
-            self.cfg,
-            {
-                "loop": dataclasses.asdict(self.state),
-                "learner": self.learner.state_dict(),
-                "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
-                "rng": rng_state(self.env),
-                "seeds": dataclasses.asdict(self.seeds),
-            },
-        )
-        self.write_policy(self.run_dir / POLICY_FILE)
+        return {
+            "loop": dataclasses.asdict(self.state),
+            "learner": self.learner.state_dict(),
+            "obs_norm": None if self.obs_stats is None else self.obs_stats.state_dict(),
+            "rng": rng_state(self.env),
+            "seeds": dataclasses.asdict(self.seeds),
+        }
 
-    def finish(self) -> TrainResult:
-        """Log the last evaluation as `final/*`, checkpoint, export the policy, say why the run
-        stopped."""
-        self.tracker.log_metrics(
-            self.state.frames, {f"final/{k}": v for k, v in self.state.last_eval.items()}
-        )
-        self.checkpoint()
-        self.export_agent(self.run_dir)
-        policy_path = self.run_dir / POLICY_FILE
-        self.tracker.log_artifact(policy_path)
-        report_stop(
-            self.tracker,
-            self.cfg.algo.name,
-            self.cfg.budget,
-            self.out_of_time() if self.state.batches < self.plan.batches else None,
-            self.state.frames,
-            "frames",
-            self.state.wall_time,
-            self.state.cpu_time,
-        )
-        self.tracker.flush()
-        state = self.state
-        return TrainResult(
-            state.frames, state.batches, dict(state.last_eval), policy_path, self.learner
-        )
+    def save_agents(self, folder: Path) -> None:
+        """The policy beside the checkpoint, so the run's agent evaluates mid-training."""
+        self.write_policy(folder / POLICY_FILE)
+
+    def after_checkpoint(self) -> None:
+        """Checkpoints end the running episode (module docstring)."""
+        assert self.collector is not None  # given to `start`
+        self.collector.reset()
+
+    def artifacts(self, run_dir: Path) -> list[tuple[Path, str | None]]:
+        """The exported policy and the learner's own files (SAC: its critics)."""
+        assert self.learner is not None  # given to `start`
+        paths = [run_dir / POLICY_FILE, *self.learner.artifacts(run_dir)]
+        return [(path, None) for path in paths]
 
     # --- the exported policy ----------------------------------------------------------------
 
@@ -358,16 +329,12 @@ class BaselineRun:
         """The actor as a policy file (epoet.rl.policy_file)."""
         return export_policy(path, self.actor, self.env, self.algo.hidden, self.algo.activation)
 
-    def export_agent(self, folder: Path) -> None:
+    def export(self, folder: Path) -> dict[str, Any]:
         """The policy the run exports into `folder` (`selection`: epoet.rl.candidates)."""
         self.write_policy(folder / POLICY_FILE)
-        record = self.candidates.export(folder)
-        self.write(
-            f"exports the policy of {record['exported']} (held-out choice: "
-            f"{record.get('validation', 'none')}; {record['cpu_s']:.0f} CPU s)"
-        )
+        return self.candidates.export(folder)
 
-    def write(self, line: str) -> None:
+    def say(self, line: str) -> None:
         """A line above the progress bar, prefixed with the algorithm's name."""
         assert self.progress is not None  # opened before the first batch
         self.progress.write(f"[{self.cfg.algo.name}] {line}")
