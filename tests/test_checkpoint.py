@@ -13,7 +13,8 @@ import pytest
 import torch
 
 import epoet.open_ended.pairs
-from epoet.config import load
+from epoet.config import compose, load
+from epoet.core.algorithm import Family
 from epoet.core.checkpoint import (
     CHECKPOINT_NAME,
     CheckpointError,
@@ -21,7 +22,11 @@ from epoet.core.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from epoet.eval.agents import policy_in
 from epoet.migration import config_changes
+from epoet.registry import algorithm, names
+from epoet.run import run
+from epoet.tracking import MlflowTracker
 
 
 class _Unpicklable:
@@ -172,3 +177,48 @@ def test_a_checkpoint_from_before_the_algo_budget_files_resumes(overrides: str) 
     seven = load(today + ["seed=7"])
     changed = config_changes(saved, dataclasses.asdict(seven), seven.unused_keys())
     assert changed == ["seed (0 -> 7)"]
+
+
+# Each algorithm's checkpoint as the code before the one training driver wrote it (commit
+# c5d3739, which trains the final paper runs): `python -m epoet algo=<algo> budget=smoke seed=1
+# workers.num=1 evaluate=false` with these overrides (small networks keep the files small); the
+# baselines stopped by a tiny `budget.cpu_hours` after their first batch, ePOET's family after
+# the smoke budget's iterations.
+BEFORE_THE_DRIVER = Path(__file__).with_name("checkpoints_before_the_driver")
+WRITTEN_WITH = {
+    "ppo": ["algo.hidden=[8,8]", "budget.frames=4000", "budget.cpu_hours=0.00005"],
+    "vmpo": ["algo.hidden=[8,8]", "budget.frames=4000", "budget.cpu_hours=0.00005"],
+    "sac": ["algo.hidden=[8,8]", "algo.buffer_size=512", "budget.frames=4000",
+            "budget.cpu_hours=0.00005"],
+    "epoet": ["algo.es.hidden=[8]"],
+    "epoet_sac": ["algo.es.hidden=[8]", "algo.sac.hidden=[8,8]", "algo.sac.buffer_size=512"],
+}  # fmt: skip
+# What continues each: no CPU limit (the baselines), one more iteration (the pool family)
+CONTINUED = {Family.BASELINE: ["budget.cpu_hours=null"], Family.OPEN_ENDED: ["budget.iterations=4"]}
+
+
+@pytest.mark.parametrize("algo", sorted(p.stem for p in BEFORE_THE_DRIVER.glob("*.pkl")))
+def test_a_checkpoint_from_before_the_driver_resumes_and_finishes(
+    algo: str, tmp_path: Path, mlflow_uri: str
+) -> None:
+    """Loaded by today's code, it continues from where it stopped to the end of the larger
+    budget, and the run exports its agent."""
+    assert algo in names()
+    run_dir = tmp_path / algo
+    run_dir.mkdir()
+    before = load_checkpoint(BEFORE_THE_DRIVER / f"{algo}.pkl")
+    # its MLflow run was in the store it was written with: one of this store's stands for it
+    with MlflowTracker(mlflow_uri, "Default") as tracker:
+        before["run_id"] = tracker.start(f"{algo}-s1")
+    save_checkpoint(run_dir / CHECKPOINT_NAME, before)
+    family = algorithm(algo).family
+    overrides = [f"algo={algo}", "budget=smoke", "seed=1", "workers.num=1", "evaluate=false"]
+    overrides += [*WRITTEN_WITH[algo], *CONTINUED[family], f"resume={run_dir}"]
+    run(compose(overrides), run_dir)
+    after = load_checkpoint(run_dir)
+    assert after["run_id"] == before["run_id"]
+    if family is Family.BASELINE:
+        assert (before["loop"]["frames"], after["loop"]["frames"]) == (2000, 4000)
+    else:
+        assert (before["open_ended"]["iteration"], after["open_ended"]["iteration"]) == (3, 4)
+    assert policy_in(run_dir) is not None
