@@ -21,7 +21,7 @@ import numpy as np
 
 from epoet.config import load
 from epoet.rollout.policy import init_params, policy_sizes
-from epoet.rollout.backends.ray_cluster import RayEvaluator
+from epoet.rollout.backends.ray_host import RayEvaluator
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.evaluators import make_evaluator
 from epoet.rollout.populations import Mirrored, Request

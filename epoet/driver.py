@@ -20,6 +20,7 @@ Nothing else in the product takes a snapshot, writes a run's checkpoint or repor
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 from collections.abc import Callable, Sequence
@@ -31,7 +32,8 @@ from epoet.core.algorithm import AXES, SCORE
 from epoet.core.checkpoint import CHECKPOINT_NAME, save_checkpoint
 from epoet.core.clock import CpuMeter
 from epoet.core.files import atomic_write
-from epoet.core.lifecycle import raise_if_stopped, stop_requested
+from epoet.core.lifecycle import Stopped, raise_if_stopped, stop_requested
+from epoet.rollout.backends.base import WorkersGone
 
 if TYPE_CHECKING:  # the root config and the tracker protocol (which would pull in mlflow)
     from epoet.config import BudgetConfig, Config
@@ -129,9 +131,22 @@ def drive(algo: Trainable, cfg: Config, tracker: Tracker, run_dir: Path, resumed
         return algo.counters().count >= algo.total or out_of_time() is not None
 
     log(tracker, algo, algo.begin())
+    # A cluster's workers can be lost for good mid-step, leaving the state half-changed: with
+    # them (workers=ray), the state at each step's start is kept to checkpoint from.
+    boundary: tuple[int, dict[str, Any]] | None = None
     while not spent():
-        log(tracker, algo, algo.step())  # step
-        snapshot(algo, run_dir, cfg.snapshot_cpu_minutes)  # snapshot
+        if cfg.workers.backend == "ray":
+            boundary = algo.counters().count, copy.deepcopy(algo.state_dict())
+        try:
+            log(tracker, algo, algo.step())  # step
+            snapshot(algo, run_dir, cfg.snapshot_cpu_minutes)  # snapshot
+        except WorkersGone as gone:
+            if boundary is None:
+                raise
+            count, state = boundary
+            save_run_state(run_dir, tracker, cfg, state)  # as the failed step found it
+            reason = f"stopped after {count} {algo.unit}, its workers lost: {gone}"
+            raise Stopped(reason, Stopped.WORKERS_GONE) from gone
         steps = algo.counters().steps
         if (steps % cfg.checkpoint_every == 0 or stop_requested()) and not spent():
             checkpoint(algo, cfg, tracker, run_dir)  # checkpoint

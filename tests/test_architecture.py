@@ -218,7 +218,7 @@ def test_the_rules_see_what_they_check() -> None:
     """Deferred and TYPE_CHECKING imports are both read (and count for every rule); the picture
     orders the folders as the data flows; and the rules would fail on the arrows that once ran
     against it."""
-    assert "epoet.rollout.backends.ray_cluster" in IMPORTS["epoet.rollout.evaluators"]  # deferred
+    assert "epoet.rollout.backends.ray_host" in IMPORTS["epoet.rollout.evaluators"]  # deferred
     assert "epoet.tracking" in IMPORTS["epoet.run_state"]  # type-only
     # the steps of the loop do not call back into it (no mixin, no `self: Epoet`)
     for step in (

@@ -68,8 +68,11 @@ def local_run(tmp_path_factory) -> Path:
     return tmp / "run"
 
 
-def test_a_local_ray_gives_the_local_results_and_replaces_each_kind_of_killed_actor() -> None:
-    from epoet.rollout.backends.ray_cluster import RayEvaluator
+def test_a_local_ray_gives_the_local_results_and_survives_each_kind_of_killed_process() -> None:
+    """Killed mid-call, each process of the Ray backend is replaced and the call gives the same
+    episodes: a rollout actor, the feed, the local cluster's raylet (Ray then ends its driver,
+    the Ray host) and the host itself."""
+    from epoet.rollout.backends.ray_host import RayEvaluator
 
     cfg = load(SMOKE)
     agent, terrain_cfg = replace(cfg.agent, max_episode_steps=200), cfg.terrain
@@ -86,8 +89,13 @@ def test_a_local_ray_gives_the_local_results_and_replaces_each_kind_of_killed_ac
         np.testing.assert_array_equal(episodes.returns, expected.returns)
         for key, value in expected.transitions.items():
             np.testing.assert_array_equal(episodes.transitions[key], value)
-        # each kind of actor the backend makes, killed mid-call: a rollout actor, the feed
-        for restarts, victim in enumerate((lambda: on_ray.pids[0], lambda: on_ray.feed_pid), 1):
+        victims = (
+            lambda: on_ray.pids[0],
+            lambda: on_ray.feed_pid,
+            lambda: _raylet_of(on_ray.host_pid),
+            lambda: on_ray.host_pid,
+        )
+        for restarts, victim in enumerate(victims, 1):
             killer = threading.Timer(0.5, os.kill, (victim(), signal.SIGKILL))
             killer.start()
             (episodes,) = on_ray.run([es])
@@ -96,12 +104,22 @@ def test_a_local_ray_gives_the_local_results_and_replaces_each_kind_of_killed_ac
             np.testing.assert_array_equal(episodes.returns, expected.returns)
 
 
+def _raylet_of(host_pid: int) -> int:
+    """The raylet of the local Ray that the Ray host process started (its descendant)."""
+    found = subprocess.run(["pgrep", "-x", "raylet"], capture_output=True, text=True).stdout
+    for pid in map(int, found.split()):
+        parent = pid
+        while parent > 1:
+            parent = int(Path(f"/proc/{parent}/stat").read_text().rsplit(")", 1)[1].split()[1])
+            if parent == host_pid:
+                return pid
+    raise AssertionError(f"no raylet under the Ray host {host_pid}")
+
+
 def test_ray_actors_step_as_many_robots_as_local_workers() -> None:
     """Each rollout actor's engine has the slots (`workers.batch`) a local pool worker's has:
     conf/workers/local.yaml owns the value, ray.yaml inherits it, and the actors are built with
     it. (Here, not in test_rollout.py: the Ray tests must not overlap one another.)"""
-    import ray
-
     from epoet.rollout.evaluators import evaluator_for
 
     local, on_ray = (load([*SMOKE, "workers.num=2", *extra]) for extra in ([], ["workers=ray"]))
@@ -109,9 +127,7 @@ def test_ray_actors_step_as_many_robots_as_local_workers() -> None:
     with evaluator_for(local.workers, local.agent, local.terrain, sizes) as pool:
         given = pool.batch  # what each pool worker's engine is built with
     with evaluator_for(on_ray.workers, on_ray.agent, on_ray.terrain, sizes) as actors:
-        batches = ray.get(
-            [actor.__ray_call__.remote(lambda self: self.engine.batch) for actor in actors._actors]
-        )
+        batches = actors.engine_batches  # type: ignore[attr-defined]
     assert given == load([]).workers.batch > 1
     assert batches == [given, given]
 
@@ -160,6 +176,41 @@ def test_a_run_joins_a_running_ray_cluster_with_the_same_result(
     )
     assert out.returncode == 0, out.stderr[-2000:]
     _assert_same_pool(_pool(tmp_path / "run"), _pool(local_run))
+
+
+@pytest.mark.skipif(RAY is None, reason="the ray command comes with the 'distributed' extra")
+def test_a_run_whose_ray_cluster_is_gone_checkpoints_says_how_to_resume_and_exits(
+    ray_cluster: str, tmp_path: Path
+) -> None:
+    """The cluster stopped mid-run (`ray stop`): the Ray host dies and no new one can join, so
+    the run saves the state its step started from, says so in one line with the resume command,
+    and exits 75; resumed on a local Ray, it finishes."""
+    run_dir = tmp_path / "run"
+    overrides = [*SMOKE, "budget.iterations=1000", "workers=ray", f"workers.address={ray_cluster}"]
+    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db",
+           "RAY_AUTH_MODE": "token", "PYTHONPATH": str(Path(__file__).parent.parent)}  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "epoet", *overrides, f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    for line in proc.stdout:  # the cluster goes after the second iteration
+        if line.startswith("[epoet] it 2/"):
+            break
+    subprocess.run([RAY, "stop", "--force"], capture_output=True, timeout=120)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 75, err[-3000:]
+    (said,) = [line for line in err.splitlines() if line.startswith("epoet: stopped after")]
+    assert "its workers lost" in said and f"continue with python -m epoet resume={run_dir}" in said
+    stopped_at = load_checkpoint(run_dir / "checkpoint.pkl")["open_ended"]["iteration"]
+    assert stopped_at >= 2
+    resumed = subprocess.run(
+        [sys.executable, "-m", "epoet", *SMOKE, f"budget.iterations={stopped_at + 1}",
+         "workers=ray", f"resume={run_dir}", f"hydra.run.dir={run_dir}"],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert load_checkpoint(run_dir / "checkpoint.pkl")["open_ended"]["iteration"] == stopped_at + 1
 
 
 def test_an_unreachable_ray_cluster_is_one_line_before_any_run(tmp_path: Path) -> None:

@@ -27,12 +27,18 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 class Stopped(Exception):
-    """The run stopped on a signal after writing its checkpoint; exit code 128 + signal."""
+    """The run stopped after writing its checkpoint, to be resumed: on a signal (exit code
+    128 + signal, `by_signal`) or because its workers are gone (`WORKERS_GONE`)."""
 
-    def __init__(self, signum: int, where: str) -> None:
-        self.signum = signum
-        self.exit_code = 128 + signum
-        super().__init__(f"stopped by {signal.Signals(signum).name} {where}")
+    WORKERS_GONE = 75  # sysexits.h EX_TEMPFAIL: a temporary failure, try again (resume) later
+
+    def __init__(self, reason: str, exit_code: int) -> None:
+        self.exit_code = exit_code
+        super().__init__(reason)
+
+    @classmethod
+    def by_signal(cls, signum: int, where: str) -> Stopped:
+        return cls(f"stopped by {signal.Signals(signum).name} {where}", 128 + signum)
 
 
 class StopOnSignal:
@@ -90,7 +96,7 @@ def stop_requested() -> bool:
 def raise_if_stopped(where: str) -> None:
     """Raise `Stopped` if a stop was requested; call it right after writing the checkpoint."""
     if _active is not None and _active.signum is not None:  # stop_requested(), narrowed
-        raise Stopped(_active.signum, where)
+        raise Stopped.by_signal(_active.signum, where)
 
 
 def ignore_stop_signals() -> None:

@@ -39,7 +39,7 @@ def evaluator_for(
     """The evaluator a run's `workers` config asks for."""
     if workers.backend == "ray":
         # the optional extra, imported on demand
-        from epoet.rollout.backends.ray_cluster import RayEvaluator
+        from epoet.rollout.backends.ray_host import RayEvaluator
 
         return RayEvaluator(
             agent, terrain_cfg, workers.num, workers.batch, layer_sizes, workers.address

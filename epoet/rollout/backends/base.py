@@ -35,6 +35,11 @@ class WorkerLost(Exception):
     """A rollout worker died during a call; its backend can restart its workers."""
 
 
+class WorkersGone(RuntimeError):
+    """The workers cannot be brought back (they died `MAX_RESTARTS` times in one call, or the
+    cluster they ran on is gone): the run checkpoints and stops (epoet/driver.py)."""
+
+
 class Relief(NamedTuple):
     """What a worker needs of a terrain: plain arrays, whatever the caller's terrain type is
     (a Terrain's CPPN genome, say, is neither needed nor shipped)."""
@@ -97,8 +102,8 @@ class Backend(ABC):
             except WorkerLost as lost:
                 if attempt > MAX_RESTARTS:
                     self.close()
-                    raise RuntimeError(
-                        f"rollout workers died {attempt} times in one call ({lost}); giving up."
+                    raise WorkersGone(
+                        f"rollout workers died {attempt} times in one call ({lost}); giving up"
                     ) from lost
                 print(
                     f"[workers] {lost}: restarting the workers and running the call again "

@@ -1,4 +1,6 @@
-"""workers=ray: the rollout backend on a Ray cluster, for runs that outgrow one machine.
+"""workers=ray, the cluster side: the rollout actors and their feed on a Ray cluster, for runs
+that outgrow one machine. They are driven from the Ray host process (ray_host.py), never from
+the run's own process.
 
 The design is the local pool's (`epoet.rollout.backends.pool`), with Ray's processes and object
 store:
@@ -14,7 +16,7 @@ Items are taken in guided chunks (a share of what is left, shrinking to one), so
 makes few round trips early and the tail still balances. An actor that dies (its node lost, the
 process killed) raises `WorkerLost`; the backend replaces the dead actors and runs the call again.
 `address` joins a running cluster (`ray start --head` on the head node); without it a local Ray
-starts with this process and stops with it.
+starts with the Ray host process and stops with it.
 """
 
 from __future__ import annotations
@@ -23,11 +25,9 @@ import contextlib
 import itertools
 import math
 import os
-import signal
 import socket
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -36,7 +36,6 @@ import numpy as np
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.rollout.backends.base import (
-    Backend,
     Relief,
     WorkerLost,
     engine_jobs,
@@ -214,8 +213,9 @@ def _pull(feed: Any, call: int) -> Iterator[tuple[int, int]]:
         yield from chunk
 
 
-class RayEvaluator(Backend):
-    """Rollout actors on a Ray cluster; `workers` actors (None: one per CPU of the cluster)."""
+class RayActors:
+    """The rollout actors and the feed on a Ray cluster, driven from the Ray host process
+    (ray_host.py), which is the Ray driver: `workers` actors (None: one per CPU of the cluster)."""
 
     def __init__(
         self,
@@ -228,30 +228,20 @@ class RayEvaluator(Backend):
     ) -> None:
         if ray is None:
             raise RuntimeError(f"workers=ray needs Ray, the 'distributed' extra: {INSTALL_HINT}")
-        super().__init__(agent, layer_sizes)
-        self._owns_ray = not ray.is_initialized()
-        if self._owns_ray:
-            # ray.init replaces the SIGTERM handler with sys.exit, which would end a run on
-            # SIGTERM (SLURM's preemption) without its checkpoint: the run's handler
-            # (epoet.core.lifecycle.StopOnSignal) is put back.
-            sigterm = signal.getsignal(signal.SIGTERM)
-            try:
-                # Local: as many CPUs as workers (or the machine's); a cluster brings its own.
-                ray.init(
-                    address=address,
-                    num_cpus=None if address else workers,
-                    include_dashboard=False,
-                    configure_logging=False,
-                    log_to_driver=True,
-                )
-            except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise RuntimeError(
-                    f"cannot join the Ray cluster at {address}: {exc} (a cluster started with "
-                    f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)"
-                ) from exc
-            finally:
-                if threading.current_thread() is threading.main_thread():
-                    signal.signal(signal.SIGTERM, sigterm)
+        try:
+            # Local: as many CPUs as workers (or the machine's); a cluster brings its own.
+            ray.init(
+                address=address,
+                num_cpus=None if address else workers,
+                include_dashboard=False,
+                configure_logging=False,
+                log_to_driver=True,
+            )
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise RuntimeError(
+                f"cannot join the Ray cluster at {address}: {exc} (a cluster started with "
+                f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)"
+            ) from exc
         self.workers = int(workers or ray.cluster_resources().get("CPU", 1))
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
@@ -262,6 +252,12 @@ class RayEvaluator(Backend):
         self._feed: Any = None
         self._actors: list[Any] = []
         self._start()
+
+    def engine_batches(self) -> list[int]:
+        """Each rollout actor's engine's slots."""
+        return ray.get(
+            [a.__ray_call__.remote(lambda self: self.engine.batch) for a in self._actors]
+        )
 
     def _start(self) -> None:
         """The feed and the rollout actors, each process's id in `feed_pid` and `pids`."""
@@ -274,15 +270,14 @@ class RayEvaluator(Backend):
         except _ACTOR_LOST as exc:
             raise WorkerLost(f"a Ray actor died while starting: {exc}") from exc
 
-    def _restart(self) -> None:
+    def restart(self) -> None:
         """Every actor anew, the feed too: any of them may be the one that died."""
         for actor in [*self._actors, self._feed]:
             ray.kill(actor)
         self._start()
 
-    def _run(self, requests: Sequence[Request]) -> list[Episodes]:
-        if not self._actors:
-            raise RuntimeError("this evaluator is closed.")
+    def run(self, requests: Sequence[Request]) -> list[Episodes]:
+        """One call's episodes; `WorkerLost` when an actor died (`restart`, then call again)."""
         call = next(self._calls)
         sizes = [len(r.population) for r in requests]
         items = [(k, e) for k, n in enumerate(sizes) for e in range(n)]
@@ -307,12 +302,8 @@ class RayEvaluator(Backend):
         return split_results(parts, sizes)
 
     def close(self) -> None:
-        """Stop the actors, and the local Ray this evaluator started (idempotent)."""
-        if not self._actors:
-            return
-        for actor in self._actors:
+        """Stop the actors and leave the cluster (a local Ray stops with it)."""
+        for actor in [*self._actors, self._feed]:
             ray.kill(actor)
-        ray.kill(self._feed)
         self._actors = []
-        if self._owns_ray:
-            ray.shutdown()
+        ray.shutdown()
