@@ -11,6 +11,7 @@ import itertools
 import json
 import re
 import shlex
+import subprocess
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -213,6 +214,30 @@ def test_the_times_of_the_two_commands_are_the_timing_records() -> None:
     pairs, annecs = (re.search(rf"\b{key}=(\d+)", last).group(1) for key in ("pairs", "annecs"))
     assert f"(`pairs={pairs} ... annecs={annecs}`)" in readme
     assert any("done after" in line and "of the shipped suite" in line for line in train["tail"])
+
+
+# What each timed command's time depends on: `make train` runs the main job (the package, the
+# laptop budget and every config it composes), `make test` the tests; both the Makefile.
+TIMED = {"train": ("epoet", "conf", "Makefile"), "test": ("tests", "Makefile")}
+
+
+def git(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("target", sorted(TIMED))
+def test_the_timing_record_is_newer_than_a_change_to_what_it_timed(target: str) -> None:
+    """The README's time of `make <target>` was measured at or after the last commit that
+    changed what it times: a change to those files asks for `python bench/make_times.py`."""
+    if git("rev-parse", "--is-shallow-repository").stdout.strip() != "false":
+        pytest.skip("needs the repository's history (a full git clone)")
+    measured = timing_record()[target]["commit"]
+    last = git("log", "-1", "--format=%H", "HEAD", "--", *TIMED[target]).stdout.strip()
+    newer = git("merge-base", "--is-ancestor", last, measured).returncode == 0
+    assert newer, (
+        f"`make {target}` was timed at {measured[:7]}, before {last[:7]} changed "
+        f"{', '.join(TIMED[target])}: run python bench/make_times.py --targets {target}"
+    )
 
 
 def test_the_test_files_the_docs_name_exist() -> None:
