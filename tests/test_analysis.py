@@ -12,7 +12,7 @@ import mlflow
 import pandas as pd
 import pytest
 
-from analysis.curves import BASELINE_COLUMNS, EPOET_COLUMNS, main
+from analysis.curves import BASELINE_COLUMNS, EPOET_COLUMNS, EVAL_KEY, main
 from conftest import new_store
 from epoet.run import run
 from epoet.tracking import MlflowTracker
@@ -33,12 +33,13 @@ def _tracked(
     status: str = "FINISHED",
     parent: str | None = None,
 ) -> str:
-    """A run in the store with `eval/return_mean` at the given frames; algo None = sweep parent."""
+    """A run in the store with a baseline's evaluation (`eval/return_mean` and `score`, its
+    curve) at the given frames; algo None = sweep parent."""
     tags = {} if algo is None else {"algo": algo, "seed": str(seed), "budget": "smoke"}
     with MlflowTracker(None, "epoet") as tracker:
         run_id = tracker.start(f"{algo}-s{seed}", tags=tags, parent_run_id=parent)
         for frames, value in evals:
-            tracker.log_metrics(frames, {"eval/return_mean": value})
+            tracker.log_metrics(frames, {"eval/return_mean": value, "score": value})
         tracker.close(status)
     return run_id
 
@@ -86,7 +87,7 @@ def test_baseline_curves_skip_parents_unfinished_runs_and_resumed_duplicates(
     time.sleep(0.01)
     # A store from before resumed runs skipped logged steps holds frames 200 twice: the later
     # value must win.
-    mlflow.MlflowClient(mlflow_uri).log_metric(sac, "eval/return_mean", 5.0, step=200)
+    mlflow.MlflowClient(mlflow_uri).log_metric(sac, EVAL_KEY, 5.0, step=200)
     out = tmp_path / "figures"
     capsys.readouterr()
     assert main(["--out", str(out)]) == 0
