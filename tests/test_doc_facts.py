@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.util
 import itertools
 import json
+import os
 import re
 import shlex
 import subprocess
@@ -219,6 +220,7 @@ def test_the_times_of_the_two_commands_are_the_timing_records() -> None:
 # What each timed command's time depends on: `make train` runs the main job (the package, the
 # laptop budget and every config it composes), `make test` the tests; both the Makefile.
 TIMED = {"train": ("epoet", "conf", "Makefile"), "test": ("tests", "Makefile")}
+REMAKING = "EPOET_MAKE_TIMES"  # set by bench/make_times.py in the clone it times
 
 
 def git(*args: str) -> subprocess.CompletedProcess:
@@ -229,6 +231,8 @@ def git(*args: str) -> subprocess.CompletedProcess:
 def test_the_timing_record_is_newer_than_a_change_to_what_it_timed(target: str) -> None:
     """The README's time of `make <target>` was measured at or after the last commit that
     changed what it times: a change to those files asks for `python bench/make_times.py`."""
+    if os.environ.get(REMAKING):
+        pytest.skip("bench/make_times.py is timing this very commit: the record comes after")
     if git("rev-parse", "--is-shallow-repository").stdout.strip() != "false":
         pytest.skip("needs the repository's history (a full git clone)")
     measured = timing_record()[target]["commit"]
