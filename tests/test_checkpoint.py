@@ -4,8 +4,12 @@ older checkpoints (their configs, their renamed classes and keys) read in today'
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
+import os
+import subprocess
 import sys
+import tarfile
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +17,7 @@ import pytest
 import torch
 
 import epoet.open_ended.pairs
+from conftest import tiny_run
 from epoet.config import compose, load
 from epoet.core.algorithm import Family
 from epoet.core.checkpoint import (
@@ -27,6 +32,8 @@ from epoet.migration import config_changes
 from epoet.registry import algorithm, names
 from epoet.run import run
 from epoet.tracking import MlflowTracker
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 class _Unpicklable:
@@ -179,46 +186,60 @@ def test_a_checkpoint_from_before_the_algo_budget_files_resumes(overrides: str) 
     assert changed == ["seed (0 -> 7)"]
 
 
-# Each algorithm's checkpoint as the code before the one training driver wrote it (commit
-# c5d3739, which trains the final paper runs): `python -m epoet algo=<algo> budget=smoke seed=1
-# workers.num=1 evaluate=false` with these overrides (small networks keep the files small); the
-# baselines stopped by a tiny `budget.cpu_hours` after their first batch, ePOET's family after
-# the smoke budget's iterations.
-BEFORE_THE_DRIVER = Path(__file__).with_name("checkpoints_before_the_driver")
-WRITTEN_WITH = {
-    "ppo": ["algo.hidden=[8,8]", "budget.frames=4000", "budget.cpu_hours=0.00005"],
-    "vmpo": ["algo.hidden=[8,8]", "budget.frames=4000", "budget.cpu_hours=0.00005"],
-    "sac": ["algo.hidden=[8,8]", "algo.buffer_size=512", "budget.frames=4000",
-            "budget.cpu_hours=0.00005"],
-    "epoet": ["algo.es.hidden=[8]"],
-    "epoet_sac": ["algo.es.hidden=[8]", "algo.sac.hidden=[8,8]", "algo.sac.buffer_size=512"],
-}  # fmt: skip
-# What continues each: no CPU limit (the baselines), one more iteration (the pool family)
+# The commit the final paper runs train from, before the one training driver: each algorithm's
+# checkpoint as its code writes it must load and continue today.
+BEFORE_THE_DRIVER = "c5d3739"
+# How each tiny run is cut short there, and what continues it: a baseline stopped by a tiny CPU
+# budget after its first batch, then no CPU limit; the pool family after its iterations, then one
+# more.
+STOPPED = {Family.BASELINE: ["budget.cpu_hours=0.00001"], Family.OPEN_ENDED: []}
 CONTINUED = {Family.BASELINE: ["budget.cpu_hours=null"], Family.OPEN_ENDED: ["budget.iterations=4"]}
 
 
-@pytest.mark.parametrize("algo", sorted(p.stem for p in BEFORE_THE_DRIVER.glob("*.pkl")))
+@pytest.fixture(scope="module")
+def old_checkpoints(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """<folder>/<algo>/checkpoint.pkl: each algorithm's tiny run, trained by the code of
+    BEFORE_THE_DRIVER (taken from the repository's history) and cut short (STOPPED)."""
+    shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT,
+                             capture_output=True, text=True).stdout.strip()  # fmt: skip
+    if shallow != "false":
+        pytest.skip("needs the repository's history (a full git clone)")
+    folder = tmp_path_factory.mktemp("before_the_driver")
+    code = folder / "code"
+    archive = subprocess.run(["git", "archive", BEFORE_THE_DRIVER], cwd=ROOT, capture_output=True,
+                             check=True).stdout  # fmt: skip
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(code, filter="data")
+    env = {**os.environ, "PYTHONPATH": str(code), "MLFLOW_TRACKING_URI": f"sqlite:///{folder}/m.db"}
+    for algo in names():
+        args = [*tiny_run(algo), *STOPPED[algorithm(algo).family], "seed=1", "evaluate=false"]
+        trained = subprocess.run([sys.executable, "-m", "epoet", *args,
+                                  f"hydra.run.dir={folder / algo}"], cwd=code, env=env,
+                                 capture_output=True, text=True)  # fmt: skip
+        assert trained.returncode == 0, trained.stderr[-2000:]
+    return folder
+
+
+@pytest.mark.parametrize("algo", names())
 def test_a_checkpoint_from_before_the_driver_resumes_and_finishes(
-    algo: str, tmp_path: Path, mlflow_uri: str
+    algo: str, old_checkpoints: Path, tmp_path: Path, mlflow_uri: str
 ) -> None:
     """Loaded by today's code, it continues from where it stopped to the end of the larger
     budget, and the run exports its agent."""
-    assert algo in names()
     run_dir = tmp_path / algo
     run_dir.mkdir()
-    before = load_checkpoint(BEFORE_THE_DRIVER / f"{algo}.pkl")
-    # its MLflow run was in the store it was written with: one of this store's stands for it
+    before = load_checkpoint(old_checkpoints / algo)
+    # its MLflow run is in the store it was written with: one of this store's stands for it
     with MlflowTracker(mlflow_uri, "Default") as tracker:
         before["run_id"] = tracker.start(f"{algo}-s1")
     save_checkpoint(run_dir / CHECKPOINT_NAME, before)
     family = algorithm(algo).family
-    overrides = [f"algo={algo}", "budget=smoke", "seed=1", "workers.num=1", "evaluate=false"]
-    overrides += [*WRITTEN_WITH[algo], *CONTINUED[family], f"resume={run_dir}"]
-    run(compose(overrides), run_dir)
+    overrides = [*tiny_run(algo), *CONTINUED[family], "seed=1", "evaluate=false"]
+    run(compose([*overrides, f"resume={run_dir}"]), run_dir)
     after = load_checkpoint(run_dir)
     assert after["run_id"] == before["run_id"]
     if family is Family.BASELINE:
-        assert (before["loop"]["frames"], after["loop"]["frames"]) == (2000, 4000)
+        assert before["loop"]["frames"] < after["loop"]["frames"] == 240
     else:
         assert (before["open_ended"]["iteration"], after["open_ended"]["iteration"]) == (3, 4)
     assert policy_in(run_dir) is not None
