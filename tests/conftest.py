@@ -38,6 +38,8 @@ LONGEST_FIRST = (
     "test_scale_out.py",
     "test_robots.py",
     "test_epoet_sac.py",
+    "test_paper_report.py",
+    "test_checkpoint.py",
     "test_bad_input.py",
     "test_help.py",
     "test_faults.py",
