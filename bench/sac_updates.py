@@ -1,7 +1,7 @@
 """Gradient updates per second: our SAC update vs the same update in plain PyTorch.
 
-"Ours" is exactly the runner's code path, `epoet.rl.sac.SacLearner.gradient_steps`: uniform
-samples from its TorchRL replay buffer, our SacLoss (epoet/rl/sac_loss.py), the learner's fused
+"Ours" is exactly the runner's code path, `epoet.sac.learner.SacLearner.gradient_steps`: uniform
+samples from its TorchRL replay buffer, our SacLoss (epoet/sac/loss.py), the learner's fused
 Adam and its soft target update.
 "Plain" is a CleanRL-style SAC written below: twin Q networks, a tanh-Gaussian actor, automatic
 entropy tuning and a soft target update, one Adam per part (CleanRL's layout). Same sizes:
@@ -30,7 +30,7 @@ from epoet.config import load
 from epoet.envs.spaces import robot_sizes
 from epoet.rl.env import make_env
 from epoet.rl.harness import set_threads
-from epoet.rl.sac import SacLearner
+from epoet.sac.learner import SacLearner
 
 BUFFER = 10_000
 OBS_DIM, ACT_DIM = robot_sizes(load([]).agent)  # the default robot's: the hexapod's 53 and 18

@@ -191,12 +191,12 @@ def register_configs() -> None:
 
 def register_algorithm(cs: ConfigStore, record: Algorithm) -> None:
     """An algorithm's two nodes. `algo/<name>_schema`, the first default of its YAML: its
-    schema with the record's runner and name. `algo_budget/<name>`, which conf/config.yaml's
+    schema with the record's name. `algo_budget/<name>`, which conf/config.yaml's
     `algo_budget: ${algo}` picks: its family's budget schema, the family's values on the budget
     (conf/algo_budget/<family>/<budget>.yaml, required) and then its own, where it has any
     (conf/algo_budget/<name>/<budget>.yaml)."""
     settings = OmegaConf.structured(record.schema)
-    settings._target_, settings.name = record.runner, record.name
+    settings.name = record.name
     cs.store(group="algo", name=f"{record.name}_schema", node=settings)
     family = record.family.value
     defaults = [

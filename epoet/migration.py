@@ -16,8 +16,8 @@ from epoet.config import saved_agent
 from epoet.run_state import BUDGET_LIMITS
 
 # What a resume may change: where and how it runs, and how long it goes on.
-# (`algo._target_` says where the algorithm's code lives, not how it runs: checkpoints from
-# before the key existed resume.)
+# (`algo._target_`, the runner's dotted path that checkpoints from 2026-11 to today's registry
+# held, said where the algorithm's code lived, not how it runs.)
 RESUMABLE = (
     *("resume", "check", "workers", "tracking", "checkpoint_every"),
     *(f"budget.{key}" for key in BUDGET_LIMITS),

@@ -8,12 +8,10 @@ fails here, in one sentence, before any long work starts.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, cast
+from typing import TYPE_CHECKING, Any, cast
 
-from hydra.utils import get_method
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.config import Config, compose, validate
@@ -23,6 +21,7 @@ from epoet.core.lifecycle import StopOnSignal
 from epoet.envs.spaces import robot_sizes
 from epoet.eval.reference.files import configure
 from epoet.migration import RESUMABLE, config_changes
+from epoet.registry import algorithm
 from epoet.run_state import (
     DONE,
     LIVE,
@@ -36,13 +35,11 @@ from epoet.run_state import (
 )
 
 if TYPE_CHECKING:
-    from epoet.tracking import MlflowTracker, StoredRun, Tracker
+    from epoet.tracking import MlflowTracker, StoredRun
 
 # resume=auto: continue this run folder's checkpoint if any; skip it if DONE, unless the budget
 # asked for is larger than the one it finished on
 AUTO = "auto"
-
-Runner = Callable[[Config, "Tracker", Path, "dict[str, Any] | None"], Any]
 
 
 def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict[str, str]:
@@ -61,21 +58,6 @@ def run_params(cfg: Config, resolved: dict[str, Any], tracking_uri: str) -> dict
         # one worker (ES) or torch thread (baselines) per core; a Ray cluster brings its own
         params["workers.num"] = str(default_workers())
     return params
-
-
-def runner_for(cfg: Config) -> Runner:
-    """The algorithm's runner, its record's (epoet/registry.py), which registration writes into
-    `algo._target_`: train(cfg, tracker, run_dir, resume) -> its final state."""
-    return get_method(cfg.algo._target_)
-
-
-def check_inputs(cfg: Config) -> None:
-    """What a new run starts from beyond its config (e.g. ePOET-SAC's `algo.sac_init`), checked
-    by the runner's module's `check_inputs(cfg)` when it has one (ConfigError in one sentence),
-    before the tracker opens."""
-    check = getattr(sys.modules[runner_for(cfg).__module__], "check_inputs", None)
-    if check is not None:
-        check(cfg)
 
 
 @dataclass(frozen=True)
@@ -138,7 +120,7 @@ def prepare(raw: DictConfig, run_dir: Path) -> Prepared | None:
         check_address(cfg.workers.address)
     orphaned_run(run_dir)  # another process training in this folder stops this one here
     if resume is None:
-        check_inputs(cfg)
+        cfg.algo.check_inputs(cfg)  # e.g. ePOET-SAC's `algo.sac_init`
     from epoet.tracking import check_store
 
     check_store(cfg.tracking.uri)
@@ -242,7 +224,7 @@ def _track_and_train(
             flush=True,
         )
         with StopOnSignal():
-            result = runner_for(cfg)(cfg, tracker, run_dir, resume)
+            result = algorithm(cfg.algo.name).runner()(cfg, tracker, run_dir, resume)
         log_agent_model(tracker, run_dir, cfg)
     return result, run_id
 

@@ -128,11 +128,9 @@ def check_suites(suites: Sequence[str]) -> None:
 
 def check_jobs(jobs: Sequence[Sequence[str]]) -> list[Config]:
     """Each training job's overrides checked as its run will check them (composition, ranges,
-    combinations, what it starts from: `epoet.run.check_inputs`), before any training, so bad
+    combinations, what it starts from: its settings' `check_inputs`), before any training, so bad
     input is one line and exit 2 at once instead of a failed job minutes later. Sweep values
     (`a=1,2`) are the launcher's to expand and are left out of the check."""
-    from epoet.run import check_inputs
-
     parser = OverridesParser.create()
     configs = []
     for overrides in jobs:
@@ -140,7 +138,7 @@ def check_jobs(jobs: Sequence[Sequence[str]]) -> list[Config]:
             parsed = parser.parse_overrides(list(overrides))
             single = [str(o.input_line) for o in parsed if not o.is_sweep_override()]
             configs.append(validate(compose(single)))
-            check_inputs(configs[-1])
+            configs[-1].algo.check_inputs(configs[-1])
         except (ConfigError, HydraException, OmegaConfBaseException) as err:
             fail(err)
     return configs

@@ -4,33 +4,44 @@ its top, each a node of its own), analysis/ and pipeline/ form a graph with no c
 imports one on its own line of the picture or above it. Every module stays under MAX_LINES, and
 modules import each other in no circle.
 
+Each package's schema module, `epoet/<package>/config.py`, is a node of its own: composition
+imports the schemas (the registry imports the algorithms' records there), never the code beside
+them, so the schemas sit low and their packages high.
+
 Imports are read from the source (ast): module-level ones, those under `if`/`try`/`with` included,
 those under `if TYPE_CHECKING:` (a type-only import still says that one module leans on another)
 and those inside functions (deferred on purpose: optional extras, heavy imports; a deferred
-import still makes its module lean on the other, so it counts for every rule).
+import still makes its module lean on the other, so it counts for every rule). One kind is held
+apart: a schema module's import of its own package's code inside a function (an algorithm's
+`runner`, its `check_inputs`), the link a record gives from the settings to the code they run;
+it is a runtime lookup, the dotted strings it replaced, and `RUNNER_LINKS` checks its form.
 """
 
 from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 from itertools import takewhile
 from pathlib import Path
 
 import pytest
 
-from epoet.registry import algorithms
+from epoet.registry import DECLARED, algorithms
 
 ROOT = Path(__file__).resolve().parent.parent
 MAX_LINES = 400
 PICTURE = ROOT / "docs" / "architecture.md"
 PICTURE_SECTION = "## The layers"
-NODE = re.compile(r"<?\w+>?/|\w+\.py")  # a folder (`envs/`) or a top-level module (`run.py`)
+# a folder (`envs/`), its schema module (`envs/config.py`) or a top-level module (`run.py`)
+NODE = re.compile(r"<?\w+>?/(config\.py)?|\w+\.py")
 NEW_ALGORITHM = "<algorithm>/"  # the picture's place for an algorithm it does not name
+SCHEMA = re.compile(r"epoet\.(\w+)\.config")
 
-# The packages of the algorithms, from their records (an algorithm's runner lives in its
-# package, epoet.<package>.<module>.train).
-ALGORITHM_PACKAGES = {r.runner.split(".")[1] + "/" for r in algorithms()}
+# The packages of the algorithms, from their records (an algorithm's schema module and its
+# code live in one package).
+ALGORITHM_PACKAGES = {r.schema.__module__.split(".")[1] + "/" for r in algorithms()}
 
 
 def _module(path: Path) -> str:
@@ -45,33 +56,70 @@ MODULES = {
 }
 
 
-def _imports(path: Path) -> set[str]:
+def _imported(node: ast.AST) -> set[str]:
+    """The project modules one import statement names."""
+    if isinstance(node, ast.Import):
+        return {a.name for a in node.names if a.name in MODULES}
+    if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+        names = (node.module, *(f"{node.module}.{a.name}" for a in node.names))
+        return {name for name in names if name in MODULES}
+    return set()
+
+
+def _is_runner_link(module: str, other: str, deferred: bool) -> bool:
+    """A schema module's import of its own package's code, inside a function."""
+    match = SCHEMA.fullmatch(module)
+    return deferred and match is not None and other.startswith(f"epoet.{match.group(1)}.")
+
+
+def _imports(module: str, path: Path) -> tuple[set[str], set[str]]:
     """The project modules `path` imports, anywhere in it (type-only and deferred ones
-    included)."""
+    included), and apart from them its runner links."""
+    tree = ast.parse(path.read_text())
+    in_functions = {
+        id(node)
+        for func in ast.walk(tree)
+        if isinstance(func, (ast.FunctionDef, ast.AsyncFunctionDef))
+        for node in ast.walk(func)
+    }
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Import):
-            found.update(a.name for a in node.names if a.name in MODULES)
-        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
-            found.update(
-                name
-                for name in (node.module, *(f"{node.module}.{a.name}" for a in node.names))
-                if name in MODULES
-            )
-    return found
+    links: set[str] = set()
+    for node in ast.walk(tree):
+        for other in _imported(node):
+            deferred = id(node) in in_functions
+            (links if _is_runner_link(module, other, deferred) else found).add(other)
+    return found, links
 
 
-IMPORTS = {m: _imports(p) for m, p in MODULES.items()}
+_READ = {m: _imports(m, p) for m, p in MODULES.items()}
+IMPORTS = {m: imports for m, (imports, _) in _READ.items()}
+RUNNER_LINKS = {m: links for m, (_, links) in _READ.items() if links}
 
 
 def _node(module: str) -> str:
-    """The folder or top-level module of the picture that `module` belongs to."""
+    """The folder, schema module or top-level module of the picture that `module` belongs to."""
     top, *rest = module.split(".")
     if top != "epoet":
         return f"{top}/"
     if not rest:
         return "__init__.py"
+    if SCHEMA.fullmatch(module):
+        return f"{rest[0]}/config.py"
     return f"{rest[0]}/" if (ROOT / "epoet" / rest[0]).is_dir() else f"{rest[0]}.py"
+
+
+def _algorithm_package(node: str) -> str | None:
+    """The algorithm package `node` is, or is the schema module of; None for any other node."""
+    package = node.removesuffix("config.py")
+    return package if package in ALGORITHM_PACKAGES else None
+
+
+def _placeholder(node: str) -> str:
+    """Where the picture draws `node` if it does not name it: an algorithm's package on the
+    `<algorithm>/` line, its schema module on the `<algorithm>/config.py` line."""
+    if _algorithm_package(node) is None:
+        return node
+    return NEW_ALGORITHM + ("config.py" if node.endswith("config.py") else "")
 
 
 def _drawn_layers() -> list[list[str]]:
@@ -90,7 +138,10 @@ NODES = sorted({_node(m) for m in MODULES})
 def _level(node: str) -> int:
     """The line of the picture `node` is on, counted from the bottom."""
     for level, names in enumerate(LAYERS):
-        if node in names or (node in ALGORITHM_PACKAGES and NEW_ALGORITHM in names):
+        if node in names:
+            return level
+    for level, names in enumerate(LAYERS):
+        if _placeholder(node) in names:
             return level
     raise AssertionError(f"{node} is on no line of {PICTURE.name}'s picture: draw it")
 
@@ -135,9 +186,9 @@ def test_no_module_import_cycle() -> None:
 
 
 def test_the_picture_draws_every_folder_once() -> None:
-    drawn = [name for names in LAYERS for name in names if name != NEW_ALGORITHM]
+    drawn = [name for names in LAYERS for name in names if not name.startswith(NEW_ALGORITHM)]
     assert len(drawn) == len(set(drawn)), f"drawn twice: {sorted(drawn)}"
-    unnamed_algorithms = ALGORITHM_PACKAGES - set(drawn)  # on the NEW_ALGORITHM line
+    unnamed_algorithms = {n for n in NODES if _algorithm_package(n)} - set(drawn)
     assert set(drawn) == set(NODES) - unnamed_algorithms, (
         f"drawn but not in the code: {sorted(set(drawn) - set(NODES))}; "
         f"in the code but not drawn: {sorted(set(NODES) - set(drawn) - unnamed_algorithms)}"
@@ -198,20 +249,42 @@ def _with_parents(module: str) -> set[str]:
     return {".".join(parts[:i]) for i in range(1, len(parts) + 1)} & set(MODULES)
 
 
-def test_the_schemas_the_registry_imports_lean_on_nothing_above_the_config() -> None:
-    """epoet/registry.py imports each epoet/<package>/config.py by name, at composition: those
-    modules, and everything they import, stay below epoet/config.py (other packages' schemas and
-    package markers aside), so composing imports no algorithm's code, torch or MuJoCo."""
-    schemas = {m for m in MODULES if re.fullmatch(r"epoet\.\w+\.config", m)}
-    assert {"epoet.open_ended.config", "epoet.rl.config", "epoet.rollout.config"} <= schemas
-    seen: set[str] = set()
-    todo = set().union(*(_with_parents(s) for s in schemas))
-    while todo:
-        seen.add(module := todo.pop())
-        todo |= set().union(set(), *(_with_parents(i) for i in IMPORTS[module])) - seen
-    markers = {m for m in seen if MODULES[m].name == "__init__.py"}
-    above = sorted(m for m in seen - schemas - markers if _level(_node(m)) >= _level("config.py"))
-    assert not above, f"composition imports, through the schemas, {above}"
+def test_the_registry_names_each_record_and_each_record_its_runner() -> None:
+    """epoet/registry.py imports each record from its schema module, an import static tools
+    follow; each of those modules links to its own package's code by function-level imports
+    only (its `runner`), so it sits below the config and its package above."""
+    for record in DECLARED:
+        module = record.schema.__module__
+        assert module in IMPORTS["epoet.registry"], f"registry.py does not import {module}"
+        assert RUNNER_LINKS.get(module), f"{module}'s record names no runner by an import"
+        assert _level(_node(module)) < _level("registry.py") < _level("config.py")
+        assert _level(_node(module)) < _level(_node(next(iter(RUNNER_LINKS[module]))))
+    assert set(RUNNER_LINKS) <= {r.schema.__module__ for r in DECLARED} | {
+        m for m in MODULES if SCHEMA.fullmatch(m)
+    }
+
+
+def test_composing_and_help_import_no_torch() -> None:
+    """The schemas the registry imports keep composition and `--help` light: neither imports
+    torch or MuJoCo (a schema module that imported its algorithm's code at module level
+    would)."""
+    heavy = "heavy = [m for m in ('torch', 'mujoco', 'torchrl') if m in sys.modules]"
+    compose = (
+        "import sys\nfrom epoet.config import compose, validate\nfrom epoet.registry import names\n"
+        "for algo in names():\n"
+        "    validate(compose([f'algo={algo}']))\n"
+        f"{heavy}\nassert not heavy, heavy\n"
+    )
+    done = subprocess.run([sys.executable, "-c", compose], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    shown = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "epoet", "--help"],
+        capture_output=True,
+        text=True,
+    )
+    assert shown.returncode == 0 and "algo" in shown.stdout, shown.stderr[-2000:]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in shown.stderr.splitlines()}
+    assert not {"torch", "mujoco", "torchrl"} & imported
 
 
 def test_the_rules_see_what_they_check() -> None:
@@ -220,6 +293,9 @@ def test_the_rules_see_what_they_check() -> None:
     against it."""
     assert "epoet.rollout.backends.ray_host" in IMPORTS["epoet.rollout.evaluators"]  # deferred
     assert "epoet.tracking" in IMPORTS["epoet.run_state"]  # type-only
+    assert RUNNER_LINKS["epoet.ppo.config"] == {"epoet.ppo.train"}  # held apart, not dropped
+    assert "epoet.ppo.train" not in IMPORTS["epoet.ppo.config"]
+    assert "epoet.ppo.config" in IMPORTS["epoet.ppo.train"]
     # the steps of the loop do not call back into it (no mixin, no `self: Epoet`)
     for step in (
         "epoet.open_ended.reproduction",
@@ -231,8 +307,8 @@ def test_the_rules_see_what_they_check() -> None:
         "pipeline/",
         "run.py",
         "open_ended/",
-        "es/",
         "config.py",
+        "es/",
         "rollout/",
         "envs/",
         "terrain/",

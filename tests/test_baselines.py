@@ -24,7 +24,6 @@ from epoet.core.algorithm import Family
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.core.schema import ConfigError
 from epoet.registry import names
-from epoet.rl import sac
 from epoet.rl.candidates import CANDIDATES
 from epoet.rl.env import RunningObsNorm, make_env, obs_norm_of, terrain_env
 from epoet.rl.harness import batch_plan
@@ -32,6 +31,7 @@ from epoet.rollout.agent_files import LAST_POLICY
 from epoet.rollout.selection import CHOICE_FILE, LAST
 from epoet.rollout.torch_policy import load_policy
 from epoet.run import run
+from epoet.sac import train as sac
 from epoet.tracking import MlflowTracker
 
 TINY = [*TINY_BASELINE, "evaluate=false"]

@@ -283,7 +283,7 @@ def test_a_physics_blow_up_ends_the_episode_as_a_failure(tmp_path: Path) -> None
 
 def test_a_non_finite_learner_loss_skips_the_update_and_counts_it() -> None:
     from epoet.rl.env import make_env
-    from epoet.rl.sac import SacLearner
+    from epoet.sac.learner import SacLearner
 
     cfg = load(["algo=sac", "budget=smoke", "algo.batch_size=8"])
     env = make_env(cfg, obs_norm=False, seed=0)

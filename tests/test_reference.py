@@ -214,7 +214,7 @@ def test_the_authors_sac_critics_prefer_their_actors_actions_in_our_layout():
     import torch
     from torch import nn
 
-    from epoet.rl.sac_loss import TwinQ
+    from epoet.sac.loss import TwinQ
 
     entry = manifest()["agents"]["sac/42"]
     spec = torch.load(folder() / entry["critics"], weights_only=True)

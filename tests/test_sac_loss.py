@@ -11,7 +11,7 @@ from torchrl.objectives import SACLoss, ValueEstimators
 from epoet.config import load
 from epoet.rl.env import make_env
 from epoet.rl.nets import make_actor
-from epoet.rl.sac_loss import SacLoss, TwinQ
+from epoet.sac.loss import SacLoss, TwinQ
 
 HIDDEN = [32, 32]
 

@@ -1,4 +1,4 @@
-"""Tests of the V-MPO loss (epoet.rl.vmpo_loss) against the equations of Song et al. (2019)."""
+"""Tests of the V-MPO loss (epoet.vmpo.loss) against the equations of Song et al. (2019)."""
 
 import math
 
@@ -19,8 +19,8 @@ from torchrl.modules import (
 )
 from torchrl.objectives.value import GAE
 
-from epoet.rl.vmpo_loss import VMPOLoss
-from epoet.rl.vmpo_parts import top_half_weights
+from epoet.vmpo.loss import VMPOLoss
+from epoet.vmpo.loss_parts import top_half_weights
 
 torch.set_num_threads(1)
 

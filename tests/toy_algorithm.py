@@ -48,12 +48,12 @@ TOY = Algorithm(
     name="toy",
     family=Family.BASELINE,  # one agent; its budget counts frames (algo_budget/baselines/)
     schema=ToyConfig,
-    runner=f"{__name__}.train",
+    runner=lambda: train,  # defined below; the record is read only when a run starts
     label="Toy",
     colour="tab:brown",
 )
 
-# conf/algo/toy.yaml, as a node: its schema first (the record's runner and name), then its values
+# conf/algo/toy.yaml, as a node: its schema first (with the record's name), then its values
 YAML = {"defaults": ["toy_schema", "_self_"], "hidden": [8], "sigma": 0.1}
 
 

@@ -4,15 +4,16 @@ schema, and the interface that schema implements (`AlgoSettings`, the type of `C
 The record is the one place an algorithm's name, family (what its budget counts and which
 metrics it logs: `Family.metrics`), runner, schema and figure style are written; composition
 (epoet/config.py), the run (epoet/run.py), `make paper` and analysis read it through
-epoet/registry.py, which finds the records. It lives in `core` so that every folder's schema
-module can declare one without importing anything above it.
+epoet/registry.py, which imports the records by name. It lives in `core` so that every
+algorithm's schema module can declare one without importing anything above it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
+from pathlib import Path
 from typing import Any, ClassVar, Self
 
 # What every algorithm logs, each at every step that has a `score` (the driver logs them from
@@ -54,12 +55,11 @@ class Family(Enum):
 @dataclass
 class AlgoSettings:
     """What a run asks of its algorithm's settings (`cfg.algo`): every algorithm's schema is a
-    dataclass subclassing this one. `_target_` and `name` are filled in from the record when the
-    schema is registered (epoet/config.py), so an algorithm's YAML repeats neither."""
+    dataclass subclassing this one. `name` is filled in from the record when the schema is
+    registered (epoet/config.py), so an algorithm's YAML does not repeat it."""
 
     KEY: ClassVar[str] = "algo"
 
-    _target_: str  # the runner epoet.run calls: train(cfg, tracker, run_dir, resume)
     name: str  # the algorithm's record name: algo=<name>, its runs' `algo` tag
 
     @classmethod
@@ -75,21 +75,34 @@ class AlgoSettings:
         """What the algorithm needs of the run's other settings (`cfg`: the root Config; it is
         above this module's layer); ConfigError in one sentence. Nothing, unless overridden."""
 
+    def check_inputs(self, cfg: Any) -> None:
+        """What a new run starts from beyond its config (ePOET-SAC's `algo.sac_init`), checked
+        by epoet/run.py before the tracker opens; ConfigError in one sentence. It may import
+        the algorithm's code (inside the method: composition stays light). Nothing, unless
+        overridden."""
+
     def unused_keys(self) -> Sequence[str]:
         """Dotted keys (and key prefixes) of the run's settings this algorithm never reads, left
         out of its MLflow params. None, unless overridden."""
         return ()
 
 
+# An algorithm's training: train(cfg, tracker, run_dir, resume) -> its final state (`cfg`: the
+# root Config; `resume`: the checkpoint's state, None for a new run).
+Runner = Callable[[Any, Any, Path, "dict[str, Any] | None"], Any]
+
+
 @dataclass(frozen=True)
 class Algorithm:
     """One algorithm, declared once, as a module-level value of the module that defines its
-    schema (epoet/<package>/config.py), where epoet/registry.py finds it."""
+    schema (epoet/<package>/config.py), which epoet/registry.py imports."""
 
     name: str  # conf/algo/<name>.yaml, `algo=<name>`, its runs' `algo` tag
     family: Family
     schema: type[AlgoSettings]  # its settings, checked at composition and by `validate`
-    runner: str  # dotted path of train(cfg, tracker, run_dir, resume), imported when it runs
+    # Returns the runner, importing it (the import sits inside this function, so composing a
+    # config imports no torch): the one arrow from a schema module up into its algorithm's code.
+    runner: Callable[[], Runner]
     label: str  # its name in figures
     colour: str  # its colour in figures (a matplotlib colour)
     # The algorithm the paper claims this one beats (ePOET-SAC ePOET, ePOET SAC, SAC PPO):

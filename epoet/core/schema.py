@@ -45,7 +45,7 @@ def check_known_keys(node: DictConfig, prefix: str = "") -> None:
     if dataclasses.is_dataclass(schema):
         fields = [f.name for f in dataclasses.fields(schema)]
         for key in map(str, node.keys()):
-            if key not in fields and key != "_target_":  # Hydra's, on `algo` (its runner)
+            if key not in fields and key != "_target_":  # Hydra's
                 raise ConfigError(unknown_key(f"{prefix}{key}", fields))
     for child, value in node.items_ex(resolve=False):
         if isinstance(value, DictConfig):

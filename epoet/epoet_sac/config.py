@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar, Optional
+from typing import Any, ClassVar, Optional
 
-from epoet.core.algorithm import Algorithm, Family
+from epoet.core.algorithm import Algorithm, Family, Runner
 from epoet.core.schema import check, non_negative, positive
 from epoet.open_ended.config import EpoetConfig
-from epoet.rl.config import SacLearnerConfig
+from epoet.sac.config import SacLearnerConfig
 
 # --- ePOET-SAC (paper Section 3, Algorithms 1-3; docs/reference.md) ---------------------------
 
@@ -111,17 +111,31 @@ class EpoetSacConfig(EpoetConfig):
             "reference:sac/42.",
         )
 
+    def check_inputs(self, cfg: Any) -> None:
+        """The warm start `sac_init` names can start this learner (it reads the file: torch)."""
+        from epoet.epoet_sac.runner import warm_start_of
+
+        warm_start_of(cfg)
+
     def unused_keys(self) -> list[str]:
         """The mappings' settings other than the join's, and a cold start's warm-start ones."""
         unused = [f"algo.{m}" for m in ("distill", "dagger") if m != self.mapping]
         return unused + (["algo.warm"] if self.sac_init is None else [])
 
 
+def _runner() -> Runner:
+    from epoet.epoet_sac.runner import (
+        train,  # torch: imported when a run starts, not at composition
+    )
+
+    return train
+
+
 EPOET_SAC = Algorithm(
     name="epoet_sac",
     family=Family.OPEN_ENDED,
     schema=EpoetSacConfig,
-    runner="epoet.epoet_sac.runner.train",
+    runner=_runner,
     label="ePOET-SAC",
     colour="tab:purple",
     beats="epoet",

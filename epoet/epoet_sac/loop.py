@@ -34,10 +34,10 @@ from epoet.open_ended.pairs import Environment, Pair
 from epoet.rl.env import episode_metrics, make_env, terrain_env
 from epoet.rl.harness import set_threads
 from epoet.rl.policy_file import export_policy
-from epoet.rl.sac import SacLearner
 from epoet.rollout.agent_files import write_es_policy
 from epoet.rollout.backends.base import Evaluator
 from epoet.rollout.engine import Episodes
+from epoet.sac.learner import SacLearner
 from epoet.terrain import Terrain, make_terrain
 from epoet.terrain.config import TerrainConfig
 

@@ -32,11 +32,6 @@ def warm_start_of(cfg: Config) -> WarmStart | None:
     )
 
 
-def check_inputs(cfg: Config) -> None:
-    """What epoet.run checks before the tracker opens (a new run only): the warm start."""
-    warm_start_of(cfg)
-
-
 def train(cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None) -> EpoetSac:
     """Train ePOET-SAC for the budget's iterations (or hours); SAC's env closes at the end. A
     resumed run's learner comes from its checkpoint, so its warm start is not read again."""

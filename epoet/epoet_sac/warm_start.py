@@ -19,7 +19,7 @@ reads clipped normalised observations, which do not fold into a layer). The acto
 scale mapping it was trained with: TorchRL's biased softplus for ours, the authors'
 exp(clamp(log_std, -20, 2)) for theirs (epoet/rl/nets.py says why no weights convert one into
 the other). Anything else is refused in one sentence (ConfigError) before the run starts:
-`check_inputs` is called by epoet.run before the tracker opens.
+its schema's `check_inputs` (epoet/epoet_sac/config.py) calls this module before the tracker opens.
 """
 
 from __future__ import annotations
@@ -38,10 +38,10 @@ from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
 from epoet.envs.spaces import robot_sizes
 from epoet.epoet_sac.config import WarmConfig
-from epoet.rl.config import SacLearnerConfig
 from epoet.rl.nets import LOG_STD_SCALE, SOFTPLUS_SCALE
 from epoet.rl.policy_file import CRITICS_FILE, POLICY_FILE, read_critics
 from epoet.rollout.agent_files import LAYOUT, AgentError, read_torch_policy, robot_mismatch
+from epoet.sac.config import SacLearnerConfig
 
 REFERENCE = "reference:"
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from epoet.core.algorithm import Algorithm, AlgoSettings, Family
+from epoet.core.algorithm import Algorithm, AlgoSettings, Family, Runner
 from epoet.core.schema import check, positive
 from epoet.es.config import EsConfig
 from epoet.terrain.config import evolving_kinds, generator_for
@@ -62,11 +62,17 @@ class EpoetConfig(AlgoSettings):
         )
 
 
+def _runner() -> Runner:
+    from epoet.open_ended.runner import train  # imported when a run starts, not at composition
+
+    return train
+
+
 EPOET = Algorithm(
     name="epoet",
     family=Family.OPEN_ENDED,
     schema=EpoetConfig,
-    runner="epoet.open_ended.runner.train",
+    runner=_runner,
     label="ePOET",
     colour="tab:red",
     beats="sac",

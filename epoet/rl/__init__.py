@@ -1,3 +1,4 @@
-"""TorchRL baselines: PPO, SAC and V-MPO, run by one module (baseline_run.py), each algorithm's
-learner in its own module (ppo.py, sac.py, vmpo.py), on the pieces they share (env.py, nets.py,
-harness.py)."""
+"""What the TorchRL baselines share: their run (baseline_run.py: collect, learn, evaluate), their
+settings' common parts (config.py), env (env.py), networks (nets.py), on-policy update
+(on_policy.py) and policy files. Each algorithm lives in its own package: epoet/ppo/,
+epoet/sac/, epoet/vmpo/."""

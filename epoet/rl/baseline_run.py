@@ -1,4 +1,4 @@
-"""A baseline's run: PPO, SAC and VMPO each give it a learner (ppo.py, sac.py, vmpo.py), and
+"""A baseline's run: PPO, SAC and VMPO each give it a learner (epoet/{ppo,sac,vmpo}/train.py), and
 the driver (epoet/driver.py) runs it as it runs every algorithm. One driver step here:
 
     collect     a batch of `frames_per_batch` frames from the stochastic actor

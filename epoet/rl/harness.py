@@ -18,7 +18,7 @@ from torchrl.modules import ProbabilisticActor
 
 from epoet.config import BaselineBudgetConfig, Config
 from epoet.core.cores import default_workers
-from epoet.rl.config import RlConfig, SacConfig
+from epoet.rl.config import BaselineConfig, BaselineSettings
 
 # --- the compute plan and the collector -----------------------------------------------------------
 
@@ -47,12 +47,12 @@ class BatchPlan:
         return max(minimum, round(count * self.scale))
 
 
-def baseline(cfg: Config) -> RlConfig | SacConfig:
-    """The run's baseline settings: PPO's or VMPO's (`RlConfig`), or SAC's."""
+def baseline(cfg: Config) -> BaselineSettings:
+    """The run's baseline settings, as the baseline run reads them."""
     algo = cfg.algo
-    if not isinstance(algo, (RlConfig, SacConfig)):
+    if not isinstance(algo, BaselineConfig):
         raise TypeError(f"algo={algo.name} is not a baseline.")  # a runner's bug
-    return algo
+    return cast(BaselineSettings, algo)
 
 
 def batch_plan(cfg: Config) -> BatchPlan:

@@ -1,4 +1,4 @@
-"""The on-policy learner PPO (ppo.py) and V-MPO (vmpo.py) share: their networks and their update;
+"""The on-policy learner PPO (epoet/ppo/) and V-MPO (epoet/vmpo/) share: their networks and their update;
 only their TorchRL loss module differs. A baseline run (baseline_run.py) calls `learn` on each
 collector batch."""
 

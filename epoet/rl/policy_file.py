@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 POLICY_FILE = "policy.pt"
 CRITICS_FILE = "critics.pt"
-CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.rl.sac_loss), plus its layout
+CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.sac.loss), plus its layout
 
 
 def _actor_mlp(actor: ProbabilisticActor) -> MLP:

@@ -79,7 +79,7 @@ COMMAND = KeyValueCommand("reference", __doc__, ReferenceConfig)
 # Bump when the output changes for the same inputs: every cache folder is made anew.
 CONVERTER_VERSION = 2  # 2: the validation suite, admitted/
 
-CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.rl.sac_loss), plus provenance
+CRITICS_FORMAT = "epoet-twin-q/1"  # TwinQ's state dict (epoet.sac.loss), plus provenance
 _LAYERS = ("base.seq_fcs.0", "base.seq_fcs.2", "seq_append_fcs.0")
 ES_SIZES = (OBS_DIM, 40, 40, ACT_DIM)  # their ES agents' MLP (docs/reference.md)
 NORM_EPS = 1e-4  # their normaliser divides by sqrt(var) + 1e-4

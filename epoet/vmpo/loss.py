@@ -9,7 +9,7 @@ written, and returns the loss terms as ``loss_*`` entries whose sum is what the 
 backpropagates.
 
 The equations and the pieces that need no TorchRL module (the E-step weights, the temperature
-and trust-region terms, the KL, the keys) are in :mod:`epoet.rl.vmpo_parts`.
+and trust-region terms, the KL, the keys) are in :mod:`epoet.vmpo.loss_parts`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from torchrl.objectives.utils import (
     distance_loss,
 )
 
-from epoet.rl.vmpo_parts import (
+from epoet.vmpo.loss_parts import (
     VMPOKeys,
     check_settings,
     policy_entropy,
@@ -51,7 +51,7 @@ class VMPOLoss(LossModule):
     r"""V-MPO loss (Song et al., 2019) with a learned temperature and KL multiplier.
 
     The terms, all computed from one batch :math:`\mathcal{D}` (see
-    :mod:`epoet.rl.vmpo_parts` for the equations):
+    :mod:`epoet.vmpo.loss_parts` for the equations):
 
     - ``loss_policy``: :math:`\mathcal{L}_\pi = -\sum_{\tilde{\mathcal{D}}} \psi(s, a)
       \log \pi_\theta(a \mid s)`, the weighted maximum likelihood of the E-step's

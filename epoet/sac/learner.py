@@ -1,8 +1,7 @@
-"""SAC on the hexapod (paper Table 3): its learner (also ePOET-SAC's), and that learner as the
-baseline run (baseline_run.py) trains it for `algo=sac`.
+"""SAC on the hexapod (paper Table 3): the learner `algo=sac` (train.py) and ePOET-SAC train.
 
 A ReLU tanh-Gaussian actor (TorchRL's ProbabilisticActor, which the collector runs) and twin
-ReLU Q networks, the SAC losses of sac_loss.py, a uniform TorchRL replay buffer, soft target
+ReLU Q networks, the SAC losses of loss.py, a uniform TorchRL replay buffer, soft target
 updates and automatic entropy tuning (target entropy -(action dimensions)
 unless set). Rewards are multiplied by the reward scale when they enter the replay buffer (the
 logged returns are the env's). Each collector batch is followed by `updates_per_batch` gradient
@@ -12,7 +11,7 @@ conf/algo/sac.yaml (collection and updates). `SacLearner.gradient_steps` is what
 bench/sac_updates.py times.
 
 Speed (the project's target: the update rate of a plain-PyTorch SAC; bench/sac_updates.py):
-the loss is ours (sac_loss.py: the twin critics as one batched ensemble, no functional
+the loss is ours (loss.py: the twin critics as one batched ensemble, no functional
 parameter swaps or distribution objects), one fused Adam steps the actor, both critics and the
 temperature together (the three losses touch disjoint parameters), and replay samples are drawn
 SAMPLE_CHUNK batches per call and split.
@@ -22,8 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -31,17 +29,10 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import EnvBase
 from torchrl.modules import MLP
 
-from epoet.config import Config
-from epoet.rl import baseline_run
-from epoet.rl.config import SacConfig, SacLearnerConfig
 from epoet.rl.env import OBS, policy_key
-from epoet.rl.harness import BatchPlan, TrainResult
 from epoet.rl.nets import ACTIVATIONS, SOFTPLUS_SCALE, ObsStandardize, make_actor, step_if_finite
-from epoet.rl.policy_file import CRITICS_FILE, export_critics
-from epoet.rl.sac_loss import SacLoss, TwinQ
-
-if TYPE_CHECKING:  # the tracking module imports mlflow; algorithms only report through it
-    from epoet.tracking import Tracker
+from epoet.sac.config import SacLearnerConfig
+from epoet.sac.loss import SacLoss, TwinQ
 
 METRICS = ("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy")
 SAMPLE_CHUNK = 50  # batches drawn from the replay buffer per call
@@ -54,7 +45,7 @@ class SacLearner:
     critics (the ES pool's statistics, `set_obs_statistics`; the replay keeps raw observations),
     `scale_mapping` is the actor's scale head (epoet.rl.nets), `actor_lr` gives the actor its own
     learning rate (a fine-tune of loaded weights; None: `algo.lr` for every parameter),
-    `anchor_weight` regularises the actor towards the one it was given (sac_loss.py), and
+    `anchor_weight` regularises the actor towards the one it was given (loss.py), and
     `warm_start` loads trained weights."""
 
     def __init__(
@@ -242,42 +233,3 @@ class SacLearner:
         if state["replay"] is not None:
             self.buffer.extend(state["replay"])  # rows 0..n-1, as they were stored
         self.buffer.writer.load_state_dict(state["writer"])
-
-
-class SacBaseline:
-    """SAC's learner as the baseline run (baseline_run.py) runs it for `algo=sac`: each collector
-    batch is stored and followed by `updates` updates (the config's per-batch count, scaled to
-    the batch: harness.BatchPlan); the first `random_frames` frames are uniform random actions
-    (Table 3's pre-training epoch); the critics go beside the policy at the end, where
-    ePOET-SAC's warm start (`algo.sac_init`) loads them."""
-
-    def __init__(self, algo: SacConfig, env: EnvBase, plan: BatchPlan) -> None:
-        self.sac = SacLearner(algo, env)
-        self.actor, self.loss = self.sac.actor, self.sac.loss
-        self.updates = plan.scaled(algo.updates_per_batch, minimum=1)
-        self.random_frames = plan.scaled(algo.init_random_frames)
-        self.hidden, self.activation = algo.hidden, algo.activation
-
-    def learn(self, batch: TensorDictBase) -> dict[str, float]:
-        return self.sac.learn(batch, self.updates)
-
-    def artifacts(self, run_dir: Path) -> list[Path]:
-        return [
-            export_critics(run_dir / CRITICS_FILE, self.loss.critics, self.hidden, self.activation)
-        ]
-
-    def state_dict(self) -> dict[str, Any]:
-        return self.sac.state_dict()
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.sac.load_state_dict(state)
-
-
-def train(
-    cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
-) -> TrainResult:
-    """The `algo=sac` runner (its record: epoet/rl/config.py `SAC`)."""
-    algo = SacConfig.of(cfg)
-    return baseline_run.train(
-        cfg, tracker, run_dir, resume, lambda env, plan: SacBaseline(algo, env, plan)
-    )

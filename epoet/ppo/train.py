@@ -1,10 +1,11 @@
-"""PPO on the hexapod (paper Table 2): its learner, which the baseline run (baseline_run.py) trains.
+"""PPO on the hexapod (paper Table 2): its learner, which the baseline run
+(epoet/rl/baseline_run.py) trains.
 
 Per collector batch: GAE advantages, then epochs of shuffled minibatches on TorchRL's
 ClipPPOLoss (clipped objective + entropy bonus + value loss), the on-policy update of
-on_policy.py that V-MPO (vmpo.py) runs with its own loss; a tanh actor with a state-independent
+epoet/rl/on_policy.py that V-MPO (epoet/vmpo/) runs with its own loss; a tanh actor with a state-independent
 log-std and a tanh critic, both reading running-normalised observations. Sizes and
-coefficients: conf/algo/ppo.yaml (schema: epoet/rl/config.py `PpoConfig`).
+coefficients: conf/algo/ppo.yaml (schema: config.py `PpoConfig`).
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 
 from epoet.config import Config
+from epoet.ppo.config import PpoConfig
 from epoet.rl import baseline_run
-from epoet.rl.config import PpoConfig
 from epoet.rl.harness import TrainResult
 from epoet.rl.on_policy import OnPolicyLearner
 
@@ -42,7 +43,7 @@ def clipped_loss(algo: PpoConfig, actor: ProbabilisticActor, critic: ValueOperat
 def train(
     cfg: Config, tracker: Tracker, run_dir: Path, resume: dict[str, Any] | None
 ) -> TrainResult:
-    """The `algo=ppo` runner (its record: epoet/rl/config.py `PPO`)."""
+    """The `algo=ppo` runner (its record: config.py `PPO`)."""
     algo = PpoConfig.of(cfg)
     loss = partial(clipped_loss, algo)
     return baseline_run.train(

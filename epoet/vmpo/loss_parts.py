@@ -1,6 +1,6 @@
 r"""The pieces of the V-MPO loss that need no TorchRL module: the E-step weights, the
 temperature and trust-region terms, the KL to the collecting policy, the entropy and the
-tensordict keys. :class:`~epoet.rl.vmpo_loss.VMPOLoss` assembles them on a batch.
+tensordict keys. :class:`~epoet.vmpo.loss.VMPOLoss` assembles them on a batch.
 
 The loss of Song et al. (Sec. 3) is
 
@@ -185,7 +185,7 @@ def policy_entropy(dist: d.Distribution, batch_ndim: int) -> torch.Tensor:
 
 @dataclass
 class VMPOKeys:
-    """The tensordict keys :class:`~epoet.rl.vmpo_loss.VMPOLoss` reads and writes, with their
+    """The tensordict keys :class:`~epoet.vmpo.loss.VMPOLoss` reads and writes, with their
     defaults.
 
     The loss's ``_AcceptedKeys``: each can be set with ``.set_keys(key_name=key_value)``.
