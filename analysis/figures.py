@@ -55,7 +55,7 @@ from analysis.store import (  # noqa: E402
     seed_of,
     select_runs,
 )
-from epoet.core.algorithm import Family  # noqa: E402
+from epoet.core.algorithm import ELAPSED, ENV_STEPS, SCORE, Family  # noqa: E402
 from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import suite_argument  # noqa: E402
 from epoet.eval.suite import LEVELS, Suite, load_suite  # noqa: E402
@@ -83,9 +83,9 @@ def curve_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
     rows = []
     for run in runs:
         rid = run.info.run_id
-        steps = dict(history(client, rid, "env_steps"))
-        elapsed = dict(history(client, rid, "elapsed"))
-        for step, score in history(client, rid, "score"):
+        steps = dict(history(client, rid, ENV_STEPS))
+        elapsed = dict(history(client, rid, ELAPSED))
+        for step, score in history(client, rid, SCORE):
             if step in steps and step in elapsed:
                 rows.append(
                     (
@@ -98,9 +98,7 @@ def curve_table(client: MlflowClient, runs: Sequence[Run]) -> pd.DataFrame:
                         score,
                     )
                 )
-    return pd.DataFrame(
-        rows, columns=["run_id", "algo", "seed", "step", "env_steps", "elapsed", "score"]
-    )
+    return pd.DataFrame(rows, columns=["run_id", "algo", "seed", "step", ENV_STEPS, ELAPSED, SCORE])
 
 
 def mean_std_on_grid(curves: pd.DataFrame, x: str) -> pd.DataFrame:
@@ -129,12 +127,12 @@ def mean_std_on_grid(curves: pd.DataFrame, x: str) -> pd.DataFrame:
 
 
 def plot_learning_curves(
-    curves: pd.DataFrame, out: Path, time_axis: tuple[str, str] = ("elapsed", "training time (s)")
+    curves: pd.DataFrame, out: Path, time_axis: tuple[str, str] = (ELAPSED, "training time (s)")
 ) -> list[Path]:
     """Score against environment steps and against `time_axis` (curves' column, label)."""
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     tables = []
-    for ax, x, label in ((axes[0], "env_steps", "environment steps"), (axes[1], *time_axis)):
+    for ax, x, label in ((axes[0], ENV_STEPS, "environment steps"), (axes[1], *time_axis)):
         table = mean_std_on_grid(curves, x)
         tables.append(table.assign(axis=x).rename(columns={x: "x"}))
         for algo in in_order(table.algo):

@@ -73,7 +73,7 @@ from analysis.store import (  # noqa: E402
     run_command,
 )
 from analysis.tables import to_markdown  # noqa: E402
-from epoet.core.algorithm import SCORE, Family  # noqa: E402
+from epoet.core.algorithm import CPU_TIME, ENV_STEPS, SCORE, Family  # noqa: E402
 from epoet.core.help import HelpParser  # noqa: E402
 from epoet.eval.keys import PAPER_NAME  # noqa: E402
 from epoet.registry import algorithm  # noqa: E402
@@ -258,7 +258,7 @@ def curves_from_records(records: Path) -> pd.DataFrame:
         path = Path(records) / info["record"] / "curves.csv"
         if not path.is_file():
             continue
-        columns = ["step", SCORE, "env_steps", "cpu_time"]
+        columns = ["step", SCORE, ENV_STEPS, CPU_TIME]
         curves = read_csv(path, columns).dropna(subset=columns[1:])
         frames.append(
             pd.DataFrame(
@@ -267,9 +267,9 @@ def curves_from_records(records: Path) -> pd.DataFrame:
                     "algo": info["algo"],
                     "seed": info["seed"],
                     "step": curves.step,
-                    "env_steps": curves.env_steps,
-                    "cpu_time": curves.cpu_time,
-                    "score": curves.score,
+                    ENV_STEPS: curves[ENV_STEPS],
+                    CPU_TIME: curves[CPU_TIME],
+                    SCORE: curves[SCORE],
                 }
             )
         )
@@ -344,7 +344,7 @@ def write(records: Path, suite: str, out: Path) -> list[Path]:
         )
         paths.append(out / "joins.md")
     paths.append(plot(frame, references, suite, out / "success_vs_compute.png"))
-    paths += plot_learning_curves(curves, out, ("cpu_time", "CPU time of training (s)"))
+    paths += plot_learning_curves(curves, out, (CPU_TIME, "CPU time of training (s)"))
     return paths
 
 

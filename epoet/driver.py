@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from epoet.core.algorithm import AXES, SCORE
+from epoet.core.algorithm import AXES, BEST_SCORE, SCORE
 from epoet.core.checkpoint import CHECKPOINT_NAME, save_checkpoint
 from epoet.core.clock import CpuMeter
 from epoet.core.files import atomic_write
@@ -181,9 +181,7 @@ def log(tracker: Tracker, algo: Trainable, logged: Logged | None) -> None:
         return
     counters = algo.counters()
     axes = dict(zip(AXES, (counters.env_steps, counters.wall_time, counters.cpu_time)))
-    scored = (
-        {} if logged.score is None else {SCORE: logged.score, "best_score": counters.best_score}
-    )
+    scored = {} if logged.score is None else {SCORE: logged.score, BEST_SCORE: counters.best_score}
     tracker.log_metrics(logged.at, {**logged.metrics, **axes, **scored})
 
 

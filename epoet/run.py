@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, cast
 from omegaconf import DictConfig, OmegaConf
 
 from epoet.config import Config, compose, validate
+from epoet.core.algorithm import ELAPSED
 from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, find_checkpoint, load_checkpoint
 from epoet.core.cores import default_workers
 from epoet.core.lifecycle import StopOnSignal
@@ -241,7 +242,7 @@ def ending(cfg: Config, run_dir: Path, stored: StoredRun, in_sweep: bool) -> lis
             f", solved {solved:.1%} of the {SHIPPED_NAME} suite (mean return "
             f"{suite_metric(m, SHIPPED_NAME, 'return_mean'):.1f})"
         )
-    seconds = m.get("elapsed", 0.0)
+    seconds = m.get(ELAPSED, 0.0)
     took = f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
     head = (
         f"[epoet] {cfg.algo.name} seed={cfg.seed} budget={cfg.budget.name} done after "

@@ -15,6 +15,7 @@ import numpy as np
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
+from epoet.core.algorithm import BEST_SCORE, SCORE
 from epoet.eval.keys import SHIPPED_NAME, suite_metric
 
 # Hydra instantiates this callback for single runs too, before the job: epoet.tracking (mlflow, a
@@ -101,7 +102,7 @@ def job_lines(children: list[Run]) -> list[str]:
         tags = run.data.tags
         numbers = "".join(
             f" {label}={value:.1f}"
-            for label, key in (("score", "score"), ("best", "best_score"))
+            for label, key in (("score", SCORE), ("best", BEST_SCORE))
             if (value := run.data.metrics.get(key)) is not None
         )
         if (success := suite_metric(run.data.metrics, SHIPPED_NAME, "success_rate")) is not None:

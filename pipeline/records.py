@@ -49,6 +49,7 @@ from analysis.store import (
     seed_of,
     select_runs,
 )
+from epoet.core.algorithm import ELAPSED, ENV_STEPS
 from epoet.core.files import atomic_write
 from epoet.core.help import HelpParser
 from epoet.eval.keys import (
@@ -120,13 +121,13 @@ def training_of(client: MlflowClient, run: Run) -> dict[str, Any]:
     (iterations: the last logged iteration + 1; or frames), environment steps, workers."""
     m = run.data.metrics
     training: dict[str, Any] = {
-        "wall_time_s": m.get("elapsed"),
-        "env_steps": m.get("env_steps"),
+        "wall_time_s": m.get(ELAPSED),
+        "env_steps": m.get(ENV_STEPS),
         "workers": run.data.params.get("workers.num"),
         "stop_reason": run.data.tags.get("stop_reason"),
     }
     if algorithm(run.data.tags["algo"]).family.counts == "iterations":
-        step = last_step(client, run, "elapsed")
+        step = last_step(client, run, ELAPSED)
         training["iterations"] = None if step is None else step + 1
     else:
         training["frames"] = m.get("frames")

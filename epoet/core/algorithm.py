@@ -18,11 +18,16 @@ from typing import Any, ClassVar, Self
 
 # What every algorithm logs, each at every step that has a `score` (the driver logs them from
 # its counters, epoet/driver.py): the score (ePOET: its best active pair's evaluation; a
-# baseline: its deterministic evaluation return), the best so far and the x-axes. The learning-curve figure (analysis/figures.py) draws `score` against `env_steps`
-# and `elapsed`; a run's record keeps them all (pipeline/snapshots.py `CURVE_KEYS`).
+# baseline: its deterministic evaluation return), the best so far and the x-axes. Their readers
+# take the names from here: the learning-curve figure (analysis/figures.py) draws SCORE against
+# ENV_STEPS and ELAPSED (or CPU_TIME); a run's record keeps them all (pipeline/snapshots.py).
 SCORE = "score"
-AXES = ("env_steps", "elapsed", "cpu_time")
-SCORE_METRICS = (SCORE, "best_score", *AXES)
+BEST_SCORE = "best_score"
+ENV_STEPS = "env_steps"  # environment steps (a baseline's frames)
+ELAPSED = "elapsed"  # wall seconds of training, summed over resumes
+CPU_TIME = "cpu_time"  # CPU seconds of the run's processes, summed over resumes
+AXES = (ENV_STEPS, ELAPSED, CPU_TIME)
+SCORE_METRICS = (SCORE, BEST_SCORE, *AXES)
 
 
 class Family(Enum):
