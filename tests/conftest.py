@@ -9,7 +9,7 @@ import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -18,13 +18,16 @@ from filelock import FileLock
 
 from epoet.config import compose as compose_config
 from epoet.config import load
-from epoet.core.algorithm import Family
+from epoet.core.algorithm import AXES, SCORE, Family
 from epoet.envs.config import AgentConfig
 from epoet.registry import algorithm
 from epoet.rollout.policy import policy_sizes
 from epoet.terrain import Terrain
 from epoet.terrain.config import TerrainConfig
 from epoet.tracking.store import open_store
+
+if TYPE_CHECKING:
+    import mlflow
 
 torch.set_num_threads(1)
 
@@ -312,3 +315,15 @@ def serial_loop(
         eval_episodes=eval_episodes,
         score_scale=1.0,
     )
+
+
+def unmet_metrics(client: mlflow.MlflowClient, run_id: str, family: Family) -> list[str]:
+    """What the run misses of its family's metrics (`Family.metrics`): each it never logged,
+    and each step with a `score` that lacks an axis (a point the learning curves would lose)."""
+    logged = client.get_run(run_id).data.metrics
+    unmet = [key for key in family.metrics if key not in logged]
+    scored = {m.step for m in client.get_metric_history(run_id, SCORE)}
+    for axis in AXES:
+        have = {m.step for m in client.get_metric_history(run_id, axis)}
+        unmet += [f"{axis} at step {step}" for step in sorted(scored - have)]
+    return unmet

@@ -22,13 +22,12 @@ import pytest
 from omegaconf import OmegaConf
 
 from analysis.figures import curve_table
-from conftest import new_store, subset_suite, tiny_run
+from conftest import new_store, subset_suite, unmet_metrics
 from epoet.config import CONF_DIR, compose
-from epoet.core.algorithm import AXES, SCORE, Algorithm, Family
+from epoet.core.algorithm import SCORE, Algorithm, Family
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
 from epoet.ppo.config import PPO, PpoConfig
 from epoet.registry import DECLARED, algorithm, algorithms, names, register
-from epoet.run import run
 
 ROOT = Path(__file__).resolve().parent.parent
 TOY = Path(__file__).with_name("toy_algorithm.py")
@@ -117,31 +116,6 @@ def test_no_list_of_algorithm_names_outside_the_records(tmp_path: Path) -> None:
     lists = tmp_path / "lists.py"
     lists.write_text("A = {'ppo': 1, 'sac': 2}\nB = [x for x in ('epoet', 'vmpo')]\n")
     assert len(_name_lists(lists, known)) == 2
-
-
-def unmet_metrics(client: mlflow.MlflowClient, run_id: str, family: Family) -> list[str]:
-    """What the run misses of its family's metrics (`Family.metrics`): each it never logged,
-    and each step with a `score` that lacks an axis (a point the learning curves would lose)."""
-    logged = client.get_run(run_id).data.metrics
-    unmet = [key for key in family.metrics if key not in logged]
-    scored = {m.step for m in client.get_metric_history(run_id, SCORE)}
-    for axis in AXES:
-        have = {m.step for m in client.get_metric_history(run_id, axis)}
-        unmet += [f"{axis} at step {step}" for step in sorted(scored - have)]
-    return unmet
-
-
-@pytest.mark.parametrize("algo", names())
-def test_every_algorithm_logs_its_familys_metrics(
-    algo: str, mlflow_uri: str, tmp_path: Path
-) -> None:
-    """Each registered algorithm, tiny on the smoke budget, logs what its family declares, and
-    the learning-curve figure reads a point from it."""
-    run(compose([*tiny_run(algo), "evaluate=false"]), tmp_path / "run")
-    run_id = load_checkpoint(tmp_path / "run" / "checkpoint.pkl")["run_id"]
-    client = mlflow.MlflowClient(mlflow_uri)
-    assert unmet_metrics(client, run_id, algorithm(algo).family) == []
-    assert not curve_table(client, [client.get_run(run_id)]).empty
 
 
 def test_the_adding_page_shows_the_toys_runner() -> None:

@@ -52,7 +52,7 @@ class Family(Enum):
 
     @property
     def metrics(self) -> tuple[str, ...]:
-        """What every run of the family logs (the metrics contract; tests/test_algorithms.py
+        """What every run of the family logs (the metrics contract; tests/test_evaluation.py
         runs every registered algorithm and checks it)."""
         return tuple(dict.fromkeys((*SCORE_METRICS, self.curve)))
 
