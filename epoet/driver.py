@@ -131,11 +131,11 @@ def drive(algo: Trainable, cfg: Config, tracker: Tracker, run_dir: Path, resumed
         return algo.counters().count >= algo.total or out_of_time() is not None
 
     log(tracker, algo, algo.begin())
-    # A cluster's workers can be lost for good mid-step, leaving the state half-changed: with
-    # them (workers=ray), the state at each step's start is kept to checkpoint from.
+    # Workers lost for good mid-step leave the state half-changed: where they can be lost, the
+    # state at each step's start is kept to checkpoint from.
     boundary: tuple[int, dict[str, Any]] | None = None
     while not spent():
-        if cfg.workers.backend == "ray":
+        if cfg.workers.may_be_lost:
             boundary = algo.counters().count, copy.deepcopy(algo.state_dict())
         try:
             log(tracker, algo, algo.step())  # step

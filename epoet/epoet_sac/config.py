@@ -124,9 +124,8 @@ class EpoetSacConfig(EpoetConfig):
 
 
 def _runner() -> Runner:
-    from epoet.epoet_sac.runner import (
-        train,  # torch: imported when a run starts, not at composition
-    )
+    # torch: imported when a run starts, not at composition
+    from epoet.epoet_sac.runner import train
 
     return train
 

@@ -49,6 +49,12 @@ class WorkersConfig:
             "pip install -c constraints.txt -e '.[distributed]'.",
         )
 
+    @property
+    def may_be_lost(self) -> bool:
+        """Whether the workers can go for good mid-step (a Ray cluster's nodes can; a local
+        pool's processes are restarted by the pool), so a run keeps each step's starting state."""
+        return self.backend == "ray"
+
 
 RULES = ("validation", "own")  # how a run chooses the agent it exports (epoet/rollout/selection.py)
 
