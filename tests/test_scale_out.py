@@ -24,7 +24,7 @@ from conftest import ES_SIZES, run_epoet, without_evaluation
 from epoet.config import load
 from epoet.core.checkpoint import load_checkpoint
 from epoet.rollout.evaluators import make_evaluator
-from epoet.rollout.policy import init_params, policy_sizes
+from epoet.rollout.policy import init_params
 from epoet.rollout.populations import Mirrored, Request
 from epoet.terrain import Terrain
 
@@ -73,10 +73,12 @@ def test_a_local_ray_gives_the_local_results_and_survives_each_kind_of_killed_pr
     episodes: a rollout actor, the feed and the local cluster's raylet. Ray then ends its
     driver, the Ray host, with no word to it, so this is also the host's own death: the run's
     process sees the host's pipe close either way (a fresh host and Ray; not killed twice, at
-    ten seconds of a Ray start each)."""
+    ten seconds of a Ray start each). Each actor's engine steps as many robots as a local pool
+    worker's (`workers.batch`: conf/workers/local.yaml owns it, ray.yaml inherits it)."""
     from epoet.rollout.backends.ray_host import RayEvaluator
 
-    cfg = load(SMOKE)
+    cfg = load([*SMOKE, "workers=ray", "workers.num=2"])
+    workers = cfg.workers
     agent, terrain_cfg = replace(cfg.agent, max_episode_steps=200), cfg.terrain
     terrain = Terrain(np.zeros((40, 40)), 0.0, terrain_cfg.size, "bowl", 0)
     seeds = np.arange(80)  # a call of seconds, so the kill lands inside it
@@ -84,7 +86,8 @@ def test_a_local_ray_gives_the_local_results_and_survives_each_kind_of_killed_pr
     with make_evaluator(agent, terrain_cfg, 1, 4, ES_SIZES) as one:
         (expected,) = one.run([es])
     sigterm = signal.getsignal(signal.SIGTERM)
-    with RayEvaluator(agent, terrain_cfg, 2, 4, ES_SIZES) as on_ray:  # starts a local Ray
+    with RayEvaluator(agent, terrain_cfg, workers.num, workers.batch, ES_SIZES) as on_ray:
+        assert on_ray.engine_batches == [load([]).workers.batch] * 2 and workers.batch > 1
         # ray.init's own SIGTERM handler (sys.exit) would skip a run's checkpoint on SIGTERM
         assert signal.getsignal(signal.SIGTERM) == sigterm
         (episodes,) = on_ray.run([es])
@@ -115,22 +118,6 @@ def _raylet_of(host_pid: int) -> int:
             if parent == host_pid:
                 return pid
     raise AssertionError(f"no raylet under the Ray host {host_pid}")
-
-
-def test_ray_actors_step_as_many_robots_as_local_workers() -> None:
-    """Each rollout actor's engine has the slots (`workers.batch`) a local pool worker's has:
-    conf/workers/local.yaml owns the value, ray.yaml inherits it, and the actors are built with
-    it. (Here, not in test_rollout.py: the Ray tests must not overlap one another.)"""
-    from epoet.rollout.evaluators import evaluator_for
-
-    local, on_ray = (load([*SMOKE, "workers.num=2", *extra]) for extra in ([], ["workers=ray"]))
-    sizes = policy_sizes(local.agent, local.algo.es.hidden)
-    with evaluator_for(local.workers, local.agent, local.terrain, sizes) as pool:
-        given = pool.batch  # what each pool worker's engine is built with
-    with evaluator_for(on_ray.workers, on_ray.agent, on_ray.terrain, sizes) as actors:
-        batches = actors.engine_batches  # type: ignore[attr-defined]
-    assert given == load([]).workers.batch > 1
-    assert batches == [given, given]
 
 
 @pytest.fixture
@@ -167,7 +154,8 @@ def test_a_run_on_a_ray_cluster_gets_the_local_result_and_stops_cleanly_when_it_
     """A run joins a cluster started with `ray start` and gets `workers=local`'s result. A second
     run loses the cluster mid-run (`ray stop`): the Ray host dies and no new one can join, so
     the run saves the state its step started from, says so in one line with the resume
-    command, and exits 75; resumed on a local Ray, it finishes. (One test: one cluster start.)"""
+    command, and exits 75; resumed on this machine's process pool (`workers` may change on
+    resume), it finishes. (One test: one cluster start.)"""
     # `ray start` turns on token authentication; its token is in ~/.ray, as for users. The host
     # gives up on a lost cluster after 5 s here (Ray's default: 60 s).
     env = {"RAY_AUTH_MODE": "token", "RAY_gcs_rpc_server_reconnect_timeout_s": "5"}
@@ -195,7 +183,7 @@ def test_a_run_on_a_ray_cluster_gets_the_local_result_and_stops_cleanly_when_it_
     stopped_at = load_checkpoint(run_dir / "checkpoint.pkl")["open_ended"]["iteration"]
     assert stopped_at >= 2
     resumed = _epoet(
-        [*SMOKE, f"budget.iterations={stopped_at + 1}", "workers=ray", f"resume={run_dir}",
+        [*SMOKE, f"budget.iterations={stopped_at + 1}", "workers.num=2", f"resume={run_dir}",
          f"hydra.run.dir={run_dir}"],
         tmp_path,
     )  # fmt: skip
