@@ -276,17 +276,18 @@ def one_terrain_suite(
     return folder
 
 
-def subset_suite(folder: Path, picks: list[tuple[str, int]]) -> Path:
-    """A suite folder of the shipped suite's k-th terrain of each (level, k) in `picks`."""
-    from epoet.eval.suite import SHIPPED, load_suite  # imports mujoco: not at collection
+def subset_suite(folder: Path, picks: list[tuple[str, int]], source: str = "shipped") -> Path:
+    """A suite folder of the k-th terrain of each (level, k) in `picks` of the suite `source`
+    (a name of `SUITES`), in the same format."""
+    from epoet.eval.suite import SUITES, load_suite  # imports mujoco: not at collection
 
-    shipped = load_suite()
-    names = [[t.name for t in shipped.terrains if t.level == level][k] for level, k in picks]
-    index = json.loads((SHIPPED / "suite.json").read_text())
+    whole, whole_folder = load_suite(source), SUITES[source]()
+    names = [[t.name for t in whole.terrains if t.level == level][k] for level, k in picks]
+    index = json.loads((whole_folder / "suite.json").read_text())
     index["terrains"] = [e for e in index["terrains"] if e["name"] in names]
     folder.mkdir(parents=True)
     (folder / "suite.json").write_text(json.dumps(index))
-    with np.load(SHIPPED / "heights.npz") as heights:
+    with np.load(whole_folder / "heights.npz") as heights:
         np.savez(folder / "heights.npz", **{name: heights[name] for name in names})
     return folder
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from conftest import authors
+from conftest import authors, subset_suite
 from epoet.env_factory import ENV_ID
 from epoet.eval.agents import AgentError, AgentSource, resolve_run
 from epoet.eval.reference import folder, manifest
@@ -180,14 +180,19 @@ def test_a_reference_spec_names_a_shipped_agent_or_lists_them(mlflow_uri):
     assert np.allclose(model.predict(obs), run.agent.load()(obs))
 
 
-def test_the_evaluate_command_runs_a_reference_agent_on_the_paper_suite(mlflow_uri, tmp_path):
+def test_the_evaluate_command_runs_a_reference_agent_on_paper_terrains(mlflow_uri, tmp_path):
+    """`python -m epoet.eval.evaluate run=reference:...` on a terrain of each level of the paper
+    suite (the authors' agents on the whole suite: the committed docs/results/reference/), and
+    the figures read its MLflow run like any other."""
+    picks = [("easy", 0), ("medium", 0), ("hard", 0)]
+    suite = subset_suite(tmp_path / "paper_terrains", picks, "paper")
     done = subprocess.run(
         [
             sys.executable,
             "-m",
             "epoet.eval.evaluate",
             "run=reference:poet_hexA8/flat",
-            "suite=paper",
+            f"suite={suite}",
             "episodes=1",
             "processes=1",
             f"out={tmp_path / 'out'}",
@@ -200,10 +205,10 @@ def test_the_evaluate_command_runs_a_reference_agent_on_the_paper_suite(mlflow_u
     assert "success rate" in done.stdout
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["episodes_per_terrain"] == 1 and summary["label"] == "reference:poet_hexA8/flat"
-    # the figures read its MLflow run like any other: a t-SNE panel, no training curves needed
+    # a t-SNE panel, no training curves needed
     from analysis.figures import write_figures
 
-    written = write_figures("reference", tmp_path / "figures", "paper", tracking_uri=mlflow_uri)
+    written = write_figures("reference", tmp_path / "figures", str(suite), tracking_uri=mlflow_uri)
     assert tmp_path / "figures" / "tsne.png" in written
 
 
