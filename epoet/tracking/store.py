@@ -14,13 +14,13 @@ import os
 import random
 import sqlite3
 import time
-from collections.abc import Iterator
-from contextlib import closing, contextmanager
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
 from mlflow import MlflowClient
 
+from epoet.core.environ import environ_defaults
 from epoet.tracking.errors import TrackingError, reason
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]  # the code's checkout (its git commit)
@@ -55,18 +55,6 @@ def sqlite_path(uri: str) -> Path | None:
         return None
     path = uri[len("sqlite:///") :].split("?", 1)[0]
     return None if path in ("", ":memory:") else Path(path).absolute()
-
-
-@contextmanager
-def _quick_http() -> Iterator[None]:
-    """Temporarily make MLflow's HTTP client give up fast, unless the user tuned it."""
-    added = {k: v for k, v in _PROBE_ENV.items() if k not in os.environ}
-    os.environ.update(added)
-    try:
-        yield
-    finally:
-        for key in added:
-            os.environ.pop(key, None)
 
 
 def _check_sqlite(uri: str, db: Path) -> None:
@@ -135,7 +123,7 @@ def open_store(tracking_uri: str | None = None) -> MlflowClient:
     if db is not None:
         _check_sqlite(uri, db)
     try:
-        with _quick_http():
+        with environ_defaults(_PROBE_ENV):  # MLflow gives up fast, unless the user tuned it
             client = RetryingClient(MlflowClient(uri))
             client.search_experiments(max_results=1)
     except Exception as exc:  # any failure here means the store is unusable

@@ -238,10 +238,12 @@ class RayActors:
                 log_to_driver=True,
             )
         except (ConnectionError, RuntimeError, ValueError) as exc:
-            raise RuntimeError(
-                f"cannot join the Ray cluster at {address}: {exc} (a cluster started with "
-                f"`ray start` wants token authentication: export RAY_AUTH_MODE=token)"
-            ) from exc
+            hint = (
+                " (export RAY_AUTH_MODE=token: a cluster started with `ray start` wants it)"
+                if os.environ.get("RAY_AUTH_MODE") != "token"
+                else ""
+            )
+            raise RuntimeError(f"cannot join the Ray cluster at {address}: {exc}{hint}") from exc
         self.workers = int(workers or ray.cluster_resources().get("CPU", 1))
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))

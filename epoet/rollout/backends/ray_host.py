@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from multiprocessing.connection import Connection
 from typing import Any
 
+from epoet.core.environ import environ_defaults
 from epoet.core.lifecycle import end_with, ignore_stop_signals
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
@@ -41,6 +42,11 @@ RESTART = "restart"  # what the run's process sends, besides a call's requests a
 # A host joins its cluster (or starts a local Ray) in seconds; one that has not answered by then
 # hangs on a cluster that is not there.
 HOST_START_SECONDS = 180.0
+# A host that rejoins after a loss finds the cluster's GCS still answering (`ray stop` takes
+# seconds) but this machine's raylet gone: `ray.init` then waits for a raylet here for Ray's GCS
+# request timeout, 60 s (measured: 57 s in each of 3 runs of the lost-cluster test). Rejoining,
+# 10 s; Ray reads it at import, in the host.
+REJOIN_ENV = {"RAY_gcs_server_request_timeout_seconds": "10"}
 
 
 def _host(conn: Connection, main_pid: int, args: tuple[Any, ...]) -> None:
@@ -96,16 +102,18 @@ class RayEvaluator(Backend):
 
     def _start_host(self) -> None:
         """A new Ray host, its actors ready: their processes' ids in `feed_pid` and `pids`."""
-        if self._process is not None and self.address is not None:  # rejoining: is it there?
+        rejoined = self.address if self._process is not None else None  # a cluster, again
+        if rejoined is not None:  # is it there?
             try:
-                check_address(self.address)  # seconds, where `ray.init` would wait minutes
+                check_address(rejoined)  # seconds, where `ray.init` would wait minutes
             except ConfigError as gone:
                 raise WorkersGone(str(gone).rstrip(".")) from None
         ours, theirs = self._ctx.Pipe()
         self._process = self._ctx.Process(
             target=_host, args=(theirs, os.getpid(), self._args), name="epoet-ray-host"
         )
-        self._process.start()
+        with environ_defaults(REJOIN_ENV if rejoined else {}):  # the host inherits os.environ
+            self._process.start()
         theirs.close()
         self._conn = ours
         if not ours.poll(HOST_START_SECONDS):
