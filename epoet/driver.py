@@ -51,6 +51,10 @@ class Counters:
     cpu_time: float  # CPU seconds of the run's processes
     best_score: float  # the best `score` so far
 
+    def axes(self) -> dict[str, float]:
+        """The x-axes every algorithm logs (`core/algorithm.py` AXES), from these counters."""
+        return dict(zip(AXES, (float(self.env_steps), self.wall_time, self.cpu_time)))
+
 
 @dataclass(frozen=True)
 class Logged:
@@ -180,9 +184,8 @@ def log(tracker: Tracker, algo: Trainable, logged: Logged | None) -> None:
     if logged is None:
         return
     counters = algo.counters()
-    axes = dict(zip(AXES, (counters.env_steps, counters.wall_time, counters.cpu_time)))
     scored = {} if logged.score is None else {SCORE: logged.score, BEST_SCORE: counters.best_score}
-    tracker.log_metrics(logged.at, {**logged.metrics, **axes, **scored})
+    tracker.log_metrics(logged.at, {**logged.metrics, **counters.axes(), **scored})
 
 
 def checkpoint(algo: Trainable, cfg: Config, tracker: Tracker, run_dir: Path) -> None:
@@ -196,7 +199,7 @@ def snapshot(algo: Trainable, run_dir: Path, marks: Sequence[float]) -> None:
     the choice's CPU is counted before the checkpoint that may end the run."""
     counters = algo.counters()
     info = {
-        **dict(zip(AXES, (float(counters.env_steps), counters.wall_time, counters.cpu_time))),
+        **counters.axes(),
         **algo.snapshot_info(),
     }
 
