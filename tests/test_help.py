@@ -5,12 +5,16 @@ description, and shows examples; `python -m epoet --help` lists only the choices
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
+import io
 import os
 import re
+import runpy
 import subprocess
 import sys
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -21,6 +25,7 @@ from epoet.registry import names
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("epoet", "analysis", "pipeline")
+WIDTH = "100"  # the terminal the helps are printed for
 
 
 def entry_points() -> list[str]:
@@ -42,24 +47,56 @@ def run(module: str, *args: str) -> subprocess.CompletedProcess:
         cwd=ROOT,
         capture_output=True,
         text=True,
-        env={**os.environ, "COLUMNS": "100"},
+        env={**os.environ, "COLUMNS": WIDTH},
         timeout=240,
     )
 
 
+def run_here(module: str, *args: str) -> subprocess.CompletedProcess:
+    """`python -m <module> <args>` inside this process, the way `python -m` runs it (runpy, as
+    `__main__`), its output captured: an argparse or key=value command's help needs no process of
+    its own, only its parser (what each command imports is this process's already)."""
+    out, err = io.StringIO(), io.StringIO()
+    argv, columns, code = sys.argv, os.environ.get("COLUMNS"), 0
+    sys.argv, os.environ["COLUMNS"] = [module, *args], WIDTH
+    try:
+        with (
+            contextlib.redirect_stdout(out),
+            contextlib.redirect_stderr(err),
+            warnings.catch_warnings(),
+        ):
+            # runpy's note that the module was imported before (by another command): it is run
+            # afresh as __main__ all the same
+            warnings.filterwarnings("ignore", "'.*' found in sys.modules", RuntimeWarning)
+            runpy.run_module(module, run_name="__main__", alter_sys=True)
+    except SystemExit as done:
+        code = done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
+    finally:
+        sys.argv = argv
+        if columns is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = columns
+    return subprocess.CompletedProcess([module, *args], code, out.getvalue(), err.getvalue())
+
+
 # `-h` is `--help` by the parser each kind of command shares (Hydra's, KeyValueCommand's,
-# HelpParser's): it is run on one command of each kind.
+# HelpParser's): it is run on one command of each kind, as its own process, and compared with
+# the `--help` run in this one, so the in-process help is the one a user sees.
 SHORT = ("epoet", "epoet.eval.evaluate", "analysis.tables")
-pytestmark = pytest.mark.timeout(900)  # about 16 commands' imports on a shared machine
+pytestmark = pytest.mark.timeout(600)  # a few commands' imports on a shared machine
 
 
 @pytest.fixture(scope="module")
 def helps() -> dict[tuple[str, str], subprocess.CompletedProcess]:
-    """Each entry point's `--help` (and `-h` of SHORT), two at a time (each waits on its
-    imports)."""
-    calls = [(module, "--help") for module in entry_points()] + [(m, "-h") for m in SHORT]
+    """Each entry point's `--help` (and `-h` of SHORT). Hydra's (`python -m epoet`) composes in
+    its own process, as do the `-h` calls, two at a time (each waits on its imports); every
+    other `--help` runs here."""
+    apart = [("epoet", "--help")] + [(m, "-h") for m in SHORT]
     with ThreadPoolExecutor(2) as pool:
-        return dict(zip(calls, pool.map(lambda call: run(*call), calls)))
+        found = dict(zip(apart, pool.map(lambda call: run(*call), apart)))
+        found |= {(m, "--help"): run_here(m, "--help") for m in entry_points() if m != "epoet"}
+    return found
 
 
 def run_unread(module: str, *args: str) -> subprocess.CompletedProcess:
