@@ -36,6 +36,11 @@ REQUIRED = ("run_id", "algo", "seed")  # what every table reads of a record's ru
 EPISODE_COLUMNS = ["terrain", "level", "return", "solved"]  # what the tables read of episodes.csv
 
 
+def trained_record(algo: str, seed: int) -> str:
+    """The record folder's name of a run trained here: `<algo>_s<seed>`."""
+    return f"{algo}_s{seed}"
+
+
 @contextlib.contextmanager
 def record_file(path: Path) -> Iterator[None]:
     """Reading a record's file: a damaged or missing one (a run.json cut short, a CSV without

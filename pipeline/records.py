@@ -39,7 +39,7 @@ from typing import Any
 from mlflow import MlflowClient
 from mlflow.entities import Run
 
-from analysis.records import EPISODES, RUN_FILE, SUMMARY
+from analysis.records import EPISODES, RUN_FILE, SUMMARY, trained_record
 from analysis.store import (
     AnalysisError,
     connect,
@@ -74,7 +74,7 @@ def record_name(run: Run) -> str:
     tags = run.data.tags
     if "reference" in tags:
         return f"{tags['algo']}_{tags['reference'].split('/', 1)[-1]}"
-    return f"{tags['algo']}_s{seed_of(run)}"
+    return trained_record(tags["algo"], seed_of(run))
 
 
 def known_fingerprints() -> dict[str, str]:

@@ -41,7 +41,7 @@ import yaml
 from mlflow import MlflowClient
 
 from analysis.joins import JOIN_KEYS
-from analysis.records import EPISODES, RUN_FILE, SUMMARY
+from analysis.records import EPISODES, RUN_FILE, SUMMARY, trained_record
 from analysis.store import AnalysisError, connect, run_command
 from epoet.core.algorithm import SCORE_METRICS
 from epoet.core.checkpoint import CheckpointError, load_checkpoint
@@ -268,7 +268,7 @@ def record_snapshots(
     config = state["config"]
     uri = tracking_uri or config["tracking"]["uri"]
     trained = resolve_run(str(run_dir), uri)
-    record = out / f"{state['algo']}_s{config['seed']}"
+    record = out / trained_record(state["algo"], config["seed"])
     snapshots = {
         f"{minutes:g}": evaluate_snapshot(folder, record, trained, suites, cfg, pool, exported_only)
         for minutes, folder in snapshots_of(run_dir)

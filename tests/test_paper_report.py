@@ -68,13 +68,19 @@ def test_cpu_hour_paper_records_each_run_and_reports_from_records(tmp_path: Path
     for name in ("table1_suite.md", "table2_suite.md", "success_vs_compute.png"):
         assert (report / name).stat().st_size > 0
     # Called again, it resumes: the finished jobs are skipped and their records, complete,
-    # are not evaluated again.
+    # are not evaluated again, nor is a process started to find that out; a record that lost
+    # its run.json is written again, from the evaluations it holds.
     summaries = sorted(records.glob("*/cpu*/*/*/summary.json"))
     stamps = [p.stat().st_mtime_ns for p in summaries]
+    (records / "sac_s1" / "run.json").unlink()
     again = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, env=env)
     assert again.returncode == 0, again.stderr[-3000:]
     assert "already finished" in again.stdout + again.stderr
     assert [p.stat().st_mtime_ns for p in summaries] == stamps
+    assert f"epoet_s1 is recorded in {records / 'epoet_s1'} already" in again.stdout
+    assert "[paper] recording epoet_s1" not in again.stdout
+    assert "[paper] recording sac_s1" in again.stdout
+    assert json.loads((records / "sac_s1" / "run.json").read_text())["snapshots"]
     # From the records alone (runs and store gone), the same bytes.
     for path in [*(tmp_path / "runs").rglob("*"), tmp_path / "m.db"]:
         if path.is_file():
