@@ -36,7 +36,7 @@ REQUIRED = ("run_id", "algo", "seed")  # what every table reads of a record's ru
 EPISODE_COLUMNS = ["terrain", "level", "return", "solved"]  # what the tables read of episodes.csv
 
 
-def trained_record(algo: str, seed: int) -> str:
+def trained_record(algo: str, seed: int | str) -> str:
     """The record folder's name of a run trained here: `<algo>_s<seed>`."""
     return f"{algo}_s{seed}"
 
