@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from analysis.paper_report import write_report
-from conftest import subset_suite
+from conftest import new_store, subset_suite
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMITTED = sorted(p for p in (ROOT / "docs" / "results").glob("*/report") if p.is_dir())
@@ -25,7 +25,9 @@ def files_of(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
 
 
-def test_cpu_hour_paper_records_each_run_and_reports_from_records(tmp_path: Path) -> None:
+def test_cpu_hour_paper_records_each_run_and_reports_from_records(
+    tmp_path: Path, empty_store: Path
+) -> None:
     suite = subset_suite(tmp_path / "suite", [("easy", 0), ("medium", 0)])
     command = [
         sys.executable,
@@ -49,7 +51,7 @@ def test_cpu_hour_paper_records_each_run_and_reports_from_records(tmp_path: Path
         "budget.cpu_hours=0.0003",  # about a CPU second
         "snapshot_cpu_minutes=[0.002,0.004]",
     ]
-    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'm.db'}"}
+    env = {**os.environ, "MLFLOW_TRACKING_URI": new_store(empty_store, tmp_path, "m.db")}
     proc = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "2 at a time" in proc.stdout  # one job per core by default (the tests run on 2)
