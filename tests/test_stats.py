@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from analysis.stats import (
+    iqm,
     iqm_table,
     poi,
     poi_interval,
@@ -59,6 +60,23 @@ def test_the_iqm_is_the_mean_of_the_middle_half():
     # a fixed seed: the same intervals on every call
     again = iqm_table(episodes_of({"ppo": values}, {"ppo": solved}), reps=300)
     assert again.equals(table.reset_index()[again.columns])
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 32), (3, 32), (5, 9), (4, 7)])
+def test_the_iqm_is_rliables_to_the_bit(shape):
+    """The IQM the bootstraps call is rliable's `aggregate_iqm` bit for bit, on returns, on
+    success rates full of ties and on a matrix with one value."""
+    rng = np.random.default_rng(sum(shape))
+    for matrix in (
+        rng.normal(1000.0, 800.0, shape),
+        rng.choice([0.0, 20.0, 40.0, 60.0, 80.0, 100.0], shape),
+        np.full(shape, 2000.0),
+    ):
+        assert iqm(matrix)[0] == rliable()[1].aggregate_iqm(matrix)
+        resampled = matrix[rng.integers(0, shape[0], shape[0])][
+            :, rng.integers(0, shape[1], shape[1])
+        ]
+        assert iqm(resampled)[0] == rliable()[1].aggregate_iqm(resampled)
 
 
 def test_score_matrices_are_per_run_and_terrain_means():
