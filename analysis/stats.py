@@ -32,9 +32,10 @@ An interval is a function of the runs it summarises only: each bootstrap draws f
 seeded by `SEED` and a hash of its own scores (`stable_seed`; the runs in a canonical order,
 `canonical`), never from one stream shared with the other algorithms, so the same runs give
 the same interval whichever other runs share their folder or store, in whatever order. The
-point estimates come from rliable's own functions; inside the bootstrap the probability of
-improvement uses `poi`, the same number vectorised (rliable's calls scipy once per terrain,
-~25 ms per resample; tests/test_stats.py checks the two agree).
+probability of improvement's point estimate comes from rliable; inside the bootstrap it is
+`poi`, the same number vectorised (rliable's calls scipy once per terrain, ~25 ms per
+resample). The IQM, point and bootstrap, is `iqm`: scipy's trim_mean steps without its
+per-call argument handling, rliable's number to the bit. tests/test_stats.py checks both.
 
 analysis/stats_report.py writes these numbers as tables and figures.
 """
@@ -146,7 +147,7 @@ def stable_seed(seed: int, *matrices: np.ndarray) -> int:
 def iqm(scores: np.ndarray) -> np.ndarray:
     """rliable's IQM, scipy's 25 % `trim_mean` of every run x terrain entry, with scipy's own
     steps (the same partition and slice, so the same bits) but not its per-call argument
-    handling, which was half of a table's time: a bootstrap calls this thousands of times."""
+    handling, most of the time of a bootstrap that calls this thousands of times."""
     flat = np.asarray(scores, dtype=np.float64).ravel()
     cut = int(0.25 * flat.size)
     kept = np.partition(flat, (cut, flat.size - cut - 1))[cut : flat.size - cut]
