@@ -32,6 +32,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
+import psutil
 
 from epoet.core.schema import ConfigError
 from epoet.envs.config import AgentConfig
@@ -244,6 +245,7 @@ class RayActors:
                 else ""
             )
             raise RuntimeError(f"cannot join the Ray cluster at {address}: {exc}{hint}") from exc
+        self.local = address is None  # this process started the Ray it drives
         self.workers = int(workers or ray.cluster_resources().get("CPU", 1))
         self.batch = int(batch)
         self._args = (agent, terrain_cfg, self.batch, tuple(layer_sizes))
@@ -271,6 +273,17 @@ class RayActors:
             )
         except _ACTOR_LOST as exc:
             raise WorkerLost(f"a Ray actor died while starting: {exc}") from exc
+
+    def lost_local_raylet(self) -> bool:
+        """Whether the local Ray this process started has lost its raylet (a child of this
+        process). Ray notices only when the raylet's heartbeats time out, seconds later, and
+        then ends this process itself; actors asked for meanwhile wait for that."""
+        if not self.local:
+            return False
+        return not any(
+            p.name() == "raylet" and p.status() != psutil.STATUS_ZOMBIE  # killed, not reaped
+            for p in psutil.Process().children(recursive=True)
+        )
 
     def restart(self) -> None:
         """Every actor anew, the feed too: any of them may be the one that died."""

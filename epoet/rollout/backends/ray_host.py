@@ -8,8 +8,9 @@ the host over a pipe and gets the episodes back; the host drives the actors
 (ray_cluster.py `RayActors`). What can die, and what happens:
 
 - a rollout actor or the feed: the host replaces every actor and the call runs again;
-- the host itself, or the local cluster under it (raylet, GCS; Ray then ends the host): a new
-  host starts (a new local Ray, or rejoins `address`) and the call runs again;
+- the host itself, or the local cluster under it (raylet, GCS; Ray then ends the host, at its
+  heartbeat timeout, unless the host finds its raylet gone first): a new host starts (a new
+  local Ray, or rejoins `address`) and the call runs again;
 - more losses in one call than `MAX_RESTARTS`, or a host that cannot start (the remote cluster
   gone): `WorkersGone`, which the driver turns into a checkpoint at the last step's end, one
   line with the resume command and a non-zero exit.
@@ -68,6 +69,9 @@ def _host(conn: Connection, main_pid: int, args: tuple[Any, ...]) -> None:
         while (message := conn.recv()) is not None:
             try:
                 if message == RESTART:
+                    if actors.lost_local_raylet():  # end now, as Ray would at its timeout
+                        conn.send((LOST, "the local Ray's raylet died"))
+                        os._exit(1)  # no `finally`: Ray's shutdown would wait on the raylet
                     actors.restart()
                     conn.send((READY, {"feed_pid": actors.feed_pid, "pids": actors.pids}))
                 else:
