@@ -209,6 +209,14 @@ class _RolloutActor:
         return self.engine.run_jobs(jobs, slots=slots)
 
 
+def _is_live_raylet(process: psutil.Process) -> bool:
+    try:
+        # a killed raylet stays a zombie until it is reaped
+        return process.name() == "raylet" and process.status() != psutil.STATUS_ZOMBIE
+    except psutil.Error:  # it ended between the listing and the read
+        return False
+
+
 def _pull(feed: Any, call: int) -> Iterator[tuple[int, int]]:
     while chunk := ray.get(feed.take.remote(call)):
         yield from chunk
@@ -280,10 +288,7 @@ class RayActors:
         then ends this process itself; actors asked for meanwhile wait for that."""
         if not self.local:
             return False
-        return not any(
-            p.name() == "raylet" and p.status() != psutil.STATUS_ZOMBIE  # killed, not reaped
-            for p in psutil.Process().children(recursive=True)
-        )
+        return not any(_is_live_raylet(p) for p in psutil.Process().children(recursive=True))
 
     def restart(self) -> None:
         """Every actor anew, the feed too: any of them may be the one that died."""
