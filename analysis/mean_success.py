@@ -9,7 +9,7 @@ is the training seed:
 - **Mean success** of an algorithm at a mark: the mean over its runs of each run's mean success
   over the suite's terrains (the paper's number for one agent, averaged over seeds).
 - **Its 95 % interval**: Student's t over the runs' means (n - 1 degrees of freedom); none for
-  one run.
+  one run. Not clipped to [0, 100] %: a bound past either end says how few the seeds are.
 - **Paired difference** X - Y: the mean over the same terrains of X's mean success minus Y's;
   95 % percentile bootstrap over each algorithm's runs (terrains fixed), seeded by the scores
   it resamples (`analysis.stats.stable_seed`).
