@@ -264,10 +264,12 @@ def test_the_registry_names_each_record_and_each_record_its_runner() -> None:
     }
 
 
-def test_composing_and_help_import_no_torch() -> None:
+def test_composing_and_help_import_no_torch_mujoco_or_renderer() -> None:
     """The schemas the registry imports keep composition and `--help` light: neither imports
     torch or MuJoCo (a schema module that imported its algorithm's code at module level
-    would). One fresh interpreter composes every algorithm's config, then prints `--help`."""
+    would), nor the terrain renderers' numba and scipy.ndimage (the kind's module checks
+    `terrain.kind`). One fresh interpreter composes every algorithm's config, then prints
+    `--help`."""
     script = (
         "import runpy, sys\nfrom epoet.config import compose, validate\n"
         "from epoet.registry import names\n"
@@ -276,8 +278,9 @@ def test_composing_and_help_import_no_torch() -> None:
         "sys.argv = ['epoet', '--help']\n"
         "try:\n    runpy.run_module('epoet', run_name='__main__')\n"
         "except SystemExit as end:\n    assert not end.code, end.code\n"
-        "heavy = [m for m in ('torch', 'torchrl', 'mujoco') if m in sys.modules]\n"
-        "assert not heavy, heavy\n"
+        "heavy = ('torch', 'torchrl', 'mujoco', 'numba', 'scipy.ndimage')\n"
+        "imported = [m for m in heavy if m in sys.modules]\n"
+        "assert not imported, imported\n"
     )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -11,7 +11,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
 
 from epoet.terrain.config import TerrainConfig, register
 from epoet.terrain.terrain import normalize
@@ -46,6 +45,11 @@ def random_bowl(
     level = rng.uniform(0.5, max_height + 0.5)
     bowl = level - np.cos(2.0 * np.pi * radius) / 2.0
     bumps = rng.uniform(bump_low, bump_high, size=(bump_grid, bump_grid))
+    # scipy.ndimage is imported on first use, not with the module: composing a config imports
+    # this module (TerrainConfig checks `terrain.kind` by its generator), and the import was
+    # about half of that composition's CPU (docs/architecture.md, "The algorithms' records").
+    from scipy import ndimage
+
     # Corner-aligned cubic upsampling (what ndimage.zoom does), with the output shape exact.
     at = np.linspace(0.0, bump_grid - 1.0, grid)
     rows, cols = np.meshgrid(at, at, indexing="ij")

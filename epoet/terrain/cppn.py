@@ -29,7 +29,6 @@ from dataclasses import fields
 import neat
 import numpy as np
 from neat.graphs import feed_forward_layers
-from scipy import ndimage
 
 from epoet.terrain.bowl import bowl_of
 from epoet.terrain.config import (
@@ -40,8 +39,6 @@ from epoet.terrain.config import (
     TerrainConfig,
     register,
 )
-from epoet.terrain.reference_rendering import reference_inputs
-from epoet.terrain.reference_rendering import render as reference_render
 from epoet.terrain.terrain import normalize
 
 INPUT_KEYS = (-1, -2)  # x, y
@@ -324,6 +321,13 @@ def render_reference(
     """`genome` as the reference rendered it (reference_rendering.py: the CPPN read in a window,
     each row drifting beyond it, the step where it ends), at relief S = `max_height`, on the
     reference's 200 x 200 samples, resampled (linearly, corner to corner) to `grid` per side."""
+    # numba (the reference rendering's kernel) and scipy.ndimage are imported on first use, as
+    # in bowl.py: a composed config checks its kind by this module without rendering anything.
+    from scipy import ndimage
+
+    from epoet.terrain.reference_rendering import reference_inputs
+    from epoet.terrain.reference_rendering import render as reference_render
+
     heights = reference_render(evaluate(genome, *reference_inputs()), seed, max_height)
     if grid == REFERENCE_GRID:
         return heights
