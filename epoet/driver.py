@@ -189,9 +189,13 @@ def log(tracker: Tracker, algo: Trainable, logged: Logged | None) -> None:
 
 
 def checkpoint(algo: Trainable, cfg: Config, tracker: Tracker, run_dir: Path) -> None:
-    """The algorithm's state with the config and the MLflow run it continues, its agents beside."""
-    save_run_state(run_dir, tracker, cfg, algo.state_dict())
+    """The algorithm's agents, then its state with the config and the MLflow run it continues.
+
+    Agents first: a process killed between the two writes leaves agents newer than the
+    checkpoint, which resuming overwrites, never a checkpoint whose agents are missing (the
+    first) or older than it (`evaluate run=<folder>` of a killed run reads them)."""
     algo.save_agents(run_dir)
+    save_run_state(run_dir, tracker, cfg, algo.state_dict())
 
 
 def snapshot(algo: Trainable, run_dir: Path, marks: Sequence[float]) -> None:

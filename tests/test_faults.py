@@ -20,6 +20,7 @@ import pytest
 import torch
 
 from conftest import ES_SIZES, tiny_run, without_evaluation
+from epoet import driver
 from epoet.config import load
 from epoet.core.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from epoet.core.lifecycle import StopOnSignal, Stopped, raise_if_stopped, stop_requested
@@ -154,6 +155,29 @@ def test_evaluating_a_killed_runs_folder_closes_its_run_as_killed(tmp_path: Path
     assert done.returncode == 0, done.stderr[-2000:]
     after = client.get_run(killed.info.run_id)
     assert after.info.status == "KILLED" and "suite/suite/success_rate" in after.data.metrics
+
+
+class _KilledBetweenWrites(Exception):
+    pass
+
+
+class _AgentsThenKilled:
+    """The driver's view of an algorithm whose process dies once its agents are written."""
+
+    def save_agents(self, folder: Path) -> None:
+        (folder / "agents").write_text("the run's agents")
+
+    def state_dict(self) -> dict:
+        raise _KilledBetweenWrites
+
+
+def test_a_checkpoint_is_written_after_its_agents(tmp_path: Path) -> None:
+    """A process killed between a checkpoint's two writes leaves agents without a checkpoint,
+    never a checkpoint without agents (under load the killed-run test above once caught a first
+    checkpoint whose agents were not written yet, and `evaluate` refused the folder)."""
+    with pytest.raises(_KilledBetweenWrites):
+        driver.checkpoint(_AgentsThenKilled(), load([]), None, tmp_path)  # type: ignore[arg-type]
+    assert (tmp_path / "agents").exists() and not list(tmp_path.glob("checkpoint*"))
 
 
 def test_sigint_and_sigterm_request_a_stop_and_a_second_signal_stops_at_once() -> None:
