@@ -273,10 +273,15 @@ def tsne_table(
             # sklearn is imported here, not with the module: it takes about as long to import
             # as the rest of the analysis, and every command importing the figures paid it
             from sklearn.manifold import TSNE
+            from threadpoolctl import threadpool_limits
 
-            points = TSNE(
-                2, perplexity=min(30.0, (mask.sum() - 1) / 3), random_state=seed, init="pca"
-            ).fit_transform(action[mask])
+            # One OpenMP thread: on a few hundred actions sklearn's threads cost more CPU than
+            # they save, and on a busy machine they spin, many times the fit's CPU; the
+            # embedding is the same to the bit.
+            with threadpool_limits(1):
+                points = TSNE(
+                    2, perplexity=min(30.0, (mask.sum() - 1) / 3), random_state=seed, init="pca"
+                ).fit_transform(action[mask])
             for (x, y), r in zip(points, row[mask]):
                 rows.append((algo, run.info.run_id, episodes.terrain[r], x, y))
     return pd.DataFrame(rows, columns=["algo", "run_id", "terrain", "x", "y"])
