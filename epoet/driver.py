@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from epoet.core.algorithm import AXES, BEST_SCORE, SCORE
-from epoet.core.checkpoint import CHECKPOINT_NAME, save_checkpoint
+from epoet.core.checkpoint import CHECKPOINT_NAME, CheckpointError, save_checkpoint
 from epoet.core.clock import CpuMeter
 from epoet.core.files import atomic_write
 from epoet.core.lifecycle import Stopped, raise_if_stopped, stop_requested
@@ -194,7 +194,13 @@ def checkpoint(algo: Trainable, cfg: Config, tracker: Tracker, run_dir: Path) ->
     Agents first: a process killed between the two writes leaves agents newer than the
     checkpoint, which resuming overwrites, never a checkpoint whose agents are missing (the
     first) or older than it (`evaluate run=<folder>` of a killed run reads them)."""
-    algo.save_agents(run_dir)
+    try:
+        algo.save_agents(run_dir)
+    except OSError as exc:  # a full disk: name what was being saved, as save_checkpoint does
+        raise CheckpointError(
+            f"cannot save checkpoint {Path(run_dir) / CHECKPOINT_NAME}: its agents: "
+            f"{type(exc).__name__}: {exc}."
+        ) from exc
     save_run_state(run_dir, tracker, cfg, algo.state_dict())
 
 
