@@ -92,11 +92,20 @@ def clone(commit: str, into: Path) -> str:
     ).stdout.strip()
 
 
-def authors_files_setting() -> dict[str, str]:
-    """This environment with EPOET_3D naming the authors' files this checkout reads (a clone
-    elsewhere has no `../shared/ePOET_3D` beside it, and `make test` needs them: README), and
-    EPOET_MAKE_TIMES, which tells the timing record's own age check that it is being remade."""
-    env = {**os.environ, "EPOET_MAKE_TIMES": "1"}  # tests/test_doc_facts.py: the record comes after
+def clone_environment(checkout: Path) -> dict[str, str]:
+    """This environment with the checkout's code first on PYTHONPATH, EPOET_3D naming the
+    authors' files it reads (a clone elsewhere has no `../shared/ePOET_3D` beside it, and
+    `make test` needs them: README), and EPOET_MAKE_TIMES, which tells the timing record's own
+    age check that it is being remade.
+
+    PYTHONPATH: the linked venv holds this repository as an editable install, which a process
+    started outside the checkout (a test's `python -m epoet` in its tmp folder) would import
+    instead, so a clone of another commit would time this working tree's code."""
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(checkout), os.environ.get("PYTHONPATH")])),
+        "EPOET_MAKE_TIMES": "1",  # tests/test_doc_facts.py: the record comes after
+    }
     try:
         folder = source()
     except MissingReferenceFiles:
@@ -114,7 +123,7 @@ def time_target(target: str, cwd: Path) -> dict[str, object]:
     process = subprocess.Popen(
         ["make", "-o", ".venv/.installed", target],
         cwd=cwd,
-        env=authors_files_setting(),
+        env=clone_environment(cwd),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
