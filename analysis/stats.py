@@ -34,8 +34,10 @@ seeded by `SEED` and a hash of its own scores (`stable_seed`; the runs in a cano
 the same interval whichever other runs share their folder or store, in whatever order. The
 probability of improvement's point estimate comes from rliable; inside the bootstrap it is
 `poi`, the same number vectorised (rliable's calls scipy once per terrain, ~25 ms per
-resample). The IQM, point and bootstrap, is `iqm`: scipy's trim_mean steps without its
-per-call argument handling, rliable's number to the bit. tests/test_stats.py checks both.
+resample), over all resamples at once (`poi_interval`: rliable's and arch's draws and
+percentiles, to the bit). The IQM, point and bootstrap, is `iqm`: scipy's trim_mean steps
+without its per-call argument handling, rliable's number to the bit. tests/test_stats.py
+checks both against the libraries.
 
 analysis/stats_report.py writes these numbers as tables and figures.
 """
@@ -47,7 +49,6 @@ import itertools
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from functools import cache
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -157,15 +158,16 @@ def iqm(scores: np.ndarray) -> np.ndarray:
 def poi(x: np.ndarray, y: np.ndarray) -> float:
     """rliable's probability of improvement, vectorised: per terrain, over every (run of x, run
     of y) pair, P(x > y) + P(x = y) / 2; the mean over terrains."""
-    pairs = x[:, None, :], y[None, :, :]
-    per_terrain = (pairs[0] > pairs[1]).mean(axis=(0, 1)) + 0.5 * (pairs[0] == pairs[1]).mean(
-        axis=(0, 1)
+    return float(_pois(x[None], y[None])[0])
+
+
+def _pois(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """`poi` of each resample: xs (resamples, runs of x, terrains), ys likewise."""
+    pairs = xs[:, :, None, :], ys[:, None, :, :]
+    per_terrain = (pairs[0] > pairs[1]).mean(axis=(1, 2)) + 0.5 * (pairs[0] == pairs[1]).mean(
+        axis=(1, 2)
     )
-    return float(per_terrain.mean())
-
-
-def _poi_array(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return np.array([poi(x, y)])
+    return per_terrain.mean(axis=-1)
 
 
 def resampled(runs: Sequence[int], names: Sequence[str] = ()) -> str:
@@ -209,33 +211,34 @@ def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.
     return pd.DataFrame(rows)
 
 
-def _pair_bootstrap():
-    """rliable's independent-samples stratified bootstrap with a terrain draw shared by both
-    algorithms (see the module docstring)."""
-
-    base: Any = rliable()[0].StratifiedIndependentBootstrap  # a class from a lazy import
-
-    class TerrainsAndRuns(base):
-        def update_indices(self):
-            positional, keywords = super().update_indices()
-            terrains = self._args_shapes[0][1]
-            shared = np.random.choice(terrains, (1, terrains), replace=True)
-            return [(runs, shared) for runs, *_ in positional], keywords
-
-    return TerrainsAndRuns
-
-
 def poi_interval(
     x: np.ndarray, y: np.ndarray, reps: int = REPS, seed: int = SEED
 ) -> tuple[float, float, float]:
-    """P(X > Y) (rliable's) and its 95 % interval over runs and terrains."""
+    """P(X > Y) (rliable's) and its 95 % interval over runs and terrains.
+
+    The bootstrap is rliable's `StratifiedIndependentBootstrap` with a terrain draw shared by
+    both algorithms (the module docstring), under arch's percentile interval, done in one
+    batch: the same draws from numpy's global generator in the same order (per resample x's
+    runs, y's runs, then the terrains), the same P(X > Y) of each resample and the same
+    percentiles, so the same bits (tests/test_stats.py checks it against arch and rliable),
+    without the per-resample index and resample bookkeeping that was most of a report's time."""
     x, y = canonical(x), canonical(y)
     point = float(rliable()[1].probability_of_improvement(x, y))
+    (runs_x, terrains), runs_y = x.shape, y.shape[0]
     with seeded(stable_seed(seed, x, y)):
-        low, high = _pair_bootstrap()(x, y).conf_int(
-            _poi_array, reps=reps, size=CONFIDENCE, method="percentile"
-        )
-    return point, float(low[0]), float(high[0])
+        draws = [
+            (
+                np.random.choice(runs_x, (runs_x, terrains), replace=True),
+                np.random.choice(runs_y, (runs_y, terrains), replace=True),
+                np.random.choice(terrains, (1, terrains), replace=True),
+            )
+            for _ in range(reps)
+        ]
+    rx, ry, shared = (np.stack(d) for d in zip(*draws))
+    resampled = _pois(x[rx, shared], y[ry, shared])  # [r, i, t] = x[rx[r, i, t], shared[r, 0, t]]
+    alpha = (1.0 - CONFIDENCE) / 2  # arch's percentile interval, its own arithmetic
+    low, high = np.percentile(resampled, [100 * alpha, 100 * (1.0 - alpha)])
+    return point, float(low), float(high)
 
 
 def poi_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.DataFrame:

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from analysis.stats import (
+    canonical,
     iqm,
     iqm_table,
     poi,
@@ -17,6 +18,7 @@ from analysis.stats import (
     poi_table,
     rliable,
     score_matrices,
+    stable_seed,
 )
 from analysis.stats_report import write_stats
 from analysis.tables import to_markdown
@@ -77,6 +79,45 @@ def test_the_iqm_is_rliables_to_the_bit(shape):
             :, rng.integers(0, shape[1], shape[1])
         ]
         assert iqm(resampled)[0] == rliable()[1].aggregate_iqm(resampled)
+
+
+def _arch_poi_interval(x: np.ndarray, y: np.ndarray, reps: int, seed: int) -> np.ndarray:
+    """The pair bootstrap as the libraries compute it: rliable's independent stratified
+    bootstrap with one terrain draw shared by x and y, arch's percentile interval, one
+    resample at a time."""
+
+    class TerrainsAndRuns(rliable()[0].StratifiedIndependentBootstrap):
+        def update_indices(self):
+            positional, keywords = super().update_indices()
+            terrains = self._args_shapes[0][1]
+            shared = np.random.choice(terrains, (1, terrains), replace=True)
+            return [(runs, shared) for runs, *_ in positional], keywords
+
+    np.random.seed(seed)
+    return TerrainsAndRuns(x, y).conf_int(
+        lambda a, b: np.array([poi(a, b)]), reps=reps, size=0.95, method="percentile"
+    )[:, 0]
+
+
+@pytest.mark.parametrize("shapes", [(3, 3, 32), (2, 3, 32), (1, 1, 9), (5, 2, 7), (3, 3, 1)])
+def test_the_probability_of_improvements_interval_is_the_libraries_to_the_bit(shapes):
+    """`poi_interval`'s batched bootstrap gives the interval arch and rliable give, bit for
+    bit, on returns, on success rates full of ties and on equal constants."""
+    runs_x, runs_y, terrains = shapes
+    rng = np.random.default_rng(sum(shapes))
+    levels = [0.0, 20.0, 40.0, 60.0, 80.0, 100.0]
+    for x, y in (
+        (
+            rng.normal(1000.0, 800.0, (runs_x, terrains)),
+            rng.normal(900.0, 800.0, (runs_y, terrains)),
+        ),
+        (rng.choice(levels, (runs_x, terrains)), rng.choice(levels, (runs_y, terrains))),
+        (np.full((runs_x, terrains), 100.0), np.full((runs_y, terrains), 100.0)),
+    ):
+        _, low, high = poi_interval(x, y, reps=500, seed=3)
+        x, y = canonical(x), canonical(y)  # as poi_interval orders the runs before drawing
+        expected = _arch_poi_interval(x, y, reps=500, seed=stable_seed(3, x, y))
+        assert (low, high) == tuple(expected)
 
 
 def test_score_matrices_are_per_run_and_terrain_means():
