@@ -36,8 +36,8 @@ probability of improvement's point estimate comes from rliable; inside the boots
 `poi`, the same number vectorised (rliable's calls scipy once per terrain, ~25 ms per
 resample), over all resamples at once (`poi_interval`: rliable's and arch's draws and
 percentiles, to the bit). The IQM, point and bootstrap, is `iqm`: scipy's trim_mean steps
-without its per-call argument handling, rliable's number to the bit. tests/test_stats.py
-checks both against the libraries.
+without its per-call argument handling, rliable's number to the bit; its interval is batched
+the same way (`iqm_interval`). tests/test_stats.py checks each against the libraries.
 
 analysis/stats_report.py writes these numbers as tables and figures.
 """
@@ -179,30 +179,51 @@ def resampled(runs: Sequence[int], names: Sequence[str] = ()) -> str:
     return f"runs and terrains ({single[0]}: 1 run)" if single else "runs and terrains"
 
 
+def iqm_interval(
+    matrix: np.ndarray, reps: int = REPS, seed: int = SEED
+) -> tuple[float, float, float]:
+    """IQM of a (runs, terrains) matrix and its 95 % interval: rliable's stratified bootstrap
+    over runs and terrains (`task_bootstrap=True`) under arch's percentile interval, seeded by
+    the matrix's scores alone (`canonical`: the seed, not the draws, ignores the runs' order), done
+    in one batch as `poi_interval` is: the same draws in the same order (per resample the
+    runs within each terrain, then the terrains), the same IQM of each resample, the same
+    percentiles, so the same bits (tests/test_stats.py checks it against the libraries)."""
+    runs, terrains = matrix.shape
+    with seeded(stable_seed(seed, canonical(matrix))):
+        # rliable's np.random.choice(n, shape) is np.random.randint(0, n, shape): the same
+        # draws, without choice's argument handling (half of each call)
+        draws = [
+            (
+                np.random.randint(0, runs, (runs, terrains)),
+                np.random.randint(0, terrains, (1, terrains)),
+            )
+            for _ in range(reps)
+        ]
+    rows, columns = (np.stack(d) for d in zip(*draws))
+    flat = matrix[rows, columns].reshape(reps, -1)  # [r] = resample r, as `iqm` flattens it
+    cut = int(0.25 * flat.shape[1])
+    kept = np.partition(flat, (cut, flat.shape[1] - cut - 1), axis=1)[:, cut : flat.shape[1] - cut]
+    alpha = (1.0 - CONFIDENCE) / 2  # arch's percentile interval, its own arithmetic
+    low, high = np.percentile(kept.mean(axis=1), [100 * alpha, 100 * (1.0 - alpha)])
+    return float(iqm(matrix)[0]), float(low), float(high)
+
+
 def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.DataFrame:
     """algo, score, runs, terrains, iqm, ci_low, ci_high, resampled, reps, seed: per algorithm
     and score, the IQM of its score matrix with its 95 % stratified-bootstrap interval."""
     rows = []
     for score in METRICS:
         for algo, matrix in score_matrices(episodes, score).items():
-            matrix = canonical(matrix)
-            with seeded(stable_seed(seed, matrix)):  # this algorithm's runs alone
-                points, intervals = rliable()[0].get_interval_estimates(
-                    {algo: matrix},
-                    iqm,
-                    task_bootstrap=True,
-                    reps=reps,
-                    confidence_interval_size=CONFIDENCE,
-                )
+            point, low, high = iqm_interval(canonical(matrix), reps, seed)
             rows.append(
                 {
                     "algo": algo,
                     "score": score,
                     "runs": matrix.shape[0],
                     "terrains": matrix.shape[1],
-                    "iqm": float(points[algo][0]),
-                    "ci_low": float(intervals[algo][0][0]),
-                    "ci_high": float(intervals[algo][1][0]),
+                    "iqm": point,
+                    "ci_low": low,
+                    "ci_high": high,
                     "resampled": resampled([matrix.shape[0]]),
                     "reps": reps,
                     "seed": seed,
@@ -228,9 +249,9 @@ def poi_interval(
     with seeded(stable_seed(seed, x, y)):
         draws = [
             (
-                np.random.choice(runs_x, (runs_x, terrains), replace=True),
-                np.random.choice(runs_y, (runs_y, terrains), replace=True),
-                np.random.choice(terrains, (1, terrains), replace=True),
+                np.random.randint(0, runs_x, (runs_x, terrains)),  # `iqm_interval`: choice's draws
+                np.random.randint(0, runs_y, (runs_y, terrains)),
+                np.random.randint(0, terrains, (1, terrains)),
             )
             for _ in range(reps)
         ]

@@ -56,16 +56,7 @@ from analysis.records import (  # noqa: E402
     read_records,
     record_file,
 )
-from analysis.stats import (  # noqa: E402
-    CONFIDENCE,
-    REPS,
-    SEED,
-    canonical,
-    iqm,
-    rliable,
-    seeded,
-    stable_seed,
-)
+from analysis.stats import iqm_interval  # noqa: E402
 from analysis.store import (  # noqa: E402
     AnalysisError,
     in_order,
@@ -148,16 +139,6 @@ def compute_table(records: Path, suite: str) -> pd.DataFrame:
         )
     one_protocol({f"{r['algo']} s{r['seed']} at {r['minutes']:g} min": r["episodes"] for r in rows})
     return pd.DataFrame(rows)
-
-
-def iqm_interval(matrix: np.ndarray, reps: int = REPS, seed: int = SEED) -> tuple[float, ...]:
-    """IQM of a (runs, terrains) matrix and its 95 % stratified-bootstrap interval, seeded by
-    this matrix's scores alone."""
-    with seeded(stable_seed(seed, canonical(matrix))):
-        points, intervals = rliable()[0].get_interval_estimates(
-            {"x": matrix}, iqm, task_bootstrap=True, reps=reps, confidence_interval_size=CONFIDENCE
-        )
-    return float(points["x"][0]), float(intervals["x"][0][0]), float(intervals["x"][1][0])
 
 
 def summary(table: pd.DataFrame) -> pd.DataFrame:

@@ -12,12 +12,14 @@ import pytest
 from analysis.stats import (
     canonical,
     iqm,
+    iqm_interval,
     iqm_table,
     poi,
     poi_interval,
     poi_table,
     rliable,
     score_matrices,
+    seeded,
     stable_seed,
 )
 from analysis.stats_report import write_stats
@@ -118,6 +120,27 @@ def test_the_probability_of_improvements_interval_is_the_libraries_to_the_bit(sh
         x, y = canonical(x), canonical(y)  # as poi_interval orders the runs before drawing
         expected = _arch_poi_interval(x, y, reps=500, seed=stable_seed(3, x, y))
         assert (low, high) == tuple(expected)
+
+
+@pytest.mark.parametrize("shape", [(3, 32), (2, 32), (1, 9), (5, 7), (3, 1), (15, 45)])
+def test_the_iqms_interval_is_the_libraries_to_the_bit(shape):
+    """`iqm_interval`'s batched bootstrap gives rliable's `get_interval_estimates` (its
+    stratified bootstrap over runs and terrains, arch's percentile interval), bit for bit, on
+    returns, on success rates full of ties and on constants; its seed does not depend on the
+    order of the runs, but its draws do, as the libraries' do."""
+    rng = np.random.default_rng(sum(shape))
+    levels = [0.0, 20.0, 40.0, 60.0, 80.0, 100.0]
+    for matrix in (
+        rng.normal(1000.0, 800.0, shape),
+        rng.choice(levels, shape),
+        np.full(shape, 100.0),
+    ):
+        with seeded(stable_seed(3, canonical(matrix))):
+            point, interval = rliable()[0].get_interval_estimates(
+                {"x": matrix}, iqm, task_bootstrap=True, reps=500, confidence_interval_size=0.95
+            )
+        expected = (point["x"][0], interval["x"][0][0], interval["x"][1][0])
+        assert iqm_interval(matrix, reps=500, seed=3) == expected
 
 
 def test_score_matrices_are_per_run_and_terrain_means():
