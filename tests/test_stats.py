@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from analysis.stats import (
+    CONFIDENCE,
     canonical,
     iqm,
     iqm_interval,
@@ -97,7 +98,7 @@ def _arch_poi_interval(x: np.ndarray, y: np.ndarray, reps: int, seed: int) -> np
 
     np.random.seed(seed)
     return TerrainsAndRuns(x, y).conf_int(
-        lambda a, b: np.array([poi(a, b)]), reps=reps, size=0.95, method="percentile"
+        lambda a, b: np.array([poi(a, b)]), reps=reps, size=CONFIDENCE, method="percentile"
     )[:, 0]
 
 
@@ -137,7 +138,11 @@ def test_the_iqms_interval_is_the_libraries_to_the_bit(shape):
     ):
         with seeded(stable_seed(3, canonical(matrix))):
             point, interval = rliable()[0].get_interval_estimates(
-                {"x": matrix}, iqm, task_bootstrap=True, reps=500, confidence_interval_size=0.95
+                {"x": matrix},
+                iqm,
+                task_bootstrap=True,
+                reps=500,
+                confidence_interval_size=CONFIDENCE,
             )
         expected = (point["x"][0], interval["x"][0][0], interval["x"][1][0])
         assert iqm_interval(matrix, reps=500, seed=3) == expected
