@@ -46,8 +46,8 @@ def random_bowl(
     bowl = level - np.cos(2.0 * np.pi * radius) / 2.0
     bumps = rng.uniform(bump_low, bump_high, size=(bump_grid, bump_grid))
     # scipy.ndimage is imported on first use, not with the module: composing a config imports
-    # this module (TerrainConfig checks `terrain.kind` by its generator), and the import was
-    # about half of that composition's CPU (docs/architecture.md, "The algorithms' records").
+    # this module (TerrainConfig checks `terrain.kind` by its generator), and composing never
+    # renders (docs/architecture.md).
     from scipy import ndimage
 
     # Corner-aligned cubic upsampling (what ndimage.zoom does), with the output shape exact.
