@@ -35,11 +35,15 @@ def readings(folder: Path, suite: str, algo: str) -> Readings:
     """Each snapshot's exported agent on `suite` (the records of `algo`): its success rate and
     its medium terrains'."""
     found: Readings = {}
-    records = sorted(p.parent for p in folder.glob(f"{algo}_s*/{RUN_FILE}"))
+    # by the algorithm each record names: `epoet_s*` also matches epoet_sac's records
+    records = [
+        (p.parent, info)
+        for p in sorted(folder.glob(f"{algo}_s*/{RUN_FILE}"))
+        if (info := read_json(p))["algo"] == algo
+    ]
     if not records:
         raise AnalysisError(f"{folder} holds no records of {algo} ({algo}_s<seed>/{RUN_FILE}).")
-    for record in records:
-        info = read_json(record / RUN_FILE)
+    for record, info in records:
         for mark, snapshot in info.get("snapshots", {}).items():
             evaluation = snapshot.get("evaluations", {}).get(suite)
             if evaluation is None:

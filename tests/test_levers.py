@@ -8,10 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from analysis.levers import main
+from analysis.levers import main, readings
+from analysis.records import RUN_FILE, read_json
 from analysis.store import AnalysisError
 
-LEVERS = Path(__file__).resolve().parent.parent / "docs" / "results" / "levers"
+RESULTS = Path(__file__).resolve().parent.parent / "docs" / "results"
+LEVERS = RESULTS / "levers"
 
 
 def test_a_setting_reads_as_its_seeds_and_pairs_seed_with_seed(capsys) -> None:
@@ -34,6 +36,15 @@ def test_a_folder_without_the_algorithms_records_is_one_line(tmp_path: Path, cap
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "holds no records of epoet" in err[0]
     with pytest.raises(AnalysisError):
-        from analysis.levers import readings
-
         readings(tmp_path, "paper", "ppo")
+
+
+def test_a_folder_of_several_algorithms_reads_only_the_asked_ones_records() -> None:
+    """docs/results/compute holds ePOET's and ePOET-SAC's records, both evaluated on the shipped
+    suite: ePOET's readings are its own records' (`epoet_s*` also names epoet_sac_s*)."""
+    found = readings(RESULTS / "compute", "shipped", "epoet")
+    for mark, seeds in found.items():
+        for seed, (success, _) in seeds.items():
+            info = read_json(RESULTS / "compute" / f"epoet_s{seed}" / RUN_FILE)
+            assert success == info["snapshots"][mark]["evaluations"]["shipped"]["success_rate"]
+    assert sorted(found["60"]) == [1, 2, 3]
