@@ -563,3 +563,34 @@ def test_every_option_the_pages_give_the_run_exists() -> None:
                     if key not in RUN_GROUPS and "<" not in key and not has_key(cfg, key):
                         unknown.append((name, command, key))
     assert checked > 60 and not unknown, (checked, unknown)
+
+
+FINAL_REPORT = ROOT / "docs" / "results" / "paper-workstation" / "report" / "paper"
+
+
+def test_the_readmes_results_open_with_the_final_reports_table():
+    """The README's results open with the final experiment's Table 1 on the paper suite (issue
+    60): each algorithm's mean success over seeds with its 95 % interval, and its levels, are
+    the committed report's cells (`python -m analysis.paper_report` writes them), so a rebuilt
+    report that moves a number fails here, naming the README."""
+    from epoet.registry import algorithm
+
+    report = (FINAL_REPORT / "table1_seeds_paper.md").read_text(encoding="utf-8")
+    means = {}
+    for line in report.splitlines():
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if line.startswith("|") and len(cells) > 1 and cells[1] == "mean [95 % CI]":
+            means[cells[0]] = cells[2:]  # easy, medium, hard, total
+    assert sorted(means) == sorted(names())
+    results = (ROOT / "README.md").read_text(encoding="utf-8").split("## Results", 1)[1]
+    rows = {
+        cells[0]: cells
+        for line in results.split("\n## ", 1)[0].splitlines()
+        if line.startswith("|")
+        for cells in [[cell.strip() for cell in line.strip().strip("|").split("|")]]
+    }
+    for algo, (easy, medium, hard, total) in means.items():
+        label = algorithm(algo).label
+        assert label in rows, f"README.md's results table has no row {label!r}"
+        levels = " / ".join(cell.split(" [")[0] for cell in (easy, medium, hard))
+        assert rows[label][1:3] == [total, levels], f"README.md's row {label!r}"
