@@ -7,15 +7,16 @@ candidates of every CPU-time snapshot of ePOET records (docs/results/.../epoet_s
 real selection code (`epoet.open_ended.exported_agent.candidates`,
 `epoet.rollout.selection.es_held_out` on the terrains generated from the run's seed, never an
 evaluation suite), and judges each choice
-by the chosen candidate's paper-suite success (32 terrains x 5 episodes, the protocol of
-pipeline/snapshots.py).
+by the chosen candidate's success on `--suite` (32 terrains x 5 episodes, the protocol of
+pipeline/snapshots.py): `admitted`, the validation suite, where a default is decided; `paper`,
+the test suite, as the first calls did, before the validation protocol (docs/RESULTS.md).
 
-Per size it prints: the mean paper-suite success of the chosen agents over the snapshots, how
-often the choice is the snapshot's best-on-paper candidate (the oracle), the mean regret (oracle
+Per size it prints: the mean success of the chosen agents over the snapshots, how
+often the choice is the snapshot's best candidate on the suite (the oracle), the mean regret (oracle
 minus chosen, percentage points) and the CPU seconds the selection took (mean per snapshot and
 total); the run's own-terrain choice (choice.json `own`) and the oracle are printed for reference.
 
-A candidate's paper-suite success is read from the record when one of the snapshot's evaluated
+A candidate's success is read from the record when one of the snapshot's evaluated
 agent files holds its parameters (a niche file holds its best; `agent.npz` the exported one);
 otherwise it is evaluated here (`pipeline.snapshots.evaluated_agent` + `epoet.eval.evaluate`, the
 record's evaluate config, 5 episodes per terrain). Those evaluations and every selection (its
@@ -27,6 +28,7 @@ A size is `T` (T terrains, `selection.episodes` of the config) or `TxE` (T terra
 Examples:
 
     python bench/selection_size.py --records docs/results/compute/epoet_s1 --sizes 8 16 32 64
+    python bench/selection_size.py --suite admitted --records docs/results/levers/*/epoet_s1
     python bench/selection_size.py --records docs/results/levers/*/epoet_s1 --sizes 8 8x2 16
 """
 
@@ -45,7 +47,7 @@ import numpy as np
 from epoet.config import compose, load, validate
 from epoet.eval.agents import resolve_run
 from epoet.eval.evaluate import evaluate
-from epoet.eval.keys import PAPER_NAME
+from epoet.eval.keys import ADMITTED_NAME, NAMED_SUITES
 from epoet.eval.suite import load_suite
 from epoet.open_ended.exported_agent import candidates
 from epoet.rollout.agent_files import ES_POLICIES, read_es_policy
@@ -54,19 +56,18 @@ from pipeline.choose import run_overrides, snapshot_niches
 from pipeline.snapshots import evaluated_agent, niches_of
 
 PAPER_EPISODES = 5  # pipeline/snapshots.py's protocol: the paper's 5 episodes per terrain
-SUCCESS = f"suite/{PAPER_NAME}/success_rate"
 
 
 @dataclass
 class Snapshot:
-    """One CPU-time snapshot of a record: its candidates and their paper-suite success."""
+    """One CPU-time snapshot of a record: its candidates and their success on the suite."""
 
     label: str  # e.g. compute/epoet_s1 cpu30
     folder: Path
     names: list[str]
     thetas: np.ndarray
     layer_sizes: tuple[int, ...]
-    paper: dict[str, float]  # candidate name -> paper-suite success
+    success: dict[str, float]  # candidate name -> success on the judging suite
     own: str  # the run's own-terrain choice (choice.json)
     recorded: dict[str, Any]  # the record's choice.json
 
@@ -92,10 +93,16 @@ def cached(path: Path, compute) -> dict[str, Any]:
     return result
 
 
-def paper_success(
-    record: Path, folder: Path, name: str, theta: np.ndarray, evaluated: dict, cache: Path
+def suite_success(
+    record: Path,
+    folder: Path,
+    name: str,
+    theta: np.ndarray,
+    evaluated: dict,
+    cache: Path,
+    suite: str,
 ) -> float:
-    """The candidate's paper-suite success: the record's when an evaluated agent file holds
+    """The candidate's success on `suite`: the record's when an evaluated agent file holds
     `theta`, else evaluated here with the record's protocol (cached)."""
     for stem, success in evaluated.items():
         path = folder / ES_POLICIES / f"{stem}.npz"
@@ -117,23 +124,27 @@ def paper_success(
         )
         agent = evaluated_agent(agent_file, folder.name, resolve_run(str(record)))
         started = time.process_time()
-        print(f"[paper] evaluating {record} {folder.name} {name}", flush=True)
-        result = evaluate(agent, load_suite(PAPER_NAME), cfg, None, progress=False)
-        return {"success": result.metrics[SUCCESS], "cpu_s": time.process_time() - started}
+        print(f"[{suite}] evaluating {record} {folder.name} {name}", flush=True)
+        result = evaluate(agent, load_suite(suite), cfg, None, progress=False)
+        success = result.metrics[f"suite/{suite}/success_rate"]
+        return {"success": success, "cpu_s": time.process_time() - started}
 
-    return float(cached(cache / "paper" / f"{tag}_{theta_key(theta)}.json", run)["success"])
+    return float(cached(cache / suite / f"{tag}_{theta_key(theta)}.json", run)["success"])
 
 
-def snapshots_of(record: Path, cache: Path) -> list[Snapshot]:
+def snapshots_of(record: Path, cache: Path, suite: str) -> list[Snapshot]:
     """Every snapshot of the record (run.json `snapshots`), its candidates as a run names them."""
     info = json.loads((record / "run.json").read_text())
     found = []
     for minutes, entry in info["snapshots"].items():
         folder = record / f"cpu{minutes}"
         names, thetas, _ = candidates(snapshot_niches(folder))
-        evaluated = entry["evaluations"][PAPER_NAME]["agents"]  # agent file stem -> success
-        paper = {
-            n: paper_success(record, folder, n, t, evaluated, cache) for n, t in zip(names, thetas)
+        # agent file stem -> success; a snapshot not evaluated on the suite has every candidate
+        # evaluated here
+        evaluated = entry["evaluations"].get(suite, {}).get("agents", {})
+        success = {
+            n: suite_success(record, folder, n, t, evaluated, cache, suite)
+            for n, t in zip(names, thetas)
         }
         recorded = json.loads((folder / ES_POLICIES / CHOICE_FILE).read_text())
         found.append(
@@ -143,7 +154,7 @@ def snapshots_of(record: Path, cache: Path) -> list[Snapshot]:
                 names,
                 thetas,
                 read_es_policy(niches_of(folder)[0])[1],
-                paper,
+                success,
                 recorded["own"],
                 recorded,
             )
@@ -185,6 +196,12 @@ def main() -> None:
         "--sizes", nargs="+", default=["8", "16", "32", "64"], help="T or TxE (terrains x eps)"
     )
     parser.add_argument("--cache", type=Path, default=Path("/tmp/hsel_cache"))
+    parser.add_argument(
+        "--suite",
+        choices=NAMED_SUITES,
+        default=ADMITTED_NAME,
+        help="the suite that judges each choice (default: the validation suite)",
+    )
     args = parser.parse_args()
 
     default_episodes = load().selection.episodes
@@ -194,19 +211,19 @@ def main() -> None:
     started = time.process_time()
     for record in args.records:
         cfg = load(run_overrides(json.loads((record / "run.json").read_text())["command"]))
-        for snap in snapshots_of(record, args.cache):
-            best = max(snap.paper.values())
+        for snap in snapshots_of(record, args.cache, args.suite):
+            best = max(snap.success.values())
             line = [snap.label, f"{len(snap.names)}", f"{100 * best:5.1f}"]
-            line.append(f"{snap.own}={100 * snap.paper[snap.own]:.1f}")
-            rows.setdefault("own", []).append((snap.paper[snap.own], best, 0.0))
+            line.append(f"{snap.own}={100 * snap.success[snap.own]:.1f}")
+            rows.setdefault("own", []).append((snap.success[snap.own], best, 0.0))
             rows.setdefault("oracle", []).append((best, best, 0.0))
             for terrains, episodes in sizes:
                 chosen = select(record, cfg, snap, terrains, episodes, args.cache)
                 name = chosen["chosen"]
                 rows.setdefault(f"{terrains}x{episodes}", []).append(
-                    (snap.paper[name], best, chosen["cpu_s"])
+                    (snap.success[name], best, chosen["cpu_s"])
                 )
-                line.append(f"{name}={100 * snap.paper[name]:.1f}")
+                line.append(f"{name}={100 * snap.success[name]:.1f}")
                 if (terrains, episodes) == (
                     snap.recorded["selection"]["terrains"],
                     snap.recorded["selection"]["episodes"],
@@ -215,13 +232,15 @@ def main() -> None:
             detail.append(line)
 
     head = ["snapshot", "K", "oracle", "own", *(f"{t}x{e}" for t, e in sizes)]
-    print("\nPer snapshot: candidates K, oracle paper success %, each choice=its paper success %")
+    print(
+        f"\nPer snapshot on {args.suite}: candidates K, oracle success %, each choice=its success %"
+    )
     print(" | ".join(head))
     for line in detail:
         print(" | ".join(line))
 
     n = len(detail)
-    print(f"\nSummary over {n} snapshots (paper suite: 32 terrains x 5 episodes)")
+    print(f"\nSummary over {n} snapshots (suite {args.suite}: 32 terrains x 5 episodes)")
     print(
         f"{'choice':>8} {'mean success %':>15} {'picks oracle':>13} {'mean regret pts':>16} "
         f"{'CPU s/snapshot':>15} {'CPU s total':>12}"
