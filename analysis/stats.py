@@ -149,10 +149,22 @@ def iqm(scores: np.ndarray) -> np.ndarray:
     """rliable's IQM, scipy's 25 % `trim_mean` of every run x terrain entry, with scipy's own
     steps (the same partition and slice, so the same bits) but not its per-call argument
     handling, most of the time of a bootstrap that calls this thousands of times."""
-    flat = np.asarray(scores, dtype=np.float64).ravel()
-    cut = int(0.25 * flat.size)
-    kept = np.partition(flat, (cut, flat.size - cut - 1))[cut : flat.size - cut]
-    return np.array([kept.mean()])
+    return _iqms(np.asarray(scores, dtype=np.float64).reshape(1, -1))
+
+
+def _iqms(flat: np.ndarray) -> np.ndarray:
+    """`iqm` of each row of `flat` (rows, entries): each row partitioned and sliced as scipy's
+    trim_mean does one array."""
+    cut = int(0.25 * flat.shape[1])
+    kept = np.partition(flat, (cut, flat.shape[1] - cut - 1), axis=1)[:, cut : flat.shape[1] - cut]
+    return kept.mean(axis=1)
+
+
+def _percentile_interval(estimates: np.ndarray) -> tuple[float, float]:
+    """arch's percentile interval of bootstrap estimates, with its own arithmetic."""
+    alpha = (1.0 - CONFIDENCE) / 2
+    low, high = np.percentile(estimates, [100 * alpha, 100 * (1.0 - alpha)])
+    return float(low), float(high)
 
 
 def poi(x: np.ndarray, y: np.ndarray) -> float:
@@ -200,12 +212,8 @@ def iqm_interval(
             for _ in range(reps)
         ]
     rows, columns = (np.stack(d) for d in zip(*draws))
-    flat = matrix[rows, columns].reshape(reps, -1)  # [r] = resample r, as `iqm` flattens it
-    cut = int(0.25 * flat.shape[1])
-    kept = np.partition(flat, (cut, flat.shape[1] - cut - 1), axis=1)[:, cut : flat.shape[1] - cut]
-    alpha = (1.0 - CONFIDENCE) / 2  # arch's percentile interval, its own arithmetic
-    low, high = np.percentile(kept.mean(axis=1), [100 * alpha, 100 * (1.0 - alpha)])
-    return float(iqm(matrix)[0]), float(low), float(high)
+    resampled = matrix[rows, columns].reshape(reps, -1)  # [r] = resample r, as `iqm` flattens it
+    return (float(iqm(matrix)[0]), *_percentile_interval(_iqms(resampled)))
 
 
 def iqm_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.DataFrame:
@@ -257,9 +265,7 @@ def poi_interval(
         ]
     rx, ry, shared = (np.stack(d) for d in zip(*draws))
     resampled = _pois(x[rx, shared], y[ry, shared])  # [r, i, t] = x[rx[r, i, t], shared[r, 0, t]]
-    alpha = (1.0 - CONFIDENCE) / 2  # arch's percentile interval, its own arithmetic
-    low, high = np.percentile(resampled, [100 * alpha, 100 * (1.0 - alpha)])
-    return point, float(low), float(high)
+    return (point, *_percentile_interval(resampled))
 
 
 def poi_table(episodes: pd.DataFrame, reps: int = REPS, seed: int = SEED) -> pd.DataFrame:
