@@ -30,6 +30,7 @@ Examples:
     python bench/selection_size.py --records docs/results/compute/epoet_s1 --sizes 8 16 32 64
     python bench/selection_size.py --suite admitted --records docs/results/levers/*/epoet_s1
     python bench/selection_size.py --records docs/results/levers/*/epoet_s1 --sizes 8 8x2 16
+    python bench/selection_size.py --records docs/results/paper-workstation/epoet*_s? --minutes 60
 """
 
 from __future__ import annotations
@@ -132,12 +133,17 @@ def suite_success(
     return float(cached(cache / suite / f"{tag}_{theta_key(theta)}.json", run)["success"])
 
 
-def snapshots_of(record: Path, cache: Path, suite: str) -> list[Snapshot]:
-    """Every snapshot of the record (run.json `snapshots`), its candidates as a run names them."""
+def snapshots_of(
+    record: Path, cache: Path, suite: str, minutes: list[str] | None = None
+) -> list[Snapshot]:
+    """The record's snapshots (run.json `snapshots`; those at `minutes` if given), their
+    candidates as a run names them."""
     info = json.loads((record / "run.json").read_text())
     found = []
-    for minutes, entry in info["snapshots"].items():
-        folder = record / f"cpu{minutes}"
+    for mark, entry in info["snapshots"].items():
+        if minutes and mark not in minutes:
+            continue
+        folder = record / f"cpu{mark}"
         names, thetas, _ = candidates(snapshot_niches(folder))
         # agent file stem -> success; a snapshot not evaluated on the suite has every candidate
         # evaluated here
@@ -149,7 +155,7 @@ def snapshots_of(record: Path, cache: Path, suite: str) -> list[Snapshot]:
         recorded = json.loads((folder / ES_POLICIES / CHOICE_FILE).read_text())
         found.append(
             Snapshot(
-                f"{record.parent.name}/{record.name} cpu{minutes}",
+                f"{record.parent.name}/{record.name} cpu{mark}",
                 folder,
                 names,
                 thetas,
@@ -202,6 +208,9 @@ def main() -> None:
         default=ADMITTED_NAME,
         help="the suite that judges each choice (default: the validation suite)",
     )
+    parser.add_argument(
+        "--minutes", nargs="+", help="only the snapshots at these CPU minutes (default: all)"
+    )
     args = parser.parse_args()
 
     default_episodes = load().selection.episodes
@@ -211,7 +220,7 @@ def main() -> None:
     started = time.process_time()
     for record in args.records:
         cfg = load(run_overrides(json.loads((record / "run.json").read_text())["command"]))
-        for snap in snapshots_of(record, args.cache, args.suite):
+        for snap in snapshots_of(record, args.cache, args.suite, args.minutes):
             best = max(snap.success.values())
             line = [snap.label, f"{len(snap.names)}", f"{100 * best:5.1f}"]
             line.append(f"{snap.own}={100 * snap.success[snap.own]:.1f}")
