@@ -47,11 +47,19 @@ def section(name: str, heading: str) -> str:
     return " ".join(match.group(1).split())
 
 
+def table_rows(text: str) -> list[list[str]]:
+    """The cells of every Markdown table row of `text`, in order."""
+    return [
+        [cell.strip() for cell in line.strip().strip("|").split("|")]
+        for line in text.splitlines()
+        if line.startswith("|")
+    ]
+
+
 def table_row(name: str, first_cell: str) -> list[str]:
     """The cells of the table row of a page whose first cell is `first_cell`."""
-    for line in (DOCS / name).read_text(encoding="utf-8").splitlines():
-        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
-        if line.startswith("|") and cells[0] == first_cell:
+    for cells in table_rows((DOCS / name).read_text(encoding="utf-8")):
+        if cells[0] == first_cell:
             return cells
     raise AssertionError(f"docs/{name} has no table row {first_cell!r}")
 
@@ -576,19 +584,14 @@ def test_the_readmes_results_open_with_the_final_reports_table():
     from epoet.registry import algorithm
 
     report = (FINAL_REPORT / "table1_seeds_paper.md").read_text(encoding="utf-8")
-    means = {}
-    for line in report.splitlines():
-        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
-        if line.startswith("|") and len(cells) > 1 and cells[1] == "mean [95 % CI]":
-            means[cells[0]] = cells[2:]  # easy, medium, hard, total
+    means = {  # algorithm -> easy, medium, hard, total
+        cells[0]: cells[2:]
+        for cells in table_rows(report)
+        if len(cells) > 1 and cells[1] == "mean [95 % CI]"
+    }
     assert sorted(means) == sorted(names())
     results = (ROOT / "README.md").read_text(encoding="utf-8").split("## Results", 1)[1]
-    rows = {
-        cells[0]: cells
-        for line in results.split("\n## ", 1)[0].splitlines()
-        if line.startswith("|")
-        for cells in [[cell.strip() for cell in line.strip().strip("|").split("|")]]
-    }
+    rows = {cells[0]: cells for cells in table_rows(results.split("\n## ", 1)[0])}
     for algo, (easy, medium, hard, total) in means.items():
         label = algorithm(algo).label
         assert label in rows, f"README.md's results table has no row {label!r}"
