@@ -195,6 +195,14 @@ def select(
     return cached(cache / "select" / f"{key}_{theta_key(snap.thetas)}.json", run)
 
 
+def tie_choices(held_out: dict[str, Any]) -> dict[str, str]:
+    """The candidate each tie-breaking rule exports among those solving the most held-out
+    episodes: the product's (the higher mean return), the earliest and the latest candidate."""
+    solved = {name: c["solved"] for name, c in held_out["candidates"].items()}
+    top = [name for name, share in solved.items() if share == max(solved.values())]
+    return {"return": held_out["chosen"], "earliest": top[0], "latest": top[-1]}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--records", nargs="+", type=Path, required=True, help="ePOET records")
@@ -216,6 +224,8 @@ def main() -> None:
     default_episodes = load().selection.episodes
     sizes = [parse_size(s, default_episodes) for s in args.sizes]
     rows: dict[str, list[tuple[float, float, float]]] = {}  # size -> (chosen, best, cpu_s)
+    ties: dict[str, list[dict[str, float]]] = {}  # size -> per snapshot, tie rule -> success
+    tied: dict[str, int] = {}  # size -> snapshots where more than one candidate tops it
     detail = []
     started = time.process_time()
     for record in args.records:
@@ -233,6 +243,13 @@ def main() -> None:
                     (snap.success[name], best, chosen["cpu_s"])
                 )
                 line.append(f"{name}={100 * snap.success[name]:.1f}")
+                picks = tie_choices(chosen)
+                ties.setdefault(f"{terrains}x{episodes}", []).append(
+                    {rule: snap.success[pick] for rule, pick in picks.items()}
+                )
+                tied[f"{terrains}x{episodes}"] = tied.get(f"{terrains}x{episodes}", 0) + (
+                    len(set(picks.values())) > 1
+                )
                 if (terrains, episodes) == (
                     snap.recorded["selection"]["terrains"],
                     snap.recorded["selection"]["episodes"],
@@ -260,6 +277,17 @@ def main() -> None:
             f"{label:>8} {100 * chosen.mean():15.1f} "
             f"{f'{int(np.isclose(chosen, best).sum())}/{n}':>13} "
             f"{100 * (best - chosen).mean():16.2f} {cpu.mean():15.1f} {cpu.sum():12.1f}"
+        )
+    print("\nTie-breaking: snapshots whose top candidates tie on solved share and pick")
+    print("differently, and the mean success % each rule's choice gives over all snapshots")
+    print(
+        f"{'choice':>8} {'tied':>6} "
+        + " ".join(f"{rule:>9}" for rule in ("return", "earliest", "latest"))
+    )
+    for label, values in ties.items():
+        means = {rule: 100 * np.mean([v[rule] for v in values]) for rule in values[0]}
+        print(
+            f"{label:>8} {f'{tied[label]}/{n}':>6} " + " ".join(f"{m:9.1f}" for m in means.values())
         )
     print(f"\n(this call's CPU: {time.process_time() - started:.0f} s; cached work not redone)")
 
