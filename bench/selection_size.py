@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from analysis.mean_success import mean_interval
 from epoet.config import compose, load, validate
 from epoet.eval.agents import resolve_run
 from epoet.eval.evaluate import evaluate
@@ -226,6 +227,7 @@ def main() -> None:
     rows: dict[str, list[tuple[float, float, float]]] = {}  # size -> (chosen, best, cpu_s)
     ties: dict[str, list[dict[str, float]]] = {}  # size -> per snapshot, tie rule -> success
     tied: dict[str, int] = {}  # size -> snapshots where more than one candidate tops it
+    per_run: dict[str, dict[str, list[float]]] = {}  # size -> record -> its snapshots' success
     detail = []
     started = time.process_time()
     for record in args.records:
@@ -243,6 +245,9 @@ def main() -> None:
                     (snap.success[name], best, chosen["cpu_s"])
                 )
                 line.append(f"{name}={100 * snap.success[name]:.1f}")
+                per_run.setdefault(f"{terrains}x{episodes}", {}).setdefault(str(record), []).append(
+                    snap.success[name]
+                )
                 picks = tie_choices(chosen)
                 ties.setdefault(f"{terrains}x{episodes}", []).append(
                     {rule: snap.success[pick] for rule, pick in picks.items()}
@@ -278,6 +283,16 @@ def main() -> None:
             f"{f'{int(np.isclose(chosen, best).sum())}/{n}':>13} "
             f"{100 * (best - chosen).mean():16.2f} {cpu.mean():15.1f} {cpu.sum():12.1f}"
         )
+    if len(args.records) > 1:
+        first, *others = per_run
+        print(f"\nPer run (the mean over its snapshots), each size - {first}: mean [95 % t], pts")
+        for label in others:
+            diffs = [
+                100 * (np.mean(per_run[label][run]) - np.mean(per_run[first][run]))
+                for run in per_run[first]
+            ]
+            mean, low, high = mean_interval(diffs)
+            print(f"{label:>8} {mean:+5.1f} [{low:+.1f}, {high:+.1f}] over {len(diffs)} runs")
     print("\nTie-breaking: snapshots whose top candidates tie on solved share and pick")
     print("differently, and the mean success % each rule's choice gives over all snapshots")
     print(
