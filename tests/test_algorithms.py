@@ -32,9 +32,9 @@ from epoet.registry import DECLARED, algorithm, algorithms, names, register
 ROOT = Path(__file__).resolve().parent.parent
 TOY = Path(__file__).with_name("toy_algorithm.py")
 ADDING = ROOT / "docs" / "algorithms" / "adding.md"  # the toy, as the page's random_search
-# What `python -m epoet algo=<algo> budget=<budget>` composed to before the records (commit
-# 54618cf), every value resolved; `python tests/test_algorithms.py` writes it again, for a change
-# to the configs that is meant.
+# What `python -m epoet algo=<algo> budget=<budget>` composes to, every value resolved (first
+# written at commit 54618cf); `python tests/test_algorithms.py` writes it again, for a change to
+# the configs that is meant (its diff is the change).
 COMPOSED = Path(__file__).with_name("configs_by_algo_and_budget.json")
 BUDGETS = sorted(p.stem for p in (CONF_DIR / "budget").glob("*.yaml"))
 CODE = ("epoet", "analysis", "pipeline", "bench")
