@@ -74,10 +74,29 @@ class Snapshot:
     recorded: dict[str, Any]  # the record's choice.json
 
 
-def parse_size(text: str, default_episodes: int) -> tuple[int, int]:
-    """`T` or `TxE` -> (terrains, episodes)."""
-    terrains, _, episodes = text.lower().partition("x")
-    return int(terrains), int(episodes) if episodes else default_episodes
+@dataclass(frozen=True)
+class Size:
+    """A held-out set: `terrains` x `episodes`, rendered at `max_height` (None: the config's)."""
+
+    terrains: int
+    episodes: int
+    max_height: float | None = None
+
+    @property
+    def label(self) -> str:
+        at = "" if self.max_height is None else f"@{self.max_height:g}"
+        return f"{self.terrains}x{self.episodes}{at}"
+
+
+def parse_size(text: str, default_episodes: int) -> Size:
+    """`T`, `TxE`, and either with `@S` (terrains at S metres) -> a Size."""
+    size, _, height = text.lower().partition("@")
+    terrains, _, episodes = size.partition("x")
+    return Size(
+        int(terrains),
+        int(episodes) if episodes else default_episodes,
+        float(height) if height else None,
+    )
 
 
 def theta_key(theta: np.ndarray) -> str:
@@ -169,14 +188,14 @@ def snapshots_of(
     return found
 
 
-def select(
-    record: Path, cfg: Any, snap: Snapshot, terrains: int, episodes: int, cache: Path
-) -> dict[str, Any]:
-    """The held-out choice at this size, by the run's selection code and its config `cfg`
+def select(record: Path, cfg: Any, snap: Snapshot, size: Size, cache: Path) -> dict[str, Any]:
+    """The held-out choice on this set, by the run's selection code and its config `cfg`
     (the record's command's, as pipeline/choose.py composes it; cached)."""
 
     def run() -> dict[str, Any]:
-        sel = replace(cfg.selection, terrains=terrains, episodes=episodes)
+        sel = replace(cfg.selection, terrains=size.terrains, episodes=size.episodes)
+        if size.max_height is not None:
+            sel = replace(sel, max_height=size.max_height)
         started = time.process_time()
         held_out = es_held_out(
             snap.thetas,
@@ -191,8 +210,8 @@ def select(
         )
         return {**held_out, "cpu_s": time.process_time() - started}
 
-    key = f"{record.parent.name}_{record.name}_{snap.folder.name}_{terrains}x{episodes}"
-    print(f"[select] {snap.label} {terrains}x{episodes}", flush=True)
+    key = f"{record.parent.name}_{record.name}_{snap.folder.name}_{size.label}"
+    print(f"[select] {snap.label} {size.label}", flush=True)
     return cached(cache / "select" / f"{key}_{theta_key(snap.thetas)}.json", run)
 
 
@@ -208,7 +227,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--records", nargs="+", type=Path, required=True, help="ePOET records")
     parser.add_argument(
-        "--sizes", nargs="+", default=["8", "16", "32", "64"], help="T or TxE (terrains x eps)"
+        "--sizes",
+        nargs="+",
+        default=["8", "16", "32", "64"],
+        help="T or TxE (terrains x eps), either with @S (at S metres)",
     )
     parser.add_argument("--cache", type=Path, default=Path("/tmp/hsel_cache"))
     parser.add_argument(
@@ -238,31 +260,30 @@ def main() -> None:
             line.append(f"{snap.own}={100 * snap.success[snap.own]:.1f}")
             rows.setdefault("own", []).append((snap.success[snap.own], best, 0.0))
             rows.setdefault("oracle", []).append((best, best, 0.0))
-            for terrains, episodes in sizes:
-                chosen = select(record, cfg, snap, terrains, episodes, args.cache)
+            for size in sizes:
+                chosen = select(record, cfg, snap, size, args.cache)
                 name = chosen["chosen"]
-                rows.setdefault(f"{terrains}x{episodes}", []).append(
-                    (snap.success[name], best, chosen["cpu_s"])
-                )
+                rows.setdefault(size.label, []).append((snap.success[name], best, chosen["cpu_s"]))
                 line.append(f"{name}={100 * snap.success[name]:.1f}")
-                per_run.setdefault(f"{terrains}x{episodes}", {}).setdefault(str(record), []).append(
+                per_run.setdefault(size.label, {}).setdefault(str(record), []).append(
                     snap.success[name]
                 )
                 picks = tie_choices(chosen)
-                ties.setdefault(f"{terrains}x{episodes}", []).append(
+                ties.setdefault(size.label, []).append(
                     {rule: snap.success[pick] for rule, pick in picks.items()}
                 )
-                tied[f"{terrains}x{episodes}"] = tied.get(f"{terrains}x{episodes}", 0) + (
-                    len(set(picks.values())) > 1
-                )
-                if (terrains, episodes) == (
-                    snap.recorded["selection"]["terrains"],
-                    snap.recorded["selection"]["episodes"],
-                ) and name != snap.recorded["validation"]:
+                tied[size.label] = tied.get(size.label, 0) + (len(set(picks.values())) > 1)
+                ran = snap.recorded["selection"]  # the set the run itself chose on
+                same_set = (size.terrains, size.episodes) == (ran["terrains"], ran["episodes"])
+                if (
+                    same_set
+                    and size.max_height in (None, ran["max_height"])
+                    and name != snap.recorded["validation"]
+                ):
                     line[-1] += "(!=record)"
             detail.append(line)
 
-    head = ["snapshot", "K", "oracle", "own", *(f"{t}x{e}" for t, e in sizes)]
+    head = ["snapshot", "K", "oracle", "own", *(size.label for size in sizes)]
     print(
         f"\nPer snapshot on {args.suite}: candidates K, oracle success %, each choice=its success %"
     )
@@ -276,19 +297,19 @@ def main() -> None:
         f"{'choice':>8} {'mean success %':>15} {'picks oracle':>13} {'mean regret pts':>16} "
         f"{'CPU s/snapshot':>15} {'CPU s total':>12}"
     )
-    for label, values in rows.items():
-        chosen, best, cpu = (np.array(v) for v in zip(*values))
+    for label, row in rows.items():
+        picked, oracle, cpu = (np.array(v) for v in zip(*row))
         print(
-            f"{label:>8} {100 * chosen.mean():15.1f} "
-            f"{f'{int(np.isclose(chosen, best).sum())}/{n}':>13} "
-            f"{100 * (best - chosen).mean():16.2f} {cpu.mean():15.1f} {cpu.sum():12.1f}"
+            f"{label:>8} {100 * picked.mean():15.1f} "
+            f"{f'{int(np.isclose(picked, oracle).sum())}/{n}':>13} "
+            f"{100 * (oracle - picked).mean():16.2f} {cpu.mean():15.1f} {cpu.sum():12.1f}"
         )
     if len(args.records) > 1:
         first, *others = per_run
         print(f"\nPer run (the mean over its snapshots), each size - {first}: mean [95 % t], pts")
         for label in others:
             diffs = [
-                100 * (np.mean(per_run[label][run]) - np.mean(per_run[first][run]))
+                100 * float(np.mean(per_run[label][run]) - np.mean(per_run[first][run]))
                 for run in per_run[first]
             ]
             mean, low, high = mean_interval(diffs)
@@ -299,8 +320,8 @@ def main() -> None:
         f"{'choice':>8} {'tied':>6} "
         + " ".join(f"{rule:>9}" for rule in ("return", "earliest", "latest"))
     )
-    for label, values in ties.items():
-        means = {rule: 100 * np.mean([v[rule] for v in values]) for rule in values[0]}
+    for label, by_rule in ties.items():
+        means = {rule: 100 * np.mean([v[rule] for v in by_rule]) for rule in by_rule[0]}
         print(
             f"{label:>8} {f'{tied[label]}/{n}':>6} " + " ".join(f"{m:9.1f}" for m in means.values())
         )
