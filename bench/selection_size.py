@@ -194,14 +194,19 @@ def select(record: Path, cfg: Any, snap: Snapshot, size: Size, cache: Path) -> d
 
     def run() -> dict[str, Any]:
         sel = replace(cfg.selection, terrains=size.terrains, episodes=size.episodes)
+        terrain = cfg.terrain
         if size.max_height is not None:
             sel = replace(sel, max_height=size.max_height)
+            # the model's heightfield must reach S, as an evaluation suite's does
+            # (epoet/eval/suite.py): a run capped at 1 m walks terrains of 2 m here
+            limit = max(terrain.max_height_limit, size.max_height)
+            terrain = replace(terrain, max_height_limit=limit)
         started = time.process_time()
         held_out = es_held_out(
             snap.thetas,
             snap.names,
             cfg.agent,
-            cfg.terrain,
+            terrain,
             sel,
             cfg.seed,
             snap.layer_sizes,
