@@ -1,10 +1,11 @@
-"""How large a held-out validation set must be for `selection` to export a good agent.
+"""How large (and how hard) a held-out validation set must be for `selection` to export a good
+agent.
 
 A run exports the candidate (every niche's best and last parameters) that solves most of its
-held-out CPPN terrains (conf/config.yaml `selection`, epoet/rollout/selection.py; default: 8
-terrains, 1 episode each). This bench re-chooses, at several validation sizes, among the
-candidates of every CPU-time snapshot of ePOET records (docs/results/.../epoet_s<seed>), with the
-real selection code (`epoet.open_ended.exported_agent.candidates`,
+held-out CPPN terrains (conf/config.yaml `selection` and the budgets' overrides of it,
+epoet/rollout/selection.py). This bench re-chooses, on several held-out sets, among the
+candidates of every CPU-time snapshot of ePOET or ePOET-SAC records
+(docs/results/.../epoet_s<seed>, epoet_sac_s<seed>), with the real selection code (`epoet.open_ended.exported_agent.candidates`,
 `epoet.rollout.selection.es_held_out` on the terrains generated from the run's seed, never an
 evaluation suite), and judges each choice
 by the chosen candidate's success on `--suite` (32 terrains x 5 episodes, the protocol of
