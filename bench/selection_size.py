@@ -231,7 +231,7 @@ def tie_choices(held_out: dict[str, Any]) -> dict[str, str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--records", nargs="+", type=Path, required=True, help="ePOET records")
+    parser.add_argument("--records", nargs="+", type=Path, required=True, help="ePOET or ePOET-SAC records")
     parser.add_argument(
         "--sizes",
         nargs="+",
