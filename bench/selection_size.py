@@ -195,19 +195,14 @@ def select(record: Path, cfg: Any, snap: Snapshot, size: Size, cache: Path) -> d
 
     def run() -> dict[str, Any]:
         sel = replace(cfg.selection, terrains=size.terrains, episodes=size.episodes)
-        terrain = cfg.terrain
         if size.max_height is not None:
             sel = replace(sel, max_height=size.max_height)
-            # the model's heightfield must reach S, as an evaluation suite's does
-            # (epoet/eval/suite.py): a run capped at 1 m walks terrains of 2 m here
-            limit = max(terrain.max_height_limit, size.max_height)
-            terrain = replace(terrain, max_height_limit=limit)
         started = time.process_time()
         held_out = es_held_out(
             snap.thetas,
             snap.names,
             cfg.agent,
-            terrain,
+            cfg.terrain,
             sel,
             cfg.seed,
             snap.layer_sizes,
@@ -231,7 +226,9 @@ def tie_choices(held_out: dict[str, Any]) -> dict[str, str]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--records", nargs="+", type=Path, required=True, help="ePOET or ePOET-SAC records")
+    parser.add_argument(
+        "--records", nargs="+", type=Path, required=True, help="ePOET or ePOET-SAC records"
+    )
     parser.add_argument(
         "--sizes",
         nargs="+",

@@ -69,6 +69,19 @@ def test_rule_own_exports_the_own_choice_and_still_records_the_held_out_one(tmp_
     assert not exported.any()
 
 
+def test_held_out_terrains_taller_than_the_runs_cap_on_s_are_walked_in_a_model_that_fits(tmp_path):
+    """A run that holds S below the held-out terrains' (ePOET at the workstation budget caps it
+    at the paper suite's 1 m; `selection.max_height` may ask for more) walks them in a
+    heightfield that reaches them, as a suite's is: exactly as a run capped at their S."""
+    records = []
+    for limit in (0.5, 1.0):  # below, and at, the held-out S of 1 m
+        cfg = run_config(f"terrain.max_height_limit={limit}")
+        assert cfg.selection.max_height == 1.0
+        loop = pool_with_a_misleading_own_score(cfg)
+        records.append(export_agent(loop, tmp_path / str(limit), cfg)["candidates"])
+    assert records[0] == records[1]
+
+
 def test_candidates_are_every_niches_best_and_distinct_last_parameters():
     loop = pool_with_a_misleading_own_score(run_config())
     pair = loop.pool.active[1]

@@ -101,11 +101,8 @@ def terrain_config_for(terrains: Sequence[Any]) -> TerrainConfig:
     S: the env's heightfield is compiled from it, so any suite or terrain file fits."""
     base = load(["algo=epoet"]).terrain
     return dataclasses.replace(
-        base,
-        grid=terrains[0].heightmap.shape[0],
-        size=terrains[0].size,
-        max_height_limit=max(base.max_height_limit, *(t.max_height for t in terrains)),
-    )
+        base, grid=terrains[0].heightmap.shape[0], size=terrains[0].size
+    ).reaching(*(t.max_height for t in terrains))
 
 
 @dataclass(frozen=True)

@@ -113,6 +113,7 @@ def es_held_out(
     """ES candidates (K, P raw-observation parameters) on the held-out terrains, in this process
     (its CPU counts against the run's budget), with the evaluation's episode length."""
     rules = replace(agent, max_episode_steps=round(sel.episode_ratio * agent.max_episode_steps))
+    terrain_cfg = terrain_cfg.reaching(sel.max_height)  # held-out S may exceed the run's cap
     terrains = held_out_terrains(terrain_cfg, sel, run_seed)
     requests = [
         Request(
@@ -142,6 +143,7 @@ def policy_held_out(
     from epoet.envs.terrain_env import TerrainEnv  # MuJoCo's gym env, for policies only
 
     rules = replace(agent, max_episode_steps=round(sel.episode_ratio * agent.max_episode_steps))
+    terrain_cfg = terrain_cfg.reaching(sel.max_height)  # held-out S may exceed the run's cap
     terrains = held_out_terrains(terrain_cfg, sel, run_seed)
     shape = (len(policies), len(terrains), sel.episodes)
     solved, returns = np.zeros(shape, dtype=bool), np.zeros(shape)

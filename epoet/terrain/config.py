@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
@@ -203,6 +203,11 @@ class TerrainConfig:
             f"terrain.max_height ({self.max_height}) exceeds terrain.max_height_limit "
             f"({self.max_height_limit}).",
         )
+
+    def reaching(self, *heights: float) -> TerrainConfig:
+        """This config with a heightfield tall enough for terrains of these S: the env's
+        heightfield is compiled from `max_height_limit`, so a terrain above it does not fit."""
+        return replace(self, max_height_limit=max(self.max_height_limit, *heights))
 
     def unused_keys(self) -> tuple[str, ...]:
         """The settings this terrain's generator never reads (the bowl: the CPPN's)."""
