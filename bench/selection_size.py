@@ -89,6 +89,19 @@ class Size:
         return f"{self.terrains}x{self.episodes}{at}"
 
 
+@dataclass(frozen=True)
+class Pick:
+    """One snapshot's choice on one held-out set (or `own`, `oracle`), judged on the suite."""
+
+    choice: str  # a Size's label, `own` or `oracle`
+    run: Path  # the record
+    success: float  # of the chosen candidate
+    oracle: float  # of the snapshot's best candidate
+    cpu_s: float = 0.0  # the choice's
+    by_rule: dict[str, float] | None = None  # tie-breaking rule -> its pick's success
+    tied: bool = False  # the rules pick different candidates
+
+
 def parse_size(text: str, default_episodes: int) -> Size:
     """`T`, `TxE`, and either with `@S` (terrains at S metres) -> a Size."""
     size, _, height = text.lower().partition("@")
@@ -216,12 +229,21 @@ def select(record: Path, cfg: Any, snap: Snapshot, size: Size, cache: Path) -> d
     return cached(cache / "select" / f"{key}_{theta_key(snap.thetas)}.json", run)
 
 
+TIE_RULES = ("return", "earliest", "latest")
+FIELDS = ("success", "oracle", "cpu_s")  # the summary's columns, per pick
+
+
+def run_mean(group: list[Pick], run: Path) -> float:
+    """The mean success of one run's picks (its snapshots) in `group`."""
+    return float(np.mean([p.success for p in group if p.run == run]))
+
+
 def tie_choices(held_out: dict[str, Any]) -> dict[str, str]:
     """The candidate each tie-breaking rule exports among those solving the most held-out
     episodes: the product's (the higher mean return), the earliest and the latest candidate."""
     solved = {name: c["solved"] for name, c in held_out["candidates"].items()}
     top = [name for name, share in solved.items() if share == max(solved.values())]
-    return {"return": held_out["chosen"], "earliest": top[0], "latest": top[-1]}
+    return dict(zip(TIE_RULES, (held_out["chosen"], top[0], top[-1])))
 
 
 def main() -> None:
@@ -249,10 +271,7 @@ def main() -> None:
 
     default_episodes = load().selection.episodes
     sizes = [parse_size(s, default_episodes) for s in args.sizes]
-    rows: dict[str, list[tuple[float, float, float]]] = {}  # size -> (chosen, best, cpu_s)
-    ties: dict[str, list[dict[str, float]]] = {}  # size -> per snapshot, tie rule -> success
-    tied: dict[str, int] = {}  # size -> snapshots where more than one candidate tops it
-    per_run: dict[str, dict[str, list[float]]] = {}  # size -> record -> its snapshots' success
+    picks: list[Pick] = []
     detail = []
     started = time.process_time()
     for record in args.records:
@@ -261,22 +280,25 @@ def main() -> None:
             best = max(snap.success.values())
             line = [snap.label, f"{len(snap.names)}", f"{100 * best:5.1f}"]
             line.append(f"{snap.own}={100 * snap.success[snap.own]:.1f}")
-            rows.setdefault("own", []).append((snap.success[snap.own], best, 0.0))
-            rows.setdefault("oracle", []).append((best, best, 0.0))
+            picks.append(Pick("own", record, snap.success[snap.own], best))
+            picks.append(Pick("oracle", record, best, best))
+            ran = snap.recorded["selection"]  # the set the run itself chose on
             for size in sizes:
                 chosen = select(record, cfg, snap, size, args.cache)
                 name = chosen["chosen"]
-                rows.setdefault(size.label, []).append((snap.success[name], best, chosen["cpu_s"]))
+                by_rule = tie_choices(chosen)
+                picks.append(
+                    Pick(
+                        size.label,
+                        record,
+                        snap.success[name],
+                        best,
+                        chosen["cpu_s"],
+                        {rule: snap.success[pick] for rule, pick in by_rule.items()},
+                        len(set(by_rule.values())) > 1,
+                    )
+                )
                 line.append(f"{name}={100 * snap.success[name]:.1f}")
-                per_run.setdefault(size.label, {}).setdefault(str(record), []).append(
-                    snap.success[name]
-                )
-                picks = tie_choices(chosen)
-                ties.setdefault(size.label, []).append(
-                    {rule: snap.success[pick] for rule, pick in picks.items()}
-                )
-                tied[size.label] = tied.get(size.label, 0) + (len(set(picks.values())) > 1)
-                ran = snap.recorded["selection"]  # the set the run itself chose on
                 same_set = (size.terrains, size.episodes) == (ran["terrains"], ran["episodes"])
                 if (
                     same_set
@@ -285,6 +307,9 @@ def main() -> None:
                 ):
                     line[-1] += "(!=record)"
             detail.append(line)
+    by_choice: dict[str, list[Pick]] = {}
+    for pick in picks:
+        by_choice.setdefault(pick.choice, []).append(pick)
 
     head = ["snapshot", "K", "oracle", "own", *(size.label for size in sizes)]
     print(
@@ -300,34 +325,31 @@ def main() -> None:
         f"{'choice':>8} {'mean success %':>15} {'picks oracle':>13} {'mean regret pts':>16} "
         f"{'CPU s/snapshot':>15} {'CPU s total':>12}"
     )
-    for label, row in rows.items():
-        picked, oracle, cpu = (np.array(v) for v in zip(*row))
+    for label, group in by_choice.items():
+        picked, oracle, cpu = (np.array([getattr(p, f) for p in group]) for f in FIELDS)
         print(
             f"{label:>8} {100 * picked.mean():15.1f} "
             f"{f'{int(np.isclose(picked, oracle).sum())}/{n}':>13} "
             f"{100 * (oracle - picked).mean():16.2f} {cpu.mean():15.1f} {cpu.sum():12.1f}"
         )
+    first, *others = (size.label for size in sizes)
     if len(args.records) > 1:
-        first, *others = per_run
         print(f"\nPer run (the mean over its snapshots), each size - {first}: mean [95 % t], pts")
         for label in others:
             diffs = [
-                100 * float(np.mean(per_run[label][run]) - np.mean(per_run[first][run]))
-                for run in per_run[first]
+                100 * (run_mean(by_choice[label], run) - run_mean(by_choice[first], run))
+                for run in args.records
             ]
             mean, low, high = mean_interval(diffs)
             print(f"{label:>8} {mean:+5.1f} [{low:+.1f}, {high:+.1f}] over {len(diffs)} runs")
     print("\nTie-breaking: snapshots whose top candidates tie on solved share and pick")
     print("differently, and the mean success % each rule's choice gives over all snapshots")
-    print(
-        f"{'choice':>8} {'tied':>6} "
-        + " ".join(f"{rule:>9}" for rule in ("return", "earliest", "latest"))
-    )
-    for label, by_rule in ties.items():
-        means = {rule: 100 * np.mean([v[rule] for v in by_rule]) for rule in by_rule[0]}
-        print(
-            f"{label:>8} {f'{tied[label]}/{n}':>6} " + " ".join(f"{m:9.1f}" for m in means.values())
-        )
+    print(f"{'choice':>8} {'tied':>6} " + " ".join(f"{rule:>9}" for rule in TIE_RULES))
+    for label in (size.label for size in sizes):
+        group = by_choice[label]
+        tied = sum(p.tied for p in group)
+        means = [100 * np.mean([p.by_rule[rule] for p in group if p.by_rule]) for rule in TIE_RULES]
+        print(f"{label:>8} {f'{tied}/{n}':>6} " + " ".join(f"{m:9.1f}" for m in means))
     print(f"\n(this call's CPU: {time.process_time() - started:.0f} s; cached work not redone)")
 
 
